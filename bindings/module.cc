@@ -1,0 +1,13 @@
+// m3c._core: the C++ core, one Bind function per area.
+#include <pybind11/pybind11.h>
+
+namespace py = pybind11;
+
+namespace m3c::bindings {
+void BindBody(py::module_& m);
+}  // namespace m3c::bindings
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "M3C C++ core (Eigen, Ceres, OpenCV). Use the m3c package's public API rather than this module.";
+  m3c::bindings::BindBody(m);
+}
