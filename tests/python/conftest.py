@@ -1,0 +1,22 @@
+"""Session-wide synthetic fixtures: nothing here needs a licensed file or a download."""
+
+import numpy as np
+import pytest
+
+from m3c.body import BodyModel
+from m3c.body.synthetic import make_synthetic_model
+
+
+@pytest.fixture(scope="session")
+def synthetic_model_data():
+    return make_synthetic_model(vertices_per_bone=24, num_betas=10, seed=0)
+
+
+@pytest.fixture(scope="session")
+def synthetic_body_model(synthetic_model_data):
+    return BodyModel(synthetic_model_data)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)
