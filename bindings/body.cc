@@ -98,8 +98,10 @@ py::array_t<T> ForwardKinematicsT(const BodyModel& model, const py::handle& pose
   const T* b = fr.betas.data();
   const T* t = fr.has_transl ? fr.transl.data() : nullptr;
   T* out = joints.mutable_data();
-  py::gil_scoped_release release;
-  body::ForwardKinematics<T>(model, fr.n, p, b, fr.betas_shared, t, out);
+  {
+    py::gil_scoped_release release;
+    body::ForwardKinematics<T>(model, fr.n, p, b, fr.betas_shared, t, out);
+  }
   return joints;
 }
 
@@ -112,8 +114,10 @@ py::array_t<T> KeypointsT(const BodyModel& model, const KeypointRegressor& reg, 
   const T* b = fr.betas.data();
   const T* t = fr.has_transl ? fr.transl.data() : nullptr;
   T* o = out.mutable_data();
-  py::gil_scoped_release release;
-  body::Keypoints<T>(model, reg, fr.n, p, b, fr.betas_shared, t, o);
+  {
+    py::gil_scoped_release release;
+    body::Keypoints<T>(model, reg, fr.n, p, b, fr.betas_shared, t, o);
+  }
   return out;
 }
 
@@ -130,11 +134,13 @@ py::tuple KeypointsJacobian(const BodyModel& model, const KeypointRegressor& reg
   double* po = points.mutable_data();
   double* jo = jac.mutable_data();
   const bool shared = fr.betas_shared;
-  py::gil_scoped_release release;
-  const double zero[3] = {0, 0, 0};
-  for (py::ssize_t f = 0; f < n; ++f) {
-    body::KeypointsWithJacobian(model, reg, p + f * 3 * J, b + (shared ? 0 : f * B), t ? t + 3 * f : zero,
-                                po + f * 3 * K, jo + f * 3 * K * D);
+  {
+    py::gil_scoped_release release;
+    const double zero[3] = {0, 0, 0};
+    for (py::ssize_t f = 0; f < n; ++f) {
+      body::KeypointsWithJacobian(model, reg, p + f * 3 * J, b + (shared ? 0 : f * B), t ? t + 3 * f : zero,
+                                  po + f * 3 * K, jo + f * 3 * K * D);
+    }
   }
   return py::make_tuple(points, jac);
 }

@@ -33,8 +33,9 @@ void Forward(const BodyModel& model, int num_frames, const T* pose, const T* bet
 
   const auto& offsets = model.weight_offsets();
   const auto& weight_joints = model.weight_joints();
-  Matrix features(P, kChunkFrames), posed(3 * V, kChunkFrames), betas_block(B, kChunkFrames);
-  std::vector<T> transforms(static_cast<size_t>(kChunkFrames) * J * 12);  // A_j = [Rw_j | o_j - Rw_j J_j], row-major
+  const int chunk = std::min(kChunkFrames, std::max(num_frames, 1));
+  Matrix features(P, chunk), posed(vertices ? 3 * V : 0, chunk), betas_block(B, chunk);
+  std::vector<T> transforms(static_cast<size_t>(chunk) * J * 12);  // A_j = [Rw_j | o_j - Rw_j J_j], row-major
 
   for (int f0 = 0; f0 < num_frames; f0 += kChunkFrames) {
     const int n = std::min(kChunkFrames, num_frames - f0);
@@ -73,14 +74,22 @@ void Forward(const BodyModel& model, int num_frames, const T* pose, const T* bet
     }
     if (!vertices) continue;
 
-    // Blend shapes for the whole block as GEMMs.
-    auto posed_block = posed.leftCols(n);
-    posed_block.noalias() = arrays.posedirs * features.leftCols(n);
-    if (betas_shared) {
-      posed_block.colwise() += v_shaped_shared;
-    } else {
-      posed_block.noalias() += arrays.shapedirs * betas_block.leftCols(n);
-      posed_block.colwise() += arrays.v_template;
+    // Blend shapes for the whole block. The product streams all of posedirs (memory-bound at small n), so
+    // both cores take a band of rows each instead of relying on Eigen's single-threaded GEMV.
+    const int rows = 3 * V;
+    const int bands = 16;
+#pragma omp parallel for schedule(static) if (rows > 3000)
+    for (int band = 0; band < bands; ++band) {
+      const int r0 = static_cast<int>(static_cast<long>(rows) * band / bands);
+      const int r1 = static_cast<int>(static_cast<long>(rows) * (band + 1) / bands);
+      auto out = posed.block(r0, 0, r1 - r0, n);
+      out.noalias() = arrays.posedirs.middleRows(r0, r1 - r0) * features.leftCols(n);
+      if (betas_shared) {
+        out.colwise() += v_shaped_shared.segment(r0, r1 - r0);
+      } else {
+        out.noalias() += arrays.shapedirs.middleRows(r0, r1 - r0) * betas_block.leftCols(n);
+        out.colwise() += arrays.v_template.segment(r0, r1 - r0);
+      }
     }
 
     // Sparse skinning: each vertex blends only the joints that weigh on it.

@@ -3,7 +3,6 @@ M3C's own model files (same keys, .npz). Everything is returned as plain float64
 
 from __future__ import annotations
 
-import copyreg
 import io
 import pickle
 from dataclasses import dataclass, field
@@ -85,6 +84,9 @@ class _RestrictedUnpickler(pickle.Unpickler):
     not run arbitrary code."""
 
     _SPARSE = {"csc_matrix", "csr_matrix", "coo_matrix"}
+    # _codecs.encode rebuilds bytes in protocol-2 pickles.
+    _HARMLESS = {("copyreg", "_reconstructor"), ("builtins", "object"), ("builtins", "set"),
+                 ("builtins", "frozenset"), ("_codecs", "encode")}
 
     def find_class(self, module: str, name: str):
         if module.split(".")[0] == "chumpy":
@@ -95,9 +97,9 @@ class _RestrictedUnpickler(pickle.Unpickler):
             return getattr(scipy.sparse, name)
         if module.startswith("numpy"):
             return super().find_class(_numpy_module(module), name)
-        if (module, name) in {("copyreg", "_reconstructor"), ("copy_reg", "_reconstructor"),
-                              ("builtins", "object"), ("__builtin__", "object")}:
-            return copyreg._reconstructor if name == "_reconstructor" else object
+        module = {"__builtin__": "builtins", "copy_reg": "copyreg"}.get(module, module)  # Python 2 pickles
+        if (module, name) in self._HARMLESS:
+            return super().find_class(module, name)
         raise BodyModelFileError(f"body model pickle references {module}.{name}, which a model file never needs")
 
 
@@ -205,7 +207,7 @@ def parse_model_arrays(raw: dict, num_betas: int | None = 10, name: str = "unnam
         names = [str(n) for n in np.asarray(raw["keypoint_names"]).tolist()]
         ids = np.asarray(raw["keypoint_vertex_ids"]).astype(int).tolist()
         keypoint_ids = dict(zip(names, ids))
-    gender = str(np.asarray(raw["gender"])) if "gender" in raw and np.asarray(raw["gender"]).dtype.kind == "U" else "neutral"
+    gender = str(np.asarray(raw["gender"])) if "gender" in raw else "neutral"
     return BodyModelData(v_template, shapedirs, posedirs, J_regressor, weights, parents,
                          faces.astype(np.int32), name=name, gender=gender, keypoint_vertex_ids=keypoint_ids)
 

@@ -20,8 +20,14 @@ REST_JOINTS = np.array([
 
 
 def make_synthetic_model(vertices_per_bone: int = 24, num_betas: int = 10, seed: int = 0,
-                         posedirs_scale: float = 2e-3) -> BodyModelData:
+                         posedirs_scale: float = 2e-3, num_vertices: int | None = None) -> BodyModelData:
+    """vertices_per_bone vertices along each of the 23 bones plus as many on the head; num_vertices, when given,
+    sets the total instead (6890 for a SMPL-sized model)."""
     rng = np.random.default_rng(seed)
+    head_vertices = vertices_per_bone
+    if num_vertices is not None:
+        vertices_per_bone = num_vertices // 24
+        head_vertices = num_vertices - 23 * vertices_per_bone
     parents = np.asarray(SMPL_PARENTS)
     J = len(parents)
     verts, weights = [], []
@@ -38,9 +44,9 @@ def make_synthetic_model(vertices_per_bone: int = 24, num_betas: int = 10, seed:
         w[:, p] = np.clip(1.5 - 2.0 * t, 0.0, 1.0)
         w[:, j] = 1.0 - w[:, p]
         weights.append(w)
-    head = REST_JOINTS[15] + 0.1 * rng.normal(size=(vertices_per_bone, 3)) / np.sqrt(3)
+    head = REST_JOINTS[15] + 0.1 * rng.normal(size=(head_vertices, 3)) / np.sqrt(3)
     verts.append(head)
-    w = np.zeros((vertices_per_bone, J))
+    w = np.zeros((head_vertices, J))
     w[:, 15] = 1.0
     weights.append(w)
     v_template = np.concatenate(verts)
