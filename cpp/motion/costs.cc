@@ -1,0 +1,197 @@
+#include "motion/costs.h"
+
+#include <cmath>
+
+#include "util/check.h"
+
+namespace m3c::motion {
+
+namespace {
+// Writes d(residual rows)/d(block) = M (rows x 3) * d points / d block for one point into a row-major block
+// Jacobian with `stride` columns, adding to what is there when accumulate.
+void ChainPointJacobian(const Eigen::Ref<const RowMatrixXd>& M, const FramePoints& points, int point, int block,
+                        double* jacobian, int first_row, double sign) {
+  const int size = points.block_size(block), offset = points.block_offset(block);
+  for (int r = 0; r < M.rows(); ++r) {
+    double* out = jacobian + static_cast<size_t>(first_row + r) * size;
+    for (int c = 0; c < 3; ++c) {
+      const double m = sign * M(r, c);
+      if (m == 0.0) continue;
+      const double* row = points.jacobian_row(3 * point + c) + offset;
+      for (int i = 0; i < size; ++i) out[i] += m * row[i];
+    }
+  }
+}
+}  // namespace
+
+ReprojectionCost::ReprojectionCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                                   FrameCamera camera,
+                                   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> observations,
+                                   double weight, double sigma, double min_depth)
+    : model_(model),
+      regressor_(regressor),
+      camera_(std::move(camera)),
+      observations_(std::move(observations)),
+      sqrt_weight_(std::sqrt(weight)),
+      sigma_(sigma),
+      min_depth_(min_depth) {
+  M3C_CHECK(observations_.rows() == regressor->num_keypoints())
+      << "need one observation per keypoint: " << observations_.rows() << " vs " << regressor->num_keypoints();
+  M3C_CHECK(weight >= 0 && sigma > 0) << "reprojection weight must be >= 0 and sigma > 0";
+  set_num_residuals(2 * regressor->num_keypoints());
+  mutable_parameter_block_sizes()->assign({3, 3, 3 * (model->num_joints() - 1), model->num_betas(), 1, 3});
+}
+
+bool ReprojectionCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int K = regressor_->num_keypoints();
+  thread_local FramePoints points;
+  points.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]},
+                  jacobians != nullptr);
+  const double scale = parameters[4][0];
+  const Eigen::Map<const Eigen::Vector3d> offset(parameters[5]);
+  const Eigen::Matrix3d& R = camera_.cam_from_world_rotation;
+  const Eigen::Vector3d centre = scale * camera_.centre_in_world + offset;
+  if (jacobians) {
+    for (int b = 0; b < 6; ++b) {
+      if (jacobians[b]) std::fill(jacobians[b], jacobians[b] + num_residuals() * parameter_block_sizes()[b], 0.0);
+    }
+  }
+  const double s2 = sigma_ * sigma_;
+  for (int k = 0; k < K; ++k) {
+    const double conf = observations_(k, 2);
+    if (conf <= 0.0) {
+      residuals[2 * k] = residuals[2 * k + 1] = 0.0;
+      continue;
+    }
+    const Eigen::Vector3d xc = R * (Eigen::Map<const Eigen::Vector3d>(points.point(k)) - centre);
+    if (!(xc.z() > min_depth_)) return false;  // behind or too close to the camera: reject the step
+    const double iz = 1.0 / xc.z();
+    const Eigen::Vector2d r(camera_.fx * xc.x() * iz + camera_.cx - observations_(k, 0),
+                            camera_.fy * xc.y() * iz + camera_.cy - observations_(k, 1));
+    const double g = sigma_ / std::sqrt(s2 + r.squaredNorm());
+    const double a = conf * sqrt_weight_;
+    Eigen::Map<Eigen::Vector2d>(residuals + 2 * k) = a * g * r;
+    if (!jacobians) continue;
+    // d res / d r = a (g I - g^3 / sigma^2 r r^T); d r / d xc = projection Jacobian; d xc / d x_world = R.
+    const Eigen::Matrix2d dres_dr = a * (g * Eigen::Matrix2d::Identity() - (g * g * g / s2) * r * r.transpose());
+    Eigen::Matrix<double, 2, 3> dr_dxc;
+    dr_dxc << camera_.fx * iz, 0.0, -camera_.fx * xc.x() * iz * iz, 0.0, camera_.fy * iz, -camera_.fy * xc.y() * iz * iz;
+    const RowMatrixXd dres_dxw = dres_dr * dr_dxc * R;  // 2 x 3
+    for (int b = 0; b < 4; ++b) {
+      if (jacobians[b]) ChainPointJacobian(dres_dxw, points, k, b, jacobians[b], 2 * k, 1.0);
+    }
+    if (jacobians[4]) {
+      const Eigen::Vector2d d = -dres_dxw * camera_.centre_in_world;
+      jacobians[4][2 * k] = d.x();
+      jacobians[4][2 * k + 1] = d.y();
+    }
+    if (jacobians[5]) {
+      for (int r2 = 0; r2 < 2; ++r2)
+        for (int c = 0; c < 3; ++c) jacobians[5][(2 * k + r2) * 3 + c] = -dres_dxw(r2, c);
+    }
+  }
+  return true;
+}
+
+PointDifferenceCost::PointDifferenceCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                                         std::vector<double> point_weights)
+    : model_(model), regressor_(regressor) {
+  M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
+  for (double w : point_weights) {
+    M3C_CHECK(w >= 0) << "point weights must be >= 0";
+    sqrt_weights_.push_back(std::sqrt(w));
+  }
+  set_num_residuals(3 * regressor->num_keypoints());
+  const int body = 3 * (model->num_joints() - 1);
+  mutable_parameter_block_sizes()->assign({3, 3, body, 3, 3, body, model->num_betas()});
+}
+
+bool PointDifferenceCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int K = regressor_->num_keypoints();
+  thread_local FramePoints a, b;
+  a.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[6]}, jacobians != nullptr);
+  b.Evaluate(*model_, *regressor_, {parameters[3], parameters[4], parameters[5], parameters[6]}, jacobians != nullptr);
+  for (int k = 0; k < K; ++k)
+    for (int c = 0; c < 3; ++c) residuals[3 * k + c] = sqrt_weights_[k] * (b.point(k)[c] - a.point(k)[c]);
+  if (!jacobians) return true;
+  for (int blk = 0; blk < 7; ++blk) {
+    if (jacobians[blk]) std::fill(jacobians[blk], jacobians[blk] + num_residuals() * parameter_block_sizes()[blk], 0.0);
+  }
+  for (int k = 0; k < K; ++k) {
+    const RowMatrixXd M = sqrt_weights_[k] * RowMatrixXd::Identity(3, 3);
+    for (int blk = 0; blk < 3; ++blk) {
+      if (jacobians[blk]) ChainPointJacobian(M, a, k, blk, jacobians[blk], 3 * k, -1.0);
+      if (jacobians[blk + 3]) ChainPointJacobian(M, b, k, blk, jacobians[blk + 3], 3 * k, 1.0);
+    }
+    if (jacobians[6]) {  // betas move both frames
+      ChainPointJacobian(M, a, k, 3, jacobians[6], 3 * k, -1.0);
+      ChainPointJacobian(M, b, k, 3, jacobians[6], 3 * k, 1.0);
+    }
+  }
+  return true;
+}
+
+ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                                     std::vector<double> point_weights, Eigen::Vector3d normal, double offset,
+                                     double tolerance)
+    : model_(model), regressor_(regressor), normal_(normal.normalized()), offset_(offset), tolerance_(tolerance) {
+  M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
+  M3C_CHECK(normal.norm() > 0.5 && std::isfinite(offset)) << "ground plane must have a unit normal and finite offset";
+  for (double w : point_weights) sqrt_weights_.push_back(std::sqrt(std::max(w, 0.0)));
+  set_num_residuals(regressor->num_keypoints());
+  mutable_parameter_block_sizes()->assign({3, 3, 3 * (model->num_joints() - 1), model->num_betas()});
+}
+
+bool ContactHeightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int K = regressor_->num_keypoints();
+  thread_local FramePoints p;
+  p.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
+  if (jacobians) {
+    for (int blk = 0; blk < 4; ++blk) {
+      if (jacobians[blk]) std::fill(jacobians[blk], jacobians[blk] + K * parameter_block_sizes()[blk], 0.0);
+    }
+  }
+  for (int k = 0; k < K; ++k) {
+    const double height = normal_.dot(Eigen::Map<const Eigen::Vector3d>(p.point(k))) + offset_;
+    const double excess = std::abs(height) - tolerance_;
+    residuals[k] = excess > 0 ? sqrt_weights_[k] * excess : 0.0;
+    if (!jacobians || excess <= 0) continue;
+    const RowMatrixXd M = (sqrt_weights_[k] * (height >= 0 ? 1.0 : -1.0)) * normal_.transpose();
+    for (int blk = 0; blk < 4; ++blk) {
+      if (jacobians[blk]) ChainPointJacobian(M, p, k, blk, jacobians[blk], k, 1.0);
+    }
+  }
+  return true;
+}
+
+GaussianPriorCost::GaussianPriorCost(Eigen::VectorXd mean, double weight)
+    : mean_(std::move(mean)), sqrt_weight_(std::sqrt(weight)) {
+  set_num_residuals(static_cast<int>(mean_.size()));
+  mutable_parameter_block_sizes()->assign({static_cast<int>(mean_.size())});
+}
+
+bool GaussianPriorCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int n = static_cast<int>(mean_.size());
+  for (int i = 0; i < n; ++i) residuals[i] = sqrt_weight_ * (parameters[0][i] - mean_[i]);
+  if (jacobians && jacobians[0]) {
+    Eigen::Map<RowMatrixXd>(jacobians[0], n, n) = sqrt_weight_ * RowMatrixXd::Identity(n, n);
+  }
+  return true;
+}
+
+BlockDifferenceCost::BlockDifferenceCost(int size, double weight) : sqrt_weight_(std::sqrt(weight)) {
+  set_num_residuals(size);
+  mutable_parameter_block_sizes()->assign({size, size});
+}
+
+bool BlockDifferenceCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int n = num_residuals();
+  for (int i = 0; i < n; ++i) residuals[i] = sqrt_weight_ * (parameters[1][i] - parameters[0][i]);
+  if (jacobians) {
+    if (jacobians[0]) Eigen::Map<RowMatrixXd>(jacobians[0], n, n) = -sqrt_weight_ * RowMatrixXd::Identity(n, n);
+    if (jacobians[1]) Eigen::Map<RowMatrixXd>(jacobians[1], n, n) = sqrt_weight_ * RowMatrixXd::Identity(n, n);
+  }
+  return true;
+}
+
+}  // namespace m3c::motion

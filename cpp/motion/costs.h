@@ -1,0 +1,95 @@
+// Residual blocks of the staged world-frame optimization. Parameter blocks per person and frame:
+// transl (3), root orientation (3, axis-angle), body pose (3(J-1)); per person: betas (B); shared:
+// camera scale (1) and camera offset (3). All Jacobians are analytic and checked against numeric ones.
+#pragma once
+
+#include <vector>
+
+#include <ceres/ceres.h>
+#include <Eigen/Core>
+
+#include "body/body_model.h"
+#include "motion/frame_points.h"
+
+namespace m3c::motion {
+
+// One frame's camera. The VO trajectory is up to scale: the camera centre in the world is
+// scale * centre + offset, with scale and offset optimised. x_cam = rotation * (x_world - that centre).
+struct FrameCamera {
+  Eigen::Matrix3d cam_from_world_rotation;
+  Eigen::Vector3d centre_in_world;  // unscaled, from world_from_cam
+  double fx, fy, cx, cy;
+};
+
+// 2D keypoint reprojection, SLAHMR's robust form: cost = weight * sum_k conf_k^2 GM(|r_k|^2), with the
+// Geman-McClure GM(s) = sigma^2 s / (sigma^2 + s) and r_k = pi(x_k) - u_k in pixels. The residual of keypoint k
+// is conf_k sqrt(weight) sigma r_k / sqrt(sigma^2 + |r_k|^2): its squared norm is exactly the cost, smooth at 0.
+// Blocks: transl, root, body, betas, scale, offset. Residuals: 2K.
+class ReprojectionCost : public ceres::CostFunction {
+ public:
+  ReprojectionCost(const body::BodyModel* model, const body::KeypointRegressor* regressor, FrameCamera camera,
+                   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> observations, double weight,
+                   double sigma, double min_depth);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  const body::BodyModel* model_;
+  const body::KeypointRegressor* regressor_;
+  FrameCamera camera_;
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> observations_;  // u, v, confidence
+  double sqrt_weight_, sigma_, min_depth_;
+};
+
+// sqrt(w_k) (p_k(frame b) - p_k(frame a)) for every regressor point k: 3D joint smoothness (all joints, one
+// weight) and contact velocity (foot joints, weights w * contact probability).
+// Blocks: transl_a, root_a, body_a, transl_b, root_b, body_b, betas. Residuals: 3K.
+class PointDifferenceCost : public ceres::CostFunction {
+ public:
+  PointDifferenceCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                      std::vector<double> point_weights);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  const body::BodyModel* model_;
+  const body::KeypointRegressor* regressor_;
+  std::vector<double> sqrt_weights_;
+};
+
+// Contact height against the person's ground plane n.x + d = 0 (n unit, world frame):
+// r_k = sqrt(w_k) max(0, |n.p_k + d| - tolerance). Blocks: transl, root, body, betas. Residuals: K.
+class ContactHeightCost : public ceres::CostFunction {
+ public:
+  ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                    std::vector<double> point_weights, Eigen::Vector3d normal, double offset, double tolerance);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  const body::BodyModel* model_;
+  const body::KeypointRegressor* regressor_;
+  std::vector<double> sqrt_weights_;
+  Eigen::Vector3d normal_;
+  double offset_, tolerance_;
+};
+
+// sqrt(weight) (x - mean): Gaussian priors on one block (shape prior with mean 0, L2 pose prior).
+class GaussianPriorCost : public ceres::CostFunction {
+ public:
+  GaussianPriorCost(Eigen::VectorXd mean, double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  Eigen::VectorXd mean_;
+  double sqrt_weight_;
+};
+
+// sqrt(weight) (x_b - x_a) for two blocks of equal size (temporal smoothness of a parameter block).
+class BlockDifferenceCost : public ceres::CostFunction {
+ public:
+  BlockDifferenceCost(int size, double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  double sqrt_weight_;
+};
+
+}  // namespace m3c::motion

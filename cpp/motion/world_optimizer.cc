@@ -1,0 +1,346 @@
+#include "motion/world_optimizer.h"
+
+#include <chrono>
+#include <cmath>
+#include <unordered_map>
+
+#include "body/kinematics.h"
+#include "util/check.h"
+
+namespace m3c::motion {
+
+namespace {
+
+enum class Group { kTransl, kRoot, kBody, kBetas, kScale, kOffset };
+
+bool AllFinite(const RowMatrixXd& m) { return m.allFinite(); }
+
+// Parameter storage: one row per frame, so a row is a Ceres parameter block.
+struct State {
+  std::vector<RowMatrixXd> transl, root, body;
+  std::vector<Eigen::VectorXd> betas;
+  double scale = 1.0;
+  Eigen::Vector3d offset = Eigen::Vector3d::Zero();
+  bool AllFinite() const {
+    for (size_t i = 0; i < transl.size(); ++i) {
+      if (!transl[i].allFinite() || !root[i].allFinite() || !body[i].allFinite() || !betas[i].allFinite()) return false;
+    }
+    return std::isfinite(scale) && offset.allFinite();
+  }
+};
+
+}  // namespace
+
+OptimizerConfig DefaultOptimizerConfig() {
+  OptimizerConfig config;
+  const double reprojection = 1e-3, shape = 0.05, smooth = 10.0, pose = 0.04;
+  StageConfig s1{"root_translation", true, false, false, false, false, false, {{"reprojection", reprojection}}, 10};
+  StageConfig s2{"root_orientation", true, true, false, false, true, true, {{"reprojection", reprojection}}, 20};
+  StageConfig s3{"shape", true, true, false, true, true, true,
+                 {{"reprojection", reprojection}, {"shape_prior", shape}}, 20};
+  StageConfig s4{"joint_smoothness", true, true, true, true, true, true,
+                 {{"reprojection", reprojection}, {"shape_prior", shape}, {"joint_smoothness", smooth}}, 30};
+  StageConfig s5{"pose_prior", true, true, true, true, true, true,
+                 {{"reprojection", reprojection}, {"shape_prior", shape}, {"joint_smoothness", smooth},
+                  {"pose_prior", pose}},
+                 20};
+  StageConfig s6{"motion_prior", true, true, true, true, true, true,
+                 {{"reprojection", reprojection}, {"shape_prior", shape}, {"joint_smoothness", smooth},
+                  {"pose_prior", pose}, {"motion_prior", 0.075}, {"contact_velocity", 100.0},
+                  {"contact_height", 10.0}},
+                 30};
+  config.stages = {s1, s2, s3, s4, s5, s6};
+  return config;
+}
+
+const std::vector<std::string>& WorldOptimizer::BuiltinTerms() {
+  static const std::vector<std::string> names = {"reprojection", "shape_prior", "joint_smoothness", "pose_prior",
+                                                  "contact_velocity", "contact_height"};
+  return names;
+}
+
+WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::KeypointRegressor* keypoint_regressor,
+                               const body::KeypointRegressor* contact_regressor, OptimizerConfig config)
+    : model_(model),
+      keypoint_regressor_(keypoint_regressor),
+      contact_regressor_(contact_regressor),
+      joint_regressor_(std::make_unique<body::KeypointRegressor>(body::IdentityJointRegressor(*model))),
+      config_(std::move(config)) {
+  M3C_CHECK(config_.robust_sigma > 0 && config_.min_depth > 0) << "robust_sigma and min_depth must be > 0";
+  for (const auto& stage : config_.stages) {
+    M3C_CHECK(stage.max_iterations >= 0) << "stage " << stage.name << ": max_iterations must be >= 0";
+    for (const auto& [term, weight] : stage.weights) {
+      M3C_CHECK(weight >= 0 && std::isfinite(weight)) << "stage " << stage.name << ": weight of " << term
+                                                      << " must be finite and >= 0";
+    }
+  }
+}
+
+void WorldOptimizer::AddTerm(const std::string& name, TermBuilder builder) {
+  terms_.emplace_back(name, std::move(builder));
+}
+
+OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, const CameraInput& cameras) {
+  const int J = model_->num_joints(), B = model_->num_betas(), K = keypoint_regressor_->num_keypoints();
+  const int T = static_cast<int>(cameras.world_from_cam.size());
+  M3C_CHECK(T > 0) << "no camera frames";
+  M3C_CHECK(cameras.intrinsics.rows() == T && cameras.intrinsics.cols() == 4)
+      << "intrinsics must be (T, 4) = (" << T << ", 4), got (" << cameras.intrinsics.rows() << ", "
+      << cameras.intrinsics.cols() << ")";
+  M3C_CHECK(cameras.intrinsics.allFinite() && (cameras.intrinsics.leftCols(2).array() > 0).all())
+      << "intrinsics must be finite with positive focal lengths";
+  for (const auto& pose : cameras.world_from_cam) M3C_CHECK(pose.allFinite()) << "world_from_cam contains NaN/Inf";
+
+  // Validate the tracks and copy their initial values into the parameter storage.
+  State state;
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    const TrackInput& tr = tracks[i];
+    const int n = static_cast<int>(tr.transl.rows());
+    const std::string who = "track " + std::to_string(i) + ": ";
+    M3C_CHECK(n >= 1) << who << "has no frames";
+    M3C_CHECK(tr.first_frame >= 0 && tr.first_frame + n <= T)
+        << who << "frames [" << tr.first_frame << ", " << tr.first_frame + n << ") outside the " << T
+        << " camera frames";
+    M3C_CHECK(tr.transl.cols() == 3 && tr.root.rows() == n && tr.root.cols() == 3 && tr.body.rows() == n &&
+              tr.body.cols() == 3 * (J - 1))
+        << who << "transl/root/body must be (n,3), (n,3), (n," << 3 * (J - 1) << ")";
+    M3C_CHECK(tr.keypoints.rows() == n && tr.keypoints.cols() == 3 * K)
+        << who << "keypoints must be (n, " << 3 * K << "), got (" << tr.keypoints.rows() << ", "
+        << tr.keypoints.cols() << ")";
+    M3C_CHECK(tr.betas.size() == B) << who << "betas must have " << B << " values";
+    M3C_CHECK(AllFinite(tr.transl) && AllFinite(tr.root) && AllFinite(tr.body) && tr.betas.allFinite() &&
+              AllFinite(tr.keypoints))
+        << who << "inputs contain NaN/Inf (mark missing keypoints with confidence 0 instead)";
+    const bool has_ground = tr.ground_normal.size() > 0;
+    M3C_CHECK(!has_ground || (tr.ground_normal.rows() == n && tr.ground_normal.cols() == 3 &&
+                              tr.ground_offset.size() == n && AllFinite(tr.ground_normal) &&
+                              tr.ground_offset.allFinite()))
+        << who << "ground_normal/ground_offset must be (n,3)/(n) and finite, or empty";
+    M3C_CHECK(tr.contacts.size() == 0 ||
+              (tr.contacts.rows() == n && contact_regressor_ &&
+               tr.contacts.cols() == contact_regressor_->num_keypoints() && AllFinite(tr.contacts)))
+        << who << "contacts must be (n, number of contact points) and finite, or empty";
+    state.transl.push_back(tr.transl);
+    state.root.push_back(tr.root);
+    state.body.push_back(tr.body);
+    state.betas.push_back(tr.betas);
+  }
+
+  Variables vars;
+  std::unordered_map<const double*, Group> groups;
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    const int n = static_cast<int>(state.transl[i].rows());
+    vars.transl.emplace_back(), vars.root.emplace_back(), vars.body.emplace_back();
+    for (int f = 0; f < n; ++f) {
+      vars.transl[i].push_back(state.transl[i].row(f).data());
+      vars.root[i].push_back(state.root[i].row(f).data());
+      vars.body[i].push_back(state.body[i].row(f).data());
+      groups[vars.transl[i][f]] = Group::kTransl;
+      groups[vars.root[i][f]] = Group::kRoot;
+      groups[vars.body[i][f]] = Group::kBody;
+    }
+    vars.betas.push_back(state.betas[i].data());
+    groups[vars.betas[i]] = Group::kBetas;
+  }
+  vars.scale = &state.scale;
+  vars.offset = state.offset.data();
+  groups[vars.scale] = Group::kScale;
+  groups[vars.offset] = Group::kOffset;
+
+  auto frame_camera = [&](int t) {
+    FrameCamera cam;
+    cam.cam_from_world_rotation = cameras.world_from_cam[t].topLeftCorner<3, 3>().transpose();
+    cam.centre_in_world = cameras.world_from_cam[t].topRightCorner<3, 1>();
+    cam.fx = cameras.intrinsics(t, 0), cam.fy = cameras.intrinsics(t, 1);
+    cam.cx = cameras.intrinsics(t, 2), cam.cy = cameras.intrinsics(t, 3);
+    return cam;
+  };
+
+  // Builders of the built-in terms.
+  auto add_builtin = [&](const std::string& term, double weight, ceres::Problem* problem) {
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      const TrackInput& tr = tracks[i];
+      const int n = static_cast<int>(tr.transl.rows());
+      if (term == "reprojection") {
+        for (int f = 0; f < n; ++f) {
+          Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> obs(K, 3);
+          bool any = false;
+          for (int k = 0; k < K; ++k) {
+            obs.row(k) = tr.keypoints.block<1, 3>(f, 3 * k);
+            if (obs(k, 2) < config_.min_confidence) obs(k, 2) = 0.0;
+            any = any || obs(k, 2) > 0.0;
+          }
+          if (!any) continue;
+          problem->AddResidualBlock(
+              new ReprojectionCost(model_, keypoint_regressor_, frame_camera(tr.first_frame + f), obs, weight,
+                                   config_.robust_sigma, config_.min_depth),
+              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
+        }
+      } else if (term == "shape_prior") {
+        problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(B), weight * n), nullptr,
+                                  vars.betas[i]);
+      } else if (term == "pose_prior") {
+        for (int f = 0; f < n; ++f) {
+          problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(3 * (J - 1)), weight), nullptr,
+                                    vars.body[i][f]);
+        }
+      } else if (term == "joint_smoothness") {
+        for (int f = 0; f + 1 < n; ++f) {
+          problem->AddResidualBlock(
+              new PointDifferenceCost(model_, joint_regressor_.get(), std::vector<double>(J, weight)), nullptr,
+              {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1], vars.root[i][f + 1],
+               vars.body[i][f + 1], vars.betas[i]});
+        }
+      } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
+        for (int f = 0; f + 1 < n; ++f) {
+          std::vector<double> w(tr.contacts.cols());
+          bool any = false;
+          for (int c = 0; c < tr.contacts.cols(); ++c) {
+            const double p = tr.contacts(f, c);
+            w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
+            any = any || w[c] > 0;
+          }
+          if (!any) continue;
+          problem->AddResidualBlock(new PointDifferenceCost(model_, contact_regressor_, w), nullptr,
+                                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1],
+                                     vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]});
+        }
+      } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
+        for (int f = 0; f < n; ++f) {
+          std::vector<double> w(tr.contacts.cols());
+          bool any = false;
+          for (int c = 0; c < tr.contacts.cols(); ++c) {
+            const double p = tr.contacts(f, c);
+            w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
+            any = any || w[c] > 0;
+          }
+          if (!any) continue;
+          problem->AddResidualBlock(
+              new ContactHeightCost(model_, contact_regressor_, w, tr.ground_normal.row(f).transpose(),
+                                    tr.ground_offset[f], config_.contact_height_tolerance),
+              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]});
+        }
+      }
+    }
+  };
+  auto is_builtin = [](const std::string& term) {
+    const auto& names = BuiltinTerms();
+    return std::find(names.begin(), names.end(), term) != names.end();
+  };
+  auto find_extra = [&](const std::string& term) -> const TermBuilder* {
+    for (const auto& [name, builder] : terms_)
+      if (name == term) return &builder;
+    return nullptr;
+  };
+  // Adds a term's blocks; false when the term is unknown here (e.g. a motion prior with no weights loaded).
+  auto add_term = [&](const std::string& term, double weight, ceres::Problem* problem) {
+    if (is_builtin(term)) {
+      add_builtin(term, weight, problem);
+      return true;
+    }
+    if (const TermBuilder* builder = find_extra(term)) {
+      (*builder)(problem, vars, weight);
+      return true;
+    }
+    return false;
+  };
+  auto cost_of = [&](ceres::Problem* problem) {
+    if (problem->NumResidualBlocks() == 0) return 0.0;
+    double cost = 0.0;
+    ceres::Problem::EvaluateOptions options;
+    options.num_threads = config_.num_threads;
+    if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
+    return cost;
+  };
+  auto term_cost = [&](const std::string& term, double weight) {
+    ceres::Problem problem;
+    add_term(term, weight, &problem);
+    return cost_of(&problem);
+  };
+
+  OptimizerResult result;
+  for (const StageConfig& stage : config_.stages) {
+    StageReport report;
+    report.name = stage.name;
+    if (result.stopped_early) {
+      report.status = "skipped";
+      report.message = "an earlier stage failed";
+      result.stages.push_back(report);
+      continue;
+    }
+    const auto start = std::chrono::steady_clock::now();
+    ceres::Problem problem;
+    std::vector<std::string> missing;
+    for (const auto& [term, weight] : stage.weights) {
+      if (weight <= 0) continue;
+      if (!add_term(term, weight, &problem)) {
+        missing.push_back(term);
+        continue;
+      }
+      report.terms.push_back({term, term_cost(term, weight), 0.0});
+    }
+    for (const auto& term : missing) report.message += (report.message.empty() ? "" : "; ") + term + " unavailable";
+    if (problem.NumResidualBlocks() == 0) {
+      report.status = "skipped";
+      report.message += (report.message.empty() ? "" : "; ") + std::string("no active residuals");
+      result.stages.push_back(report);
+      continue;
+    }
+    std::vector<double*> blocks;
+    problem.GetParameterBlocks(&blocks);
+    for (double* block : blocks) {
+      const Group g = groups.at(block);
+      const bool free = (g == Group::kTransl && stage.transl) || (g == Group::kRoot && stage.root) ||
+                        (g == Group::kBody && stage.body) || (g == Group::kBetas && stage.betas) ||
+                        (g == Group::kScale && stage.scale && !cameras.static_camera) ||
+                        (g == Group::kOffset && stage.offset && config_.optimize_offset);
+      if (!free) problem.SetParameterBlockConstant(block);
+      if (g == Group::kScale && free) problem.SetParameterLowerBound(block, 0, 1e-3);
+    }
+    const State checkpoint = state;
+    report.objective_before = cost_of(&problem);
+
+    ceres::Solver::Options options;
+    options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+    options.max_num_iterations = stage.max_iterations;
+    options.num_threads = config_.num_threads;
+    options.logging_type = ceres::SILENT;
+    ceres::Solver::Summary summary;
+    std::string failure;
+    if (!std::isfinite(report.objective_before)) {
+      failure = "the objective is not finite at the stage's start";
+    } else {
+      ceres::Solve(options, &problem, &summary);
+      report.iterations = static_cast<int>(summary.iterations.size()) - 1;
+      report.objective_after = summary.final_cost;
+      if (summary.termination_type == ceres::FAILURE) {
+        failure = "solver failure: " + summary.message;
+      } else if (!state.AllFinite() || !std::isfinite(summary.final_cost)) {
+        failure = "non-finite values after the solve";
+      } else if (summary.final_cost > report.objective_before * (1.0 + 1e-9)) {
+        failure = "the objective increased";
+      }
+    }
+    if (!failure.empty()) {
+      state = checkpoint;
+      report.status = "reverted";
+      report.message += (report.message.empty() ? "" : "; ") + failure;
+      report.objective_after = report.objective_before;
+      result.stopped_early = true;
+    } else {
+      report.status = "ok";
+    }
+    for (auto& tc : report.terms) tc.after = term_cost(tc.term, stage.weights.at(tc.term));
+    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    result.stages.push_back(report);
+  }
+
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    result.tracks.push_back({state.transl[i], state.root[i], state.body[i], state.betas[i]});
+  }
+  result.scale = state.scale;
+  result.offset = state.offset;
+  return result;
+}
+
+}  // namespace m3c::motion

@@ -1,0 +1,121 @@
+// Staged world-frame optimization of every person's motion (thesis 4.1.4 / SLAHMR), all people in one problem
+// sharing the camera scale. Stage k is a Ceres solve over the terms active in it; a stage that fails (solver
+// failure, non-finite values, a worse objective) is reverted to the last good state and the run stops cleanly.
+#pragma once
+
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <ceres/ceres.h>
+#include <Eigen/Core>
+
+#include "body/body_model.h"
+#include "motion/costs.h"
+
+namespace m3c::motion {
+
+// One person, frames [first_frame, first_frame + n). Arrays have n rows.
+struct TrackInput {
+  int first_frame = 0;
+  RowMatrixXd keypoints;  // (n, 3K): u, v, confidence per keypoint of `keypoint_regressor`; confidence 0 = missing
+  RowMatrixXd transl;     // (n, 3) initial world-frame root translation
+  RowMatrixXd root;       // (n, 3) initial world-frame root orientation, axis-angle
+  RowMatrixXd body;       // (n, 3(J-1)) initial body pose
+  Eigen::VectorXd betas;  // (B)
+  RowMatrixXd ground_normal;     // (n, 3) world-frame plane normals, or empty for no ground
+  Eigen::VectorXd ground_offset;  // (n)
+  RowMatrixXd contacts;  // (n, C) contact probabilities of `contact_regressor` points, or empty
+};
+
+struct CameraInput {
+  std::vector<Eigen::Matrix4d> world_from_cam;  // (T) from VO, translation up to scale
+  RowMatrixXd intrinsics;                       // (T, 4): fx, fy, cx, cy
+  bool static_camera = false;                   // freezes the scale (it is unobservable)
+};
+
+// Which parameter groups a stage frees and which terms it minimises (weight 0 = inactive).
+struct StageConfig {
+  std::string name;
+  bool transl = true, root = false, body = false, betas = false, scale = false, offset = false;
+  std::map<std::string, double> weights;  // term name -> weight
+  int max_iterations = 20;
+};
+
+struct OptimizerConfig {
+  double robust_sigma = 100.0;        // Geman-McClure scale, pixels
+  double min_confidence = 0.4;        // keypoints below it are ignored (SLAHMR)
+  double contact_threshold = 0.5;     // contact probability that activates contact terms
+  double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
+  double min_depth = 0.05;            // metres in front of the camera
+  bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
+  int num_threads = 2;
+  std::vector<StageConfig> stages;
+};
+
+// The thesis's recipe as Ceres stages, with SLAHMR's weights (REFERENCE.md B).
+OptimizerConfig DefaultOptimizerConfig();
+
+struct TermCost {
+  std::string term;
+  double before = 0.0, after = 0.0;
+};
+
+struct StageReport {
+  std::string name;
+  std::string status;  // "ok", "reverted", "skipped"
+  std::string message;
+  int iterations = 0;
+  double seconds = 0.0;
+  double objective_before = 0.0, objective_after = 0.0;
+  std::vector<TermCost> terms;
+};
+
+struct TrackResult {
+  RowMatrixXd transl, root, body;
+  Eigen::VectorXd betas;
+};
+
+struct OptimizerResult {
+  std::vector<TrackResult> tracks;
+  double scale = 1.0;
+  Eigen::Vector3d offset = Eigen::Vector3d::Zero();
+  std::vector<StageReport> stages;
+  bool stopped_early = false;
+};
+
+class WorldOptimizer {
+ public:
+  // The problem's parameter memory, for extra terms: per track and frame pointers into the blocks.
+  struct Variables {
+    std::vector<std::vector<double*>> transl, root, body;  // [track][frame]
+    std::vector<double*> betas;                            // [track]
+    double* scale;
+    double* offset;
+  };
+  // Adds residual blocks of an extra term (e.g. a learned motion prior) to `problem` with `weight`.
+  using TermBuilder = std::function<void(ceres::Problem* problem, const Variables& variables, double weight)>;
+
+  WorldOptimizer(const body::BodyModel* model, const body::KeypointRegressor* keypoint_regressor,
+                 const body::KeypointRegressor* contact_regressor, OptimizerConfig config);
+
+  // Registers a term by name; stages activate it through their weights map.
+  void AddTerm(const std::string& name, TermBuilder builder);
+
+  OptimizerResult Optimize(const std::vector<TrackInput>& tracks, const CameraInput& cameras);
+
+  // Names of the built-in terms.
+  static const std::vector<std::string>& BuiltinTerms();
+
+ private:
+  const body::BodyModel* model_;
+  const body::KeypointRegressor* keypoint_regressor_;
+  const body::KeypointRegressor* contact_regressor_;
+  std::unique_ptr<body::KeypointRegressor> joint_regressor_;
+  OptimizerConfig config_;
+  std::vector<std::pair<std::string, TermBuilder>> terms_;
+};
+
+}  // namespace m3c::motion

@@ -1,0 +1,119 @@
+#include "motion/costs.h"
+
+#include <ceres/gradient_checker.h>
+#include <gtest/gtest.h>
+
+#include "body/kinematics.h"
+#include "../body/test_model.h"
+
+namespace m3c::motion {
+namespace {
+
+using body::testing::MakeTestModel;
+using body::testing::RandomVector;
+
+body::KeypointRegressor TwoPointRegressor(const body::BodyModel& model) {
+  Eigen::SparseMatrix<double, Eigen::RowMajor> vw(3, model.num_vertices()), jw(3, model.num_joints());
+  std::vector<Eigen::Triplet<double>> tv = {{0, 5, 1.0}, {1, 30, 0.5}, {1, 31, 0.5}};
+  std::vector<Eigen::Triplet<double>> tj = {{2, 10, 1.0}};
+  vw.setFromTriplets(tv.begin(), tv.end());
+  jw.setFromTriplets(tj.begin(), tj.end());
+  return body::KeypointRegressor(vw, jw);
+}
+
+bool Check(const ceres::CostFunction& cost, const std::vector<const double*>& params, double precision = 1e-6) {
+  ceres::NumericDiffOptions options;
+  const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
+  ceres::GradientChecker checker(&cost, no_manifolds, options);
+  ceres::GradientChecker::ProbeResults results;
+  const bool ok = checker.Probe(params.data(), precision, &results);
+  if (!ok) ADD_FAILURE() << results.error_log;
+  return ok;
+}
+
+struct Frame {
+  std::vector<double> transl, root, body, betas;
+  explicit Frame(const body::BodyModel& m, unsigned seed)
+      : transl(RandomVector(3, 0.3, seed)),
+        root(RandomVector(3, 0.4, seed + 1)),
+        body(RandomVector(3 * (m.num_joints() - 1), 0.4, seed + 2)),
+        betas(RandomVector(m.num_betas(), 1.0, seed + 3)) {}
+};
+
+TEST(Costs, ReprojectionJacobians) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = TwoPointRegressor(model);
+  Frame f(model, 1);
+  FrameCamera cam;
+  cam.cam_from_world_rotation = Eigen::AngleAxisd(0.2, Eigen::Vector3d(0.3, 1.0, 0.1).normalized()).toRotationMatrix();
+  cam.centre_in_world = Eigen::Vector3d(0.5, -0.2, -6.0);
+  cam.fx = 900, cam.fy = 880, cam.cx = 480, cam.cy = 270;
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> obs(3, 3);
+  // Residuals from ~0 to far beyond sigma, and one keypoint with no confidence.
+  obs << 480, 270, 0.9, 700, 100, 0.5, 100, 900, 0.0;
+  ReprojectionCost cost(&model, &reg, cam, obs, 0.7, 100.0, 0.05);
+  double scale = 1.3, offset[3] = {0.1, 0.0, -0.2};
+  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
+
+  // The squared residual equals weight * conf^2 * Geman-McClure of the pixel error.
+  std::vector<double> res(6);
+  const double* params[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset};
+  ASSERT_TRUE(cost.Evaluate(params, res.data(), nullptr));
+  EXPECT_EQ(res[4], 0.0);
+  EXPECT_EQ(res[5], 0.0);
+}
+
+TEST(Costs, ReprojectionRejectsPointsBehindCamera) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = TwoPointRegressor(model);
+  Frame f(model, 2);
+  FrameCamera cam{Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 10.0), 500, 500, 320, 240};
+  Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> obs = Eigen::MatrixXd::Constant(3, 3, 1.0);
+  ReprojectionCost cost(&model, &reg, cam, obs, 1.0, 100.0, 0.05);
+  double scale = 1.0, offset[3] = {0, 0, 0};
+  std::vector<double> res(6);
+  const double* params[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset};
+  EXPECT_FALSE(cost.Evaluate(params, res.data(), nullptr));
+}
+
+TEST(Costs, PointDifferenceJacobians) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = TwoPointRegressor(model);
+  Frame a(model, 3), b(model, 7);
+  b.betas = a.betas;
+  PointDifferenceCost cost(&model, &reg, {1.0, 4.0, 0.5});
+  EXPECT_TRUE(Check(cost, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
+                           b.body.data(), a.betas.data()}));
+}
+
+TEST(Costs, ContactHeightJacobiansAndDeadZone) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = TwoPointRegressor(model);
+  Frame f(model, 11);
+  // Plane far below the points: all residuals active, on the positive side.
+  ContactHeightCost cost(&model, &reg, {1.0, 2.0, 3.0}, Eigen::Vector3d(0.1, -1.0, 0.05), 5.0, 0.08);
+  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()}));
+  // A plane through every point's neighbourhood: inside the tolerance the residual is exactly zero.
+  body::KeypointRegressor one = TwoPointRegressor(model);
+  std::vector<double> pts(9);
+  std::vector<double> pose(3 * model.num_joints());
+  std::copy(f.root.begin(), f.root.end(), pose.begin());
+  std::copy(f.body.begin(), f.body.end(), pose.begin() + 3);
+  body::KeypointsWithJacobian(model, one, pose.data(), f.betas.data(), f.transl.data(), pts.data(), nullptr);
+  ContactHeightCost flat(&model, &one, {1.0, 0.0, 0.0}, Eigen::Vector3d(0, 1, 0), -pts[1] + 0.05, 0.08);
+  double r[3];
+  const double* params[4] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()};
+  ASSERT_TRUE(flat.Evaluate(params, r, nullptr));
+  EXPECT_EQ(r[0], 0.0);
+}
+
+TEST(Costs, PriorsJacobians) {
+  GaussianPriorCost prior(Eigen::VectorXd::LinSpaced(4, -1, 1), 0.3);
+  std::vector<double> x = {0.1, 0.2, -0.3, 2.0}, y = {1.0, -2.0, 0.5, 0.0};
+  EXPECT_TRUE(Check(prior, {x.data()}));
+  BlockDifferenceCost diff(4, 2.5);
+  EXPECT_TRUE(Check(diff, {x.data(), y.data()}));
+}
+
+}  // namespace
+}  // namespace m3c::motion
