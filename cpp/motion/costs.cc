@@ -93,9 +93,10 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
   return true;
 }
 
-PointDifferenceCost::PointDifferenceCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
-                                         std::vector<double> point_weights)
-    : model_(model), regressor_(regressor) {
+PointStencilCost::PointStencilCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                                   std::vector<double> stencil, std::vector<double> point_weights)
+    : model_(model), regressor_(regressor), stencil_(std::move(stencil)) {
+  M3C_CHECK(stencil_.size() >= 2) << "a stencil needs at least two frames";
   M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
   for (double w : point_weights) {
     M3C_CHECK(w >= 0) << "point weights must be >= 0";
@@ -103,29 +104,39 @@ PointDifferenceCost::PointDifferenceCost(const body::BodyModel* model, const bod
   }
   set_num_residuals(3 * regressor->num_keypoints());
   const int body = 3 * (model->num_joints() - 1);
-  mutable_parameter_block_sizes()->assign({3, 3, body, 3, 3, body, model->num_betas()});
+  auto* sizes = mutable_parameter_block_sizes();
+  for (size_t f = 0; f < stencil_.size(); ++f) sizes->insert(sizes->end(), {3, 3, body});
+  sizes->push_back(model->num_betas());
 }
 
-bool PointDifferenceCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
-  const int K = regressor_->num_keypoints();
-  thread_local FramePoints a, b;
-  a.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[6]}, jacobians != nullptr);
-  b.Evaluate(*model_, *regressor_, {parameters[3], parameters[4], parameters[5], parameters[6]}, jacobians != nullptr);
-  for (int k = 0; k < K; ++k)
-    for (int c = 0; c < 3; ++c) residuals[3 * k + c] = sqrt_weights_[k] * (b.point(k)[c] - a.point(k)[c]);
+bool PointStencilCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const int K = regressor_->num_keypoints(), F = static_cast<int>(stencil_.size());
+  const int betas_block = 3 * F;
+  thread_local std::vector<FramePoints> frames;
+  frames.resize(F);
+  for (int f = 0; f < F; ++f) {
+    frames[f].Evaluate(*model_, *regressor_,
+                       {parameters[3 * f], parameters[3 * f + 1], parameters[3 * f + 2], parameters[betas_block]},
+                       jacobians != nullptr);
+  }
+  for (int k = 0; k < K; ++k) {
+    for (int c = 0; c < 3; ++c) {
+      double value = 0.0;
+      for (int f = 0; f < F; ++f) value += stencil_[f] * frames[f].point(k)[c];
+      residuals[3 * k + c] = sqrt_weights_[k] * value;
+    }
+  }
   if (!jacobians) return true;
-  for (int blk = 0; blk < 7; ++blk) {
+  for (int blk = 0; blk <= betas_block; ++blk) {
     if (jacobians[blk]) std::fill(jacobians[blk], jacobians[blk] + num_residuals() * parameter_block_sizes()[blk], 0.0);
   }
   for (int k = 0; k < K; ++k) {
     const RowMatrixXd M = sqrt_weights_[k] * RowMatrixXd::Identity(3, 3);
-    for (int blk = 0; blk < 3; ++blk) {
-      if (jacobians[blk]) ChainPointJacobian(M, a, k, blk, jacobians[blk], 3 * k, -1.0);
-      if (jacobians[blk + 3]) ChainPointJacobian(M, b, k, blk, jacobians[blk + 3], 3 * k, 1.0);
-    }
-    if (jacobians[6]) {  // betas move both frames
-      ChainPointJacobian(M, a, k, 3, jacobians[6], 3 * k, -1.0);
-      ChainPointJacobian(M, b, k, 3, jacobians[6], 3 * k, 1.0);
+    for (int f = 0; f < F; ++f) {
+      for (int blk = 0; blk < 3; ++blk) {
+        if (jacobians[3 * f + blk]) ChainPointJacobian(M, frames[f], k, blk, jacobians[3 * f + blk], 3 * k, stencil_[f]);
+      }
+      if (jacobians[betas_block]) ChainPointJacobian(M, frames[f], k, 3, jacobians[betas_block], 3 * k, stencil_[f]);
     }
   }
   return true;

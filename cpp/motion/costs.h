@@ -40,19 +40,19 @@ class ReprojectionCost : public ceres::CostFunction {
   double sqrt_weight_, sigma_, min_depth_;
 };
 
-// sqrt(w_k) (p_k(frame b) - p_k(frame a)) for every regressor point k: 3D joint smoothness (all joints, one
-// weight) and contact velocity (foot joints, weights w * contact probability).
-// Blocks: transl_a, root_a, body_a, transl_b, root_b, body_b, betas. Residuals: 3K.
-class PointDifferenceCost : public ceres::CostFunction {
+// sqrt(w_k) sum_f c_f p_k(frame f) for every regressor point k: a finite-difference stencil over consecutive
+// frames. Velocity (c = -1, 1): 3D joint smoothness and contact velocity; acceleration (c = 1, -2, 1).
+// Blocks: transl_f, root_f, body_f for each frame f of the stencil, then betas. Residuals: 3K.
+class PointStencilCost : public ceres::CostFunction {
  public:
-  PointDifferenceCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
-                      std::vector<double> point_weights);
+  PointStencilCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
+                   std::vector<double> stencil, std::vector<double> point_weights);
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   const body::BodyModel* model_;
   const body::KeypointRegressor* regressor_;
-  std::vector<double> sqrt_weights_;
+  std::vector<double> stencil_, sqrt_weights_;
 };
 
 // Contact height against the person's ground plane n.x + d = 0 (n unit, world frame):

@@ -34,6 +34,7 @@ struct CameraInput {
   std::vector<Eigen::Matrix4d> world_from_cam;  // (T) from VO, translation up to scale
   RowMatrixXd intrinsics;                       // (T, 4): fx, fy, cx, cy
   bool static_camera = false;                   // freezes the scale (it is unobservable)
+  double initial_scale = 1.0;                   // metric translation = scale * VO translation, at the start
 };
 
 // Which parameter groups a stage frees and which terms it minimises (weight 0 = inactive).

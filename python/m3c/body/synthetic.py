@@ -73,8 +73,19 @@ def make_synthetic_model(vertices_per_bone: int = 24, num_betas: int = 10, seed:
     faces = []
     for start in range(0, V - 2, 3):
         faces.append([start, start + 1, start + 2])
+    # Keypoint vertices: the head vertex nearest to where a face point would be, the foot vertex nearest to toe
+    # and heel, the hand vertex at the hand joint.
+    spots = {"nose": (15, [0.0, 0.0, 0.1]), "left_eye": (15, [0.03, 0.03, 0.08]),
+             "right_eye": (15, [-0.03, 0.03, 0.08]), "left_ear": (15, [0.08, 0.0, 0.0]),
+             "right_ear": (15, [-0.08, 0.0, 0.0]), "left_big_toe": (10, [0.0, -0.03, 0.08]),
+             "left_small_toe": (10, [0.04, -0.03, 0.06]), "left_heel": (7, [0.0, -0.06, -0.05]),
+             "right_big_toe": (11, [0.0, -0.03, 0.08]), "right_small_toe": (11, [-0.04, -0.03, 0.06]),
+             "right_heel": (8, [0.0, -0.06, -0.05]), "left_hand": (22, [0.0, 0.0, 0.0]),
+             "right_hand": (23, [0.0, 0.0, 0.0])}
+    keypoint_ids = {name: int(np.argmin(np.linalg.norm(v_template - (REST_JOINTS[j] + off), axis=1)))
+                    for name, (j, off) in spots.items()}
     return BodyModelData(v_template, shapedirs, posedirs, J_regressor, weights, parents.astype(np.int64),
-                         np.asarray(faces, dtype=np.int32), name="synthetic")
+                         np.asarray(faces, dtype=np.int32), name="synthetic", keypoint_vertex_ids=keypoint_ids)
 
 
 def random_pose(num_frames: int, num_joints: int = 24, scale: float = 0.4, seed: int = 0) -> np.ndarray:

@@ -76,14 +76,29 @@ TEST(Costs, ReprojectionRejectsPointsBehindCamera) {
   EXPECT_FALSE(cost.Evaluate(params, res.data(), nullptr));
 }
 
-TEST(Costs, PointDifferenceJacobians) {
+TEST(Costs, PointStencilJacobians) {
   const body::BodyModel model = MakeTestModel();
   const auto reg = TwoPointRegressor(model);
-  Frame a(model, 3), b(model, 7);
-  b.betas = a.betas;
-  PointDifferenceCost cost(&model, &reg, {1.0, 4.0, 0.5});
-  EXPECT_TRUE(Check(cost, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
-                           b.body.data(), a.betas.data()}));
+  Frame a(model, 3), b(model, 7), c(model, 21);
+  PointStencilCost velocity(&model, &reg, {-1.0, 1.0}, {1.0, 4.0, 0.5});
+  EXPECT_TRUE(Check(velocity, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
+                               b.body.data(), a.betas.data()}));
+  PointStencilCost acceleration(&model, &reg, {1.0, -2.0, 1.0}, {2.0, 1.0, 3.0});
+  EXPECT_TRUE(Check(acceleration, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
+                                   b.body.data(), c.transl.data(), c.root.data(), c.body.data(), a.betas.data()}));
+}
+
+TEST(Costs, StencilOfAConstantVelocityPathIsZero) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = TwoPointRegressor(model);
+  Frame a(model, 3);
+  std::vector<double> t1 = {a.transl[0] + 0.1, a.transl[1], a.transl[2]}, t2 = {a.transl[0] + 0.2, a.transl[1], a.transl[2]};
+  PointStencilCost acceleration(&model, &reg, {1.0, -2.0, 1.0}, {1.0, 1.0, 1.0});
+  const double* params[10] = {a.transl.data(), a.root.data(), a.body.data(), t1.data(), a.root.data(), a.body.data(),
+                              t2.data(), a.root.data(), a.body.data(), a.betas.data()};
+  double r[9];
+  ASSERT_TRUE(acceleration.Evaluate(params, r, nullptr));
+  for (double v : r) EXPECT_NEAR(v, 0.0, 1e-12);
 }
 
 TEST(Costs, ContactHeightJacobiansAndDeadZone) {

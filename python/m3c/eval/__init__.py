@@ -1,0 +1,1 @@
+"""Evaluation: synthetic scenes with ground truth (and, later, the field's metrics and dataset readers)."""

@@ -1,0 +1,102 @@
+"""Configuration of the staged world-frame optimization, mirrored in YAML. The defaults come from the C++ core
+(one definition of the recipe): the thesis's stages with SLAHMR's weights.
+
+Each stage frees some parameter groups (transl, root, body, betas, scale, offset) and minimises
+1/2 * sum over its terms of weight * loss:
+  reprojection      sum_k conf_k^2 GM(|pi(x_k) - u_k|^2), GM(s) = sigma^2 s / (sigma^2 + s), pixels
+  shape_prior       n_frames * |betas|^2 per person
+  pose_prior        |body pose|^2 per frame (axis-angle; a VPoser latent prior replaces it when configured)
+  pose_smoothness   |body pose_{t+1} - body pose_t|^2 (the latent smoothness of stage (iv) without VPoser)
+  joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis)
+  joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
+  contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
+  contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
+  motion_prior      the HuMoR transition term, when HuMoR weights are configured (otherwise reported unavailable)
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+from m3c import _core
+
+PARAMETER_GROUPS = ("transl", "root", "body", "betas", "scale", "offset")
+
+
+@dataclass
+class StageSpec:
+    name: str
+    free: list[str]
+    weights: dict[str, float]
+    max_iterations: int = 20
+
+
+@dataclass
+class OptimizerConfig:
+    robust_sigma: float = 100.0
+    min_confidence: float = 0.4
+    contact_threshold: float = 0.5
+    contact_height_tolerance: float = 0.08
+    min_depth: float = 0.05
+    optimize_offset: bool = False
+    num_threads: int = 2
+    stages: list[StageSpec] = field(default_factory=list)
+
+    @classmethod
+    def default(cls) -> "OptimizerConfig":
+        core = _core.default_optimizer_config()
+        stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
+                  for s in core.stages]
+        return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
+                   core.min_depth, core.optimize_offset, core.num_threads, stages)
+
+    def validate(self) -> None:
+        known_terms = set(_core.builtin_optimizer_terms()) | {"motion_prior"}
+        for stage in self.stages:
+            unknown = set(stage.free) - set(PARAMETER_GROUPS)
+            if unknown:
+                raise ValueError(f"stage {stage.name!r}: unknown parameter groups {sorted(unknown)}; "
+                                 f"choose from {list(PARAMETER_GROUPS)}")
+            bad = set(stage.weights) - known_terms
+            if bad:
+                raise ValueError(f"stage {stage.name!r}: unknown terms {sorted(bad)}; choose from {sorted(known_terms)}")
+
+    def to_core(self) -> "_core.OptimizerConfig":
+        self.validate()
+        core = _core.OptimizerConfig()
+        for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
+                    "optimize_offset", "num_threads"):
+            setattr(core, key, getattr(self, key))
+        stages = []
+        for spec in self.stages:
+            s = _core.StageConfig()
+            s.name = spec.name
+            for g in PARAMETER_GROUPS:
+                setattr(s, g, g in spec.free)
+            s.weights = {k: float(v) for k, v in spec.weights.items()}
+            s.max_iterations = int(spec.max_iterations)
+            stages.append(s)
+        core.stages = stages
+        return core
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(asdict(self), sort_keys=False)
+
+    @classmethod
+    def from_yaml(cls, text_or_path: str | Path) -> "OptimizerConfig":
+        text = Path(text_or_path).read_text() if isinstance(text_or_path, Path) else text_or_path
+        raw = yaml.safe_load(text) or {}
+        base = cls.default()
+        unknown = set(raw) - set(asdict(base))
+        if unknown:
+            raise ValueError(f"unknown optimizer settings {sorted(unknown)}")
+        stages = raw.pop("stages", None)
+        for key, value in raw.items():
+            setattr(base, key, type(getattr(base, key))(value))
+        if stages is not None:
+            base.stages = [StageSpec(**s) for s in stages]
+        base.validate()
+        return base

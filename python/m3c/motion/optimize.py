@@ -1,0 +1,149 @@
+"""World-frame optimization of every person's motion: the public entry point over the C++ optimizer."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from m3c import _core
+from m3c.body import BodyModel
+from m3c.motion.config import OptimizerConfig
+
+# Contact points: ankles and feet (SMPL joints 7, 8, 10, 11), the joints that touch the ground when walking.
+CONTACT_JOINTS = (7, 8, 10, 11)
+
+
+@dataclass
+class Track:
+    """One person over frames first_frame .. first_frame + n - 1, world frame, metres.
+
+    keypoints: n x K x 3 (u, v, confidence; confidence 0 where unseen); transl: n x 3; root_orient: n x 3
+    axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (plane
+    n.x + d = 0, world frame), contacts n x 4 probabilities for CONTACT_JOINTS.
+    """
+
+    first_frame: int
+    keypoints: np.ndarray
+    transl: np.ndarray
+    root_orient: np.ndarray
+    body_pose: np.ndarray
+    betas: np.ndarray
+    ground_normal: np.ndarray | None = None
+    ground_offset: np.ndarray | None = None
+    contacts: np.ndarray | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.transl)
+
+
+@dataclass
+class Cameras:
+    """world_from_cam: T x 4 x 4 (VO, translation up to scale); intrinsics: T x 4 or 4 (fx, fy, cx, cy).
+    initial_scale: the metric size of one VO unit to start from (optimised unless static)."""
+
+    world_from_cam: np.ndarray
+    intrinsics: np.ndarray
+    static: bool = False
+    initial_scale: float = 1.0
+
+
+@dataclass
+class StageResult:
+    name: str
+    status: str
+    message: str
+    iterations: int
+    seconds: float
+    objective_before: float
+    objective_after: float
+    terms: dict  # term -> (before, after)
+
+
+@dataclass
+class WorldResult:
+    tracks: list[Track]
+    camera_scale: float
+    camera_offset: np.ndarray
+    stages: list[StageResult]
+    stopped_early: bool
+
+    def world_from_cam(self, cameras: Cameras) -> np.ndarray:
+        """The cameras in the optimised world: VO translations times the recovered scale, plus the offset."""
+        out = np.array(cameras.world_from_cam, dtype=np.float64, copy=True)
+        out[:, :3, 3] = self.camera_scale * out[:, :3, 3] + self.camera_offset
+        return out
+
+
+def _matrix(value, rows: int, cols: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.size != rows * cols:
+        raise ValueError(f"{name} must have {rows} x {cols} values, got shape {arr.shape}")
+    return np.ascontiguousarray(arr.reshape(rows, cols))
+
+
+def _to_core_track(track: Track, model: BodyModel, num_keypoints: int) -> "_core.TrackInput":
+    n, J = track.num_frames, model.num_joints
+    core = _core.TrackInput()
+    core.first_frame = int(track.first_frame)
+    core.keypoints = _matrix(track.keypoints, n, 3 * num_keypoints, "keypoints")
+    core.transl = _matrix(track.transl, n, 3, "transl")
+    core.root = _matrix(track.root_orient, n, 3, "root_orient")
+    core.body = _matrix(track.body_pose, n, 3 * (J - 1), "body_pose")
+    core.betas = np.asarray(track.betas, dtype=np.float64).reshape(-1)
+    if track.ground_normal is not None:
+        core.ground_normal = _matrix(track.ground_normal, n, 3, "ground_normal")
+        core.ground_offset = np.asarray(track.ground_offset, dtype=np.float64).reshape(-1)
+    if track.contacts is not None:
+        core.contacts = _matrix(track.contacts, n, len(CONTACT_JOINTS), "contacts")
+    return core
+
+
+def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: OptimizerConfig | None = None,
+             keypoint_regressor=None) -> WorldResult:
+    """Optimises every track in the world frame with the staged recipe of `config` (default: the thesis's).
+
+    keypoint_regressor: the body's keypoints that `Track.keypoints` observe (default COCO-17).
+    """
+    config = config or OptimizerConfig.default()
+    regressor = keypoint_regressor or model.coco17_regressor()
+    K = regressor.num_keypoints
+    world_from_cam = np.asarray(cameras.world_from_cam, dtype=np.float64)
+    if world_from_cam.ndim != 3 or world_from_cam.shape[1:] != (4, 4):
+        raise ValueError(f"world_from_cam must have shape (T, 4, 4), got {world_from_cam.shape}")
+    T = len(world_from_cam)
+    intrinsics = np.asarray(cameras.intrinsics, dtype=np.float64)
+    if intrinsics.shape == (4,):
+        intrinsics = np.tile(intrinsics, (T, 1))
+    if intrinsics.shape != (T, 4):
+        raise ValueError(f"intrinsics must have shape (4,) or (T={T}, 4), got {intrinsics.shape}")
+    core_cams = _core.CameraInput()
+    core_cams.world_from_cam = list(world_from_cam)
+    core_cams.intrinsics = intrinsics
+    core_cams.static_camera = bool(cameras.static)
+    core_cams.initial_scale = float(cameras.initial_scale)
+    contact_regressor = None
+    if any(t.contacts is not None for t in tracks):
+        jw = np.zeros((len(CONTACT_JOINTS), model.num_joints))
+        jw[np.arange(len(CONTACT_JOINTS)), list(CONTACT_JOINTS)] = 1.0
+        contact_regressor = model.regressor(joint_weights=jw)
+    core_tracks = [_to_core_track(t, model, K) for t in tracks]
+    result = _core.optimize_world(model._core, regressor, contact_regressor, core_tracks, core_cams, config.to_core())
+
+    out_tracks = []
+    for track, res in zip(tracks, result.tracks):
+        n = track.num_frames
+        out_tracks.append(Track(track.first_frame, np.asarray(track.keypoints), res.transl.copy(), res.root.copy(),
+                                res.body.reshape(n, -1, 3).copy(), res.betas.copy(), track.ground_normal,
+                                track.ground_offset, track.contacts))
+    stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
+                          s.objective_after, {t.term: (t.before, t.after) for t in s.terms}) for s in result.stages]
+    return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early))
+
+
+def track_joints(model: BodyModel, track: Track) -> np.ndarray:
+    """World-frame joints n x J x 3 of a track."""
+    pose = np.concatenate([np.asarray(track.root_orient).reshape(-1, 1, 3),
+                           np.asarray(track.body_pose).reshape(track.num_frames, -1, 3)], axis=1)
+    return model.joints(pose, np.asarray(track.betas, dtype=np.float64), np.asarray(track.transl))
