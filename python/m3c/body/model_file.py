@@ -17,6 +17,10 @@ OBTAIN_HINT = (
     "pass the downloaded SMPL_NEUTRAL.pkl / .npz, or use M3C's open body model (no file needed)."
 )
 REQUIRED_KEYS = ("v_template", "shapedirs", "posedirs", "J_regressor", "weights", "kintree_table", "f")
+# M3C's own model files carry this key (format version). In them, an absent 'posedirs' means no pose blend
+# shapes (zeros), and 'model_name' names the model. Files without it (SMPL's) must have every required key.
+M3C_FORMAT_KEY = "m3c_model_format"
+M3C_FORMAT_VERSION = 1
 
 
 class BodyModelFileError(ValueError):
@@ -162,7 +166,15 @@ def _vertex_major(array: np.ndarray, key: str, num_vertices: int, columns: int |
 
 def parse_model_arrays(raw: dict, num_betas: int | None = 10, name: str = "unnamed") -> BodyModelData:
     """Validates and normalises a dict of SMPL-layout arrays (file keys) into BodyModelData."""
-    missing = [k for k in REQUIRED_KEYS if k not in raw]
+    m3c_file = M3C_FORMAT_KEY in raw
+    if m3c_file:
+        version = int(np.asarray(raw[M3C_FORMAT_KEY]))
+        if version > M3C_FORMAT_VERSION:
+            raise BodyModelFileError(f"{name}: M3C model format {version} is newer than this M3C reads "
+                                     f"({M3C_FORMAT_VERSION}); update M3C")
+        if "model_name" in raw:
+            name = str(np.asarray(raw["model_name"]))
+    missing = [k for k in REQUIRED_KEYS if k not in raw and not (m3c_file and k == "posedirs")]
     if missing:
         raise BodyModelFileError(
             f"{name}: missing keys {missing}; a SMPL-layout model needs {list(REQUIRED_KEYS)}, found {sorted(raw)}"
@@ -187,7 +199,11 @@ def parse_model_arrays(raw: dict, num_betas: int | None = 10, name: str = "unnam
                 f"{name}: asked for {num_betas} shape components, the file has {shapedirs.shape[2]}"
             )
         shapedirs = shapedirs[:, :, :num_betas]
-    posedirs = _vertex_major(_to_dense(raw["posedirs"], "posedirs"), "posedirs", V, 9 * (J - 1)).astype(np.float64)
+    if "posedirs" in raw:
+        posedirs = _vertex_major(_to_dense(raw["posedirs"], "posedirs"), "posedirs", V, 9 * (J - 1))
+        posedirs = posedirs.astype(np.float64)
+    else:  # only M3C files get here: no pose blend shapes
+        posedirs = np.zeros((V, 3, 9 * (J - 1)))
     J_regressor = _to_dense(raw["J_regressor"], "J_regressor").astype(np.float64)
     if J_regressor.shape != (J, V):
         raise BodyModelFileError(f"{name}: 'J_regressor' must be ({J}, {V}), got {J_regressor.shape}")
