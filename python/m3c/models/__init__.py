@@ -5,6 +5,8 @@ where a checkpoint is obtained."""
 from m3c.models.checkpoint import CheckpointError, CheckpointNotFoundError
 from m3c.models.humor import HumorModel, latent_nll, load_humor, transition_nll
 from m3c.models.vposer import VPoserV1, VPoserV2, load_vposer
+from m3c.models.wham import WhamLifter, load_wham
 
 __all__ = ["CheckpointError", "CheckpointNotFoundError", "HumorModel", "latent_nll", "load_humor",
-           "transition_nll", "VPoserV1", "VPoserV2", "load_vposer"]
+           "transition_nll", "VPoserV1", "VPoserV2", "load_vposer",
+           "WhamLifter", "load_wham"]
