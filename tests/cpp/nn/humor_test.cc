@@ -6,6 +6,8 @@
 
 #include <Eigen/Geometry>
 
+#include <ceres/jet.h>
+
 #include "body/rotation.h"
 #include "jet_gradient.h"
 #include "test_files.h"
@@ -179,6 +181,52 @@ TEST(HumorState, BuildStateMatchesClosedForms) {
   double R[9];
   AxisAngleToRotation(f.pose + 3 * 20, R);
   for (int i = 0; i < 9; ++i) EXPECT_EQ(x[humor::kPoseBody + 9 * 20 + i], R[i]);
+}
+
+TEST(HumorState, BuildStateRunsOnJets) {
+  // d state / d (root orientation of frame t+1) by Jets against central differences.
+  using Jet = ceres::Jet<double, 3>;
+  const double fps = 30.0, w[3] = {0.5, 0.2, -0.7};
+  const Frames f = ConstantMotion(w, 1.0 / fps);
+  const double aa[3] = {0.2, 0.1, -0.3}, t[3] = {0.1, 0.2, 0.3};
+  double G[9];
+  AxisAngleToRotation(aa, G);
+  auto build = [&](const auto* next_root, auto* out) {
+    using T = std::decay_t<decltype(*out)>;
+    std::vector<T> tr(9), ro(9), jo(198), pose(63), gR(9), gt(3);
+    for (int k = 0; k < 3; ++k) {
+      for (int i = 0; i < 3; ++i) {
+        tr[3 * k + i] = T(f.trans[k][i]);
+        ro[3 * k + i] = k == 2 ? next_root[i] : T(f.root[k][i]);
+      }
+      for (int i = 0; i < 66; ++i) jo[66 * k + i] = T(f.joints[k][i]);
+    }
+    for (int i = 0; i < 63; ++i) pose[i] = T(f.pose[i]);
+    for (int i = 0; i < 9; ++i) gR[i] = T(G[i]);
+    for (int i = 0; i < 3; ++i) gt[i] = T(t[i]);
+    const T* trans[3] = {&tr[0], &tr[3], &tr[6]};
+    const T* root[3] = {&ro[0], &ro[3], &ro[6]};
+    const T* joints[3] = {&jo[0], &jo[66], &jo[132]};
+    humor::BuildState(trans, root, joints, pose.data(), fps, gR.data(), gt.data(), out);
+  };
+  Jet root_jet[3];
+  for (int i = 0; i < 3; ++i) root_jet[i] = Jet(f.root[2][i], i);
+  std::vector<Jet> state(kStateDim);
+  build(root_jet, state.data());
+  for (int i = 0; i < 3; ++i) {
+    double plus[3] = {f.root[2][0], f.root[2][1], f.root[2][2]}, minus[3] = {plus[0], plus[1], plus[2]};
+    plus[i] += 1e-6;
+    minus[i] -= 1e-6;
+    double xp[kStateDim], xm[kStateDim];
+    build(plus, xp);
+    build(minus, xm);
+    for (int k = 0; k < kStateDim; ++k) {
+      EXPECT_NEAR(state[k].v[i], (xp[k] - xm[k]) / 2e-6, 1e-6 * (1 + std::abs(state[k].v[i]))) << k;
+    }
+  }
+  // Only the angular velocity depends on the next frame's root orientation.
+  EXPECT_GT(std::abs(state[humor::kRootOrientVel].v[0]), 1.0);
+  EXPECT_EQ(state[humor::kRootOrient].v[0], 0.0);
 }
 
 TEST(HumorState, GroundTransformMovesTheStateRigidly) {
