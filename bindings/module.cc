@@ -7,6 +7,7 @@ namespace m3c::bindings {
 void BindBody(py::module_& m);
 void BindMotion(py::module_& m);
 void BindGround(py::module_& m);
+void BindNN(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -14,4 +15,5 @@ PYBIND11_MODULE(_core, m) {
   m3c::bindings::BindBody(m);
   m3c::bindings::BindMotion(m);
   m3c::bindings::BindGround(m);
+  m3c::bindings::BindNN(m);
 }

@@ -1,0 +1,116 @@
+#include "nn/mlp.h"
+
+#include <cmath>
+
+#include "util/check.h"
+
+namespace m3c::nn {
+
+BatchNormEval::BatchNormEval(const SafetensorsFile& file, const std::string& prefix, int channels, double eps) {
+  const Eigen::VectorXd weight = file.Vector(prefix + ".weight", channels);
+  const Eigen::VectorXd bias = file.Vector(prefix + ".bias", channels);
+  const Eigen::VectorXd mean = file.Vector(prefix + ".running_mean", channels);
+  const Eigen::VectorXd var = file.Vector(prefix + ".running_var", channels);
+  scale = weight.array() / (var.array() + eps).sqrt();
+  shift = bias.array() - mean.array() * scale.array();
+}
+
+GroupNormMlp::GroupNormMlp(const SafetensorsFile& file, const std::string& prefix, const std::vector<int>& widths,
+                           int skip_dim, int groups, double eps)
+    : widths_(widths), skip_dim_(skip_dim), groups_(groups), eps_(eps) {
+  M3C_CHECK(widths.size() >= 2) << prefix << ": an MLP needs at least an input and an output width";
+  M3C_CHECK(skip_dim >= 0 && skip_dim <= widths.front()) << prefix << ": skip_dim " << skip_dim << " out of range";
+  M3C_CHECK(groups > 0) << prefix << ": groups must be positive";
+  const int layers = static_cast<int>(widths.size()) - 1;
+  for (int k = 0; k < layers; ++k) {
+    const std::string linear = prefix + "." + std::to_string(3 * k);
+    const int in = widths[k] + (k > 0 ? skip_dim : 0);
+    weight_.push_back(file.Matrix(linear + ".weight", widths[k + 1], in));
+    bias_.push_back(file.Vector(linear + ".bias", widths[k + 1]));
+    if (k + 1 < layers) {
+      M3C_CHECK(widths[k + 1] % groups == 0)
+          << prefix << ": width " << widths[k + 1] << " is not divisible into " << groups << " groups";
+      const std::string norm = prefix + "." + std::to_string(3 * k + 1);
+      gn_weight_.push_back(file.Vector(norm + ".weight", widths[k + 1]));
+      gn_bias_.push_back(file.Vector(norm + ".bias", widths[k + 1]));
+    }
+  }
+}
+
+void GroupNormMlp::ForwardBatch(const Eigen::Ref<const Eigen::MatrixXd>& X, Eigen::MatrixXd* Y,
+                                Activations* acts) const {
+  M3C_CHECK(X.rows() == input_dim()) << "MLP input has " << X.rows() << " rows, expected " << input_dim();
+  const Eigen::Index n = X.cols();
+  const int layers = static_cast<int>(weight_.size());
+  acts->normalized.resize(layers - 1);
+  acts->inv_std.resize(layers - 1);
+  acts->relu.resize(layers - 1);
+  acts->skip = X.bottomRows(skip_dim_);
+
+  Eigen::MatrixXd h = weight_[0] * X;
+  h.colwise() += bias_[0];
+  for (int k = 1; k < layers; ++k) {
+    const int width = widths_[k], size = width / groups_;
+    Eigen::MatrixXd& xhat = acts->normalized[k - 1];
+    Eigen::MatrixXd& inv = acts->inv_std[k - 1];
+    Eigen::MatrixXd& relu = acts->relu[k - 1];
+    xhat.resize(width, n);
+    inv.resize(groups_, n);
+    relu.resize(width, n);
+    const Eigen::VectorXd& gamma = gn_weight_[k - 1];
+    const Eigen::VectorXd& beta = gn_bias_[k - 1];
+    for (Eigen::Index j = 0; j < n; ++j) {
+      for (int g = 0; g < groups_; ++g) {
+        const auto block = h.col(j).segment(g * size, size);
+        const double mean = block.mean();
+        const double var = (block.array() - mean).square().mean();
+        const double inv_std = 1.0 / std::sqrt(var + eps_);
+        inv(g, j) = inv_std;
+        xhat.col(j).segment(g * size, size) = (block.array() - mean) * inv_std;
+      }
+    }
+    relu = ((xhat.array().colwise() * gamma.array()).colwise() + beta.array()).max(0.0);
+    h = weight_[k].leftCols(width) * relu;
+    if (skip_dim_ > 0) h.noalias() += weight_[k].rightCols(skip_dim_) * acts->skip;
+    h.colwise() += bias_[k];
+  }
+  *Y = std::move(h);
+}
+
+void GroupNormMlp::BackwardBatch(const Activations& acts, const Eigen::Ref<const Eigen::MatrixXd>& dY,
+                                 Eigen::MatrixXd* dX) const {
+  M3C_CHECK(dY.rows() == output_dim()) << "MLP output gradient has " << dY.rows() << " rows, expected "
+                                       << output_dim();
+  const Eigen::Index n = dY.cols();
+  const int layers = static_cast<int>(weight_.size());
+  M3C_CHECK(static_cast<int>(acts.relu.size()) == layers - 1 && (layers == 1 || acts.relu[0].cols() == n))
+      << "BackwardBatch needs the activations of a ForwardBatch over the same " << n << " samples";
+  Eigen::MatrixXd dh = dY;
+  Eigen::MatrixXd dskip = Eigen::MatrixXd::Zero(skip_dim_, n);
+  for (int k = layers - 1; k >= 1; --k) {
+    const int width = widths_[k], size = width / groups_;
+    if (skip_dim_ > 0) dskip.noalias() += weight_[k].rightCols(skip_dim_).transpose() * dh;
+    Eigen::MatrixXd da = weight_[k].leftCols(width).transpose() * dh;
+    // Through ReLU, then GroupNorm's affine: d xhat = dy * gamma where the ReLU passed.
+    const Eigen::MatrixXd& relu = acts.relu[k - 1];
+    da = (relu.array() > 0.0).select(da, 0.0);
+    da.array().colwise() *= gn_weight_[k - 1].array();
+    // Through the normalisation: dx = inv_std * (g - mean(g) - xhat * mean(g * xhat)) per group.
+    const Eigen::MatrixXd& xhat = acts.normalized[k - 1];
+    const Eigen::MatrixXd& inv = acts.inv_std[k - 1];
+    for (Eigen::Index j = 0; j < n; ++j) {
+      for (int g = 0; g < groups_; ++g) {
+        auto grad = da.col(j).segment(g * size, size);
+        const auto xh = xhat.col(j).segment(g * size, size);
+        const double mean_grad = grad.mean();
+        const double mean_grad_xh = grad.dot(xh) / size;
+        grad = inv(g, j) * (grad.array() - mean_grad - xh.array() * mean_grad_xh);
+      }
+    }
+    dh = std::move(da);
+  }
+  *dX = weight_[0].transpose() * dh;
+  if (skip_dim_ > 0) dX->bottomRows(skip_dim_) += dskip;
+}
+
+}  // namespace m3c::nn
