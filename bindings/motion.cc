@@ -68,6 +68,7 @@ void BindMotion(py::module_& m) {
       .def_readonly("seconds", &StageReport::seconds)
       .def_readonly("objective_before", &StageReport::objective_before)
       .def_readonly("objective_after", &StageReport::objective_after)
+      .def_readonly("scale", &StageReport::scale)
       .def_readonly("terms", &StageReport::terms);
   py::class_<TrackResult>(m, "TrackResult")
       .def_readonly("transl", &TrackResult::transl)

@@ -143,33 +143,48 @@ bool PointStencilCost::Evaluate(double const* const* parameters, double* residua
 }
 
 ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
-                                     std::vector<double> point_weights, Eigen::Vector3d normal, double offset,
-                                     double tolerance)
-    : model_(model), regressor_(regressor), normal_(normal.normalized()), offset_(offset), tolerance_(tolerance) {
+                                     std::vector<double> point_weights, const FrameCamera& camera,
+                                     Eigen::Vector3d normal_in_cam, double offset_in_cam, double tolerance)
+    : model_(model),
+      regressor_(regressor),
+      normal_in_world_(camera.cam_from_world_rotation.transpose() * normal_in_cam.normalized()),
+      centre_in_world_(camera.centre_in_world),
+      offset_in_cam_(offset_in_cam / normal_in_cam.norm()),
+      tolerance_(tolerance) {
   M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
-  M3C_CHECK(normal.norm() > 0.5 && std::isfinite(offset)) << "ground plane must have a unit normal and finite offset";
+  M3C_CHECK(normal_in_cam.norm() > 1e-6 && std::isfinite(offset_in_cam))
+      << "ground plane must have a nonzero normal and a finite offset";
   for (double w : point_weights) sqrt_weights_.push_back(std::sqrt(std::max(w, 0.0)));
   set_num_residuals(regressor->num_keypoints());
-  mutable_parameter_block_sizes()->assign({3, 3, 3 * (model->num_joints() - 1), model->num_betas()});
+  mutable_parameter_block_sizes()->assign({3, 3, 3 * (model->num_joints() - 1), model->num_betas(), 1, 3});
 }
 
 bool ContactHeightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints();
   thread_local FramePoints p;
   p.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
+  const double scale = parameters[4][0];
+  const Eigen::Map<const Eigen::Vector3d> offset(parameters[5]);
+  const Eigen::Vector3d& n = normal_in_world_;
+  const double d = offset_in_cam_ - n.dot(scale * centre_in_world_ + offset);
   if (jacobians) {
-    for (int blk = 0; blk < 4; ++blk) {
+    for (int blk = 0; blk < 6; ++blk) {
       if (jacobians[blk]) std::fill(jacobians[blk], jacobians[blk] + K * parameter_block_sizes()[blk], 0.0);
     }
   }
   for (int k = 0; k < K; ++k) {
-    const double height = normal_.dot(Eigen::Map<const Eigen::Vector3d>(p.point(k))) + offset_;
+    const double height = n.dot(Eigen::Map<const Eigen::Vector3d>(p.point(k))) + d;
     const double excess = std::abs(height) - tolerance_;
     residuals[k] = excess > 0 ? sqrt_weights_[k] * excess : 0.0;
     if (!jacobians || excess <= 0) continue;
-    const RowMatrixXd M = (sqrt_weights_[k] * (height >= 0 ? 1.0 : -1.0)) * normal_.transpose();
+    const double a = sqrt_weights_[k] * (height >= 0 ? 1.0 : -1.0);
+    const RowMatrixXd M = a * n.transpose();
     for (int blk = 0; blk < 4; ++blk) {
       if (jacobians[blk]) ChainPointJacobian(M, p, k, blk, jacobians[blk], k, 1.0);
+    }
+    if (jacobians[4]) jacobians[4][k] = -a * n.dot(centre_in_world_);
+    if (jacobians[5]) {
+      for (int c = 0; c < 3; ++c) jacobians[5][3 * k + c] = -a * n[c];
     }
   }
   return true;

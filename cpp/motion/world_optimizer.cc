@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <sstream>
 #include <unordered_map>
 
 #include "body/kinematics.h"
@@ -33,10 +34,12 @@ struct State {
 
 OptimizerConfig DefaultOptimizerConfig() {
   // The thesis's stages (i)-(v) as Ceres solves, with SLAHMR's weights. Departures, each measured on the
-  // synthetic benchmark: the camera scale is estimated in its own stage from foot contacts and freed again only
-  // in the last stage, because first-order joint smoothness pulls the scale towards a world where nobody
-  // moves; and the pose prior is active whenever the body pose is free, because an unregularised 69-dof pose
-  // under 17 keypoints wanders (the thesis's small Adam steps hid that).
+  // synthetic scenes (m3c.eval.scenes): with a camera that follows its subject, any smoothness of world-frame
+  // joints is cheaper in a smaller world, so the camera scale is free only in stages without such terms: it is
+  // initialised in closed form from stance feet and refined from foot contacts and the camera's height above
+  // each person's ground ("camera_scale"), and again with the motion prior; a last "refine" stage smooths with
+  // the scale frozen. The pose prior is active whenever the body pose is free, because an unregularised 69-dof
+  // pose under 17 keypoints wanders (the thesis's small Adam steps hid that).
   OptimizerConfig config;
   const double reprojection = 1e-3, shape = 0.05, smooth = 10.0, pose = 0.04;
   using W = std::map<std::string, double>;
@@ -45,10 +48,12 @@ OptimizerConfig DefaultOptimizerConfig() {
   scale_fit.insert({{"shape_prior", shape}, {"contact_velocity", 100.0}});
   shaped.insert({"shape_prior", shape});
   W smoothed = shaped, posed = shaped, motion = shaped;
+  scale_fit.insert({"contact_height", 10.0});
   smoothed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}});
   posed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}, {"pose_smoothness", 1.0}});
-  motion.insert({{"pose_prior", pose}, {"motion_prior", 0.075}, {"contact_velocity", 100.0}, {"contact_height", 10.0},
-                 {"joint_acceleration", smooth}});
+  motion.insert({{"pose_prior", pose}, {"motion_prior", 0.075}, {"contact_velocity", 100.0}, {"contact_height", 10.0}});
+  W refine = motion;
+  refine.insert({"joint_acceleration", smooth});
   config.stages = {
       {"root_translation", true, false, false, false, false, false, fit, 10},
       {"root_orientation", true, true, false, false, false, true, fit, 20},
@@ -57,6 +62,7 @@ OptimizerConfig DefaultOptimizerConfig() {
       {"joint_smoothness", true, true, true, true, false, true, smoothed, 30},
       {"pose_prior", true, true, true, true, false, true, posed, 20},
       {"motion_prior", true, true, true, true, true, true, motion, 30},
+      {"refine", true, true, true, true, false, true, refine, 20},
   };
   return config;
 }
@@ -238,9 +244,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           }
           if (!any) continue;
           problem->AddResidualBlock(
-              new ContactHeightCost(model_, contact_regressor_, w, tr.ground_normal.row(f).transpose(),
-                                    tr.ground_offset[f], config_.contact_height_tolerance),
-              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]});
+              new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
+                                    tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
+                                    config_.contact_height_tolerance),
+              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
         }
       }
     }
@@ -280,7 +287,57 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return cost_of(&problem);
   };
 
+  // Closed-form scale from stance feet: a foot in contact at t and t+1 is static in the world, and its world
+  // position is p_t = scale * c_t + offset + q_t with q_t fixed by the image (camera-relative). Least squares
+  // over all such pairs: scale = -sum dc.dq / sum |dc|^2. Translations are shifted so that every person keeps
+  // its camera-relative position. Returns a message, empty if there was nothing to go on.
+  auto initialise_scale = [&]() -> std::string {
+    if (!contact_regressor_ || cameras.static_camera) return "";
+    double num = 0.0, den = 0.0;
+    int pairs = 0;
+    FramePoints a, b;
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      const TrackInput& tr = tracks[i];
+      if (tr.contacts.size() == 0) continue;
+      for (int f = 0; f + 1 < static_cast<int>(tr.transl.rows()); ++f) {
+        const Eigen::Vector3d c0 = cameras.world_from_cam[tr.first_frame + f].topRightCorner<3, 1>();
+        const Eigen::Vector3d c1 = cameras.world_from_cam[tr.first_frame + f + 1].topRightCorner<3, 1>();
+        bool evaluated = false;
+        for (int k = 0; k < tr.contacts.cols(); ++k) {
+          const double w = std::min(tr.contacts(f, k), tr.contacts(f + 1, k));
+          if (w < config_.contact_threshold) continue;
+          if (!evaluated) {
+            a.Evaluate(*model_, *contact_regressor_, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]}, false);
+            b.Evaluate(*model_, *contact_regressor_, {vars.transl[i][f + 1], vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]}, false);
+            evaluated = true;
+          }
+          const Eigen::Vector3d dc = c1 - c0;
+          const Eigen::Vector3d dq = (Eigen::Map<const Eigen::Vector3d>(b.point(k)) - state.scale * c1) -
+                                     (Eigen::Map<const Eigen::Vector3d>(a.point(k)) - state.scale * c0);
+          num += w * dc.dot(dq);
+          den += w * dc.squaredNorm();
+          ++pairs;
+        }
+      }
+    }
+    if (pairs < 3 || den <= 1e-12) return "";
+    const double fitted = -num / den;
+    if (!(fitted > 1e-3) || !std::isfinite(fitted)) return "";
+    const double old_scale = state.scale;
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      for (int f = 0; f < state.transl[i].rows(); ++f) {
+        state.transl[i].row(f) += (fitted - old_scale) *
+                                  cameras.world_from_cam[tracks[i].first_frame + f].topRightCorner<3, 1>().transpose();
+      }
+    }
+    state.scale = fitted;
+    std::ostringstream msg;
+    msg << "scale initialised from " << pairs << " stance-foot pairs: " << old_scale << " -> " << fitted;
+    return msg.str();
+  };
+
   OptimizerResult result;
+  bool scale_was_free = false;
   for (const StageConfig& stage : config_.stages) {
     StageReport report;
     report.name = stage.name;
@@ -320,6 +377,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       if (g == Group::kScale && free) problem.SetParameterLowerBound(block, 0, 1e-3);
     }
     const State checkpoint = state;
+    if (stage.scale && !scale_was_free && !cameras.static_camera) {
+      const std::string msg = initialise_scale();
+      if (!msg.empty()) report.message += (report.message.empty() ? "" : "; ") + msg;
+      scale_was_free = true;
+    }
     report.objective_before = cost_of(&problem);
 
     ceres::Solver::Options options;
@@ -353,6 +415,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       report.status = "ok";
     }
     for (auto& tc : report.terms) tc.after = term_cost(tc.term, stage.weights.at(tc.term));
+    report.scale = state.scale;
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     result.stages.push_back(report);
   }

@@ -25,8 +25,8 @@ struct TrackInput {
   RowMatrixXd root;       // (n, 3) initial world-frame root orientation, axis-angle
   RowMatrixXd body;       // (n, 3(J-1)) initial body pose
   Eigen::VectorXd betas;  // (B)
-  RowMatrixXd ground_normal;     // (n, 3) world-frame plane normals, or empty for no ground
-  Eigen::VectorXd ground_offset;  // (n)
+  RowMatrixXd ground_normal;      // (n, 3) ground plane normal in each frame's camera coordinates, or empty
+  Eigen::VectorXd ground_offset;  // (n) plane offset d_c in metres: n_c . x_cam + d_c = 0
   RowMatrixXd contacts;  // (n, C) contact probabilities of `contact_regressor` points, or empty
 };
 
@@ -71,6 +71,7 @@ struct StageReport {
   int iterations = 0;
   double seconds = 0.0;
   double objective_before = 0.0, objective_after = 0.0;
+  double scale = 1.0;  // camera scale after the stage
   std::vector<TermCost> terms;
 };
 

@@ -40,8 +40,8 @@ def walking_pose(phase: np.ndarray, num_joints: int = 24) -> np.ndarray:
     s, c = np.sin(phase), np.cos(phase)
     body[:, 0, 0] = 0.45 * s        # left hip (joint 1) swings about x
     body[:, 1, 0] = -0.45 * s       # right hip
-    body[:, 3, 0] = 0.6 * np.clip(-c, 0, None)   # left knee (joint 4) bends during swing
-    body[:, 4, 0] = 0.6 * np.clip(c, 0, None)    # right knee
+    body[:, 3, 0] = 1.0 * np.clip(-c, 0, None)   # left knee (joint 4) bends during the forward swing
+    body[:, 4, 0] = 1.0 * np.clip(c, 0, None)    # right knee
     body[:, 15, 2] = -1.2            # left shoulder (16): arms down from the T-pose
     body[:, 16, 2] = 1.2             # right shoulder (17)
     body[:, 15, 0] = -0.3 * s        # arms swing opposite to the legs
@@ -55,7 +55,8 @@ def walking_pose(phase: np.ndarray, num_joints: int = 24) -> np.ndarray:
 class SyntheticScene:
     fps: float
     truth: list[Track]          # ground-truth world tracks
-    init: list[Track]           # what the optimizer starts from (keypoints observed, lift with errors)
+    init: list[Track]           # what the optimizer starts from (keypoints observed, lift with errors,
+                                # ground planes in camera coordinates)
     cameras_true: Cameras       # true world_from_cam
     cameras_vo: Cameras         # VO: true rotations, translations divided by vo_scale
     vo_scale: float             # true_translation = vo_scale * vo_translation
@@ -140,8 +141,11 @@ def make_scene(model: BodyModel, num_people: int = 2, num_frames: int = 60, fps:
             lifted_root[i] = (Rotation.from_matrix(vo[i, :3, :3]) * r_cam).as_rotvec()
         body = tr.body_pose + pose_error * rng.normal(size=tr.body_pose.shape)
         betas = tr.betas + 0.3 * rng.normal(size=tr.betas.shape)
-        init.append(Track(0, keypoints, lifted_transl, lifted_root, body, betas, tr.ground_normal.copy(),
-                          tr.ground_offset.copy(), tr.contacts.copy()))
+        # The ground as a camera-local estimate sees it: the world plane y = 0 in each frame's camera.
+        normal_in_cam = np.einsum("tji,j->ti", world_from_cam[:, :3, :3], UP)
+        offset_in_cam = world_from_cam[:, :3, 3] @ UP
+        init.append(Track(0, keypoints, lifted_transl, lifted_root, body, betas, normal_in_cam, offset_in_cam,
+                          tr.contacts.copy()))
     return SyntheticScene(fps, truth, init, cameras_true, cameras_vo, vo_scale, (W, H))
 
 
@@ -156,12 +160,12 @@ def _planted_root_path(model: BodyModel, root: np.ndarray, body: np.ndarray, bet
     transl = np.zeros((n, 3))
     contacts = np.zeros((n, len(CONTACT_JOINTS)))
     transl[0] = start
+    feet = [CONTACT_JOINTS.index(10), CONTACT_JOINTS.index(11)]  # the two foot joints; ankles never plant
     for i in range(1, n):
-        stance = int(np.argmin(local[i, :, 1]))  # the lowest contact joint carries the weight
+        stance = feet[int(np.argmin(local[i, feet, 1]))]  # the lower foot carries the weight
         transl[i, [0, 2]] = transl[i - 1, [0, 2]] + local[i - 1, stance, [0, 2]] - local[i, stance, [0, 2]]
         contacts[i - 1, stance] = 1.0
     contacts[n - 1] = contacts[n - 2] if n > 1 else 0.0
-    # Vertical: the lowest joint on the ground. The stance joint is the lowest at frame i; at frame i - 1 it may
-    # not be, so it is held still horizontally while the pelvis height follows the gait.
-    transl[:, 1] = -local[:, :, 1].min(axis=1)
+    # Vertical: the lower foot on the ground, so the stance foot is (nearly) still vertically too.
+    transl[:, 1] = -local[:, feet, 1].min(axis=1)
     return transl, contacts

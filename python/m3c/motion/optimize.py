@@ -58,6 +58,7 @@ class StageResult:
     seconds: float
     objective_before: float
     objective_after: float
+    camera_scale: float  # after the stage
     terms: dict  # term -> (before, after)
 
 
@@ -138,7 +139,8 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
                                 res.body.reshape(n, -1, 3).copy(), res.betas.copy(), track.ground_normal,
                                 track.ground_offset, track.contacts))
     stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
-                          s.objective_after, {t.term: (t.before, t.after) for t in s.terms}) for s in result.stages]
+                          s.objective_after, s.scale, {t.term: (t.before, t.after) for t in s.terms})
+              for s in result.stages]
     return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early))
 
 

@@ -101,25 +101,43 @@ TEST(Costs, StencilOfAConstantVelocityPathIsZero) {
   for (double v : r) EXPECT_NEAR(v, 0.0, 1e-12);
 }
 
+FrameCamera TestCamera() {
+  FrameCamera cam;
+  cam.cam_from_world_rotation = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1.0, 0.2, 0.1).normalized()).toRotationMatrix();
+  cam.centre_in_world = Eigen::Vector3d(0.4, 1.5, -5.0);
+  cam.fx = cam.fy = 1000, cam.cx = 480, cam.cy = 270;
+  return cam;
+}
+
 TEST(Costs, ContactHeightJacobiansAndDeadZone) {
   const body::BodyModel model = MakeTestModel();
   const auto reg = TwoPointRegressor(model);
   Frame f(model, 11);
-  // Plane far below the points: all residuals active, on the positive side.
-  ContactHeightCost cost(&model, &reg, {1.0, 2.0, 3.0}, Eigen::Vector3d(0.1, -1.0, 0.05), 5.0, 0.08);
-  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()}));
-  // A plane through every point's neighbourhood: inside the tolerance the residual is exactly zero.
-  body::KeypointRegressor one = TwoPointRegressor(model);
-  std::vector<double> pts(9);
-  std::vector<double> pose(3 * model.num_joints());
+  double scale = 1.4, offset[3] = {0.1, -0.2, 0.3};
+  // A plane far below the points: all residuals active.
+  ContactHeightCost cost(&model, &reg, {1.0, 2.0, 3.0}, TestCamera(), Eigen::Vector3d(0.1, -1.0, 0.05), 7.0, 0.08);
+  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
+  // A world plane y = 0 seen from the camera: a point 5 cm above it is inside the tolerance (zero residual), and
+  // the same plane moves with the scale (the camera centre's height scales).
+  std::vector<double> pts(9), pose(3 * model.num_joints());
   std::copy(f.root.begin(), f.root.end(), pose.begin());
   std::copy(f.body.begin(), f.body.end(), pose.begin() + 3);
-  body::KeypointsWithJacobian(model, one, pose.data(), f.betas.data(), f.transl.data(), pts.data(), nullptr);
-  ContactHeightCost flat(&model, &one, {1.0, 0.0, 0.0}, Eigen::Vector3d(0, 1, 0), -pts[1] + 0.05, 0.08);
-  double r[3];
-  const double* params[4] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()};
+  body::KeypointsWithJacobian(model, reg, pose.data(), f.betas.data(), f.transl.data(), pts.data(), nullptr);
+  FrameCamera cam = TestCamera();
+  const Eigen::Vector3d up(0, 1, 0);
+  const Eigen::Vector3d normal_in_cam = cam.cam_from_world_rotation * up;
+  // World plane y = y0 - 0.05 below point 0, expressed in the camera at scale 1 and no offset.
+  const double y0 = pts[1] - 0.05;
+  const double offset_in_cam = up.dot(cam.centre_in_world) - y0;
+  ContactHeightCost flat(&model, &reg, {1.0, 0.0, 0.0}, cam, normal_in_cam, offset_in_cam, 0.08);
+  double r[3], unit_scale = 1.0, no_offset[3] = {0, 0, 0};
+  const double* params[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &unit_scale, no_offset};
   ASSERT_TRUE(flat.Evaluate(params, r, nullptr));
   EXPECT_EQ(r[0], 0.0);
+  double doubled = 2.0;  // the camera is twice as high: the plane drops by the camera height
+  const double* params2[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &doubled, no_offset};
+  ASSERT_TRUE(flat.Evaluate(params2, r, nullptr));
+  EXPECT_NEAR(r[0], std::abs(0.05 - cam.centre_in_world.y()) - 0.08, 1e-9);
 }
 
 TEST(Costs, PriorsJacobians) {
