@@ -6,6 +6,7 @@
 
 #include "body/body_model.h"
 #include "motion/world_optimizer.h"
+#include "nn/humor.h"
 
 namespace m3c::bindings {
 
@@ -86,13 +87,14 @@ void BindMotion(py::module_& m) {
       "optimize_world",
       [](const body::BodyModel& model, const body::KeypointRegressor& keypoints,
          const body::KeypointRegressor* contacts, const std::vector<TrackInput>& tracks, const CameraInput& cameras,
-         const OptimizerConfig& config) {
+         const OptimizerConfig& config, const nn::HumorPrior* motion_prior, double fps) {
         WorldOptimizer optimizer(&model, &keypoints, contacts, config);
+        if (motion_prior) optimizer.SetMotionPrior(motion_prior, fps);
         py::gil_scoped_release release;
         return optimizer.Optimize(tracks, cameras);
       },
       py::arg("model"), py::arg("keypoint_regressor"), py::arg("contact_regressor"), py::arg("tracks"),
-      py::arg("cameras"), py::arg("config"),
+      py::arg("cameras"), py::arg("config"), py::arg("motion_prior") = nullptr, py::arg("fps") = 30.0,
       "Runs the staged world-frame optimization; see m3c.motion.optimize for the public API.");
 }
 

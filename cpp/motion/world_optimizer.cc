@@ -6,6 +6,7 @@
 #include <unordered_map>
 
 #include "body/kinematics.h"
+#include "motion/humor_term.h"
 #include "util/check.h"
 
 namespace m3c::motion {
@@ -93,6 +94,12 @@ WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::Keypoin
 
 void WorldOptimizer::AddTerm(const std::string& name, TermBuilder builder) {
   terms_.emplace_back(name, std::move(builder));
+}
+
+void WorldOptimizer::SetMotionPrior(const nn::HumorPrior* prior, double fps) {
+  M3C_CHECK(fps > 0) << "fps must be > 0";
+  motion_prior_ = prior;
+  fps_ = fps;
 }
 
 OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, const CameraInput& cameras) {
@@ -252,6 +259,33 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       }
     }
   };
+  // HuMoR transitions over frames t-1..t+2 in each person's ground frame (its plane at the middle of the track,
+  // moved to the world with the current camera scale). The level c sits 100 nats below each block's start.
+  auto add_motion_prior = [&](double weight, ceres::Problem* problem) {
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      const TrackInput& tr = tracks[i];
+      const int n = static_cast<int>(tr.transl.rows());
+      if (tr.ground_normal.size() == 0 || n < 4) continue;
+      const int mid = n / 2;
+      const FrameCamera cam = frame_camera(tr.first_frame + mid);
+      const Eigen::Vector3d normal = cam.cam_from_world_rotation.transpose() * tr.ground_normal.row(mid).transpose();
+      const double offset = tr.ground_offset[mid] / tr.ground_normal.row(mid).norm() -
+                            normal.normalized().dot(state.scale * cam.centre_in_world + state.offset);
+      Eigen::Matrix3d R;
+      Eigen::Vector3d t;
+      GroundFrame(normal, offset, &R, &t);
+      for (int f = 1; f + 2 < n; ++f) {
+        std::vector<double*> blocks;
+        for (int g = f - 1; g <= f + 2; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
+        blocks.push_back(vars.betas[i]);
+        HumorTransitionCost probe(model_, motion_prior_, fps_, R, t, weight, 0.0);
+        const double level = probe.Nll(blocks.data()) - 100.0;
+        if (!std::isfinite(level)) continue;
+        problem->AddResidualBlock(new HumorTransitionCost(model_, motion_prior_, fps_, R, t, weight, level), nullptr,
+                                  blocks);
+      }
+    }
+  };
   auto is_builtin = [](const std::string& term) {
     const auto& names = BuiltinTerms();
     return std::find(names.begin(), names.end(), term) != names.end();
@@ -265,6 +299,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   auto add_term = [&](const std::string& term, double weight, ceres::Problem* problem) {
     if (is_builtin(term)) {
       add_builtin(term, weight, problem);
+      return true;
+    }
+    if (term == "motion_prior" && motion_prior_ != nullptr) {
+      add_motion_prior(weight, problem);
       return true;
     }
     if (const TermBuilder* builder = find_extra(term)) {

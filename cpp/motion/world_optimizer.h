@@ -14,6 +14,7 @@
 
 #include "body/body_model.h"
 #include "motion/costs.h"
+#include "nn/humor.h"
 
 namespace m3c::motion {
 
@@ -106,6 +107,10 @@ class WorldOptimizer {
   // Registers a term by name; stages activate it through their weights map.
   void AddTerm(const std::string& name, TermBuilder builder);
 
+  // Enables the "motion_prior" term: HuMoR's transition likelihood of consecutive states (humor_term.h) for
+  // every person with a ground plane. fps is the video's frame rate (HuMoR was trained at 30).
+  void SetMotionPrior(const nn::HumorPrior* prior, double fps);
+
   OptimizerResult Optimize(const std::vector<TrackInput>& tracks, const CameraInput& cameras);
 
   // Names of the built-in terms.
@@ -118,6 +123,8 @@ class WorldOptimizer {
   std::unique_ptr<body::KeypointRegressor> joint_regressor_;
   OptimizerConfig config_;
   std::vector<std::pair<std::string, TermBuilder>> terms_;
+  const nn::HumorPrior* motion_prior_ = nullptr;
+  double fps_ = 30.0;
 };
 
 }  // namespace m3c::motion

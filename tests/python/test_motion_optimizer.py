@@ -86,3 +86,28 @@ def test_bad_inputs_raise_clear_errors(model, scene):
     late = type(bad)(**{**bad.__dict__, "first_frame": 10})
     with pytest.raises(ValueError, match="outside the 60 camera frames"):
         optimize(model, [late], scene.cameras_vo)
+
+
+def test_motion_prior_stage_with_exported_humor(model, tmp_path):
+    """HuMoR with random weights in the official layout, exported to safetensors, drives the motion-prior term."""
+    torch = pytest.importorskip("torch")
+    from m3c.models.export import export_weights
+    from m3c.models.humor import HumorModel
+
+    torch.manual_seed(0)
+    export_weights(tmp_path, humor=HumorModel().eval(), dtype="float64")
+    scene = make_scene(model, num_people=1, num_frames=12, seed=5)
+    config = OptimizerConfig.default()
+    motion = next(s for s in config.stages if s.name == "motion_prior")
+    motion.max_iterations = 3
+    config.stages = [config.stages[0], motion]
+    res = optimize(model, scene.init, scene.cameras_vo, config, motion_prior=tmp_path / "humor.safetensors",
+                   fps=scene.fps)
+    stage = res.stages[-1]
+    assert stage.status == "ok", stage.message
+    assert "unavailable" not in stage.message
+    before, after = stage.terms["motion_prior"]
+    assert np.isfinite(before) and np.isfinite(after)
+    assert stage.objective_after <= stage.objective_before
+    with pytest.raises(FileNotFoundError, match="missing.safetensors"):
+        optimize(model, scene.init, scene.cameras_vo, config, motion_prior=tmp_path / "missing.safetensors")

@@ -1,0 +1,138 @@
+#include "motion/humor_term.h"
+
+#include <gtest/gtest.h>
+
+#include "body/kinematics.h"
+#include "../body/test_model.h"
+#include "../nn/test_files.h"
+
+namespace m3c::motion {
+namespace {
+
+using body::testing::MakeTestModel;
+using body::testing::RandomVector;
+
+struct Window {
+  std::vector<std::vector<double>> transl, root, body;
+  std::vector<double> betas;
+  std::vector<const double*> Pointers() const {
+    std::vector<const double*> p;
+    for (int f = 0; f < 4; ++f) p.insert(p.end(), {transl[f].data(), root[f].data(), body[f].data()});
+    p.push_back(betas.data());
+    return p;
+  }
+};
+
+// Four frames of a body moving forward with small pose changes.
+Window MakeWindow(const body::BodyModel& model) {
+  Window w;
+  const auto base_body = RandomVector(3 * (model.num_joints() - 1), 0.3, 3);
+  for (int f = 0; f < 4; ++f) {
+    w.transl.push_back({0.05 * f, 0.9 + 0.01 * f, 0.02 * f});
+    w.root.push_back({0.1, 0.3 + 0.02 * f, -0.05});
+    auto body = base_body;
+    const auto delta = RandomVector(body.size(), 0.02, 10 + f);
+    for (size_t i = 0; i < body.size(); ++i) body[i] += delta[i];
+    w.body.push_back(body);
+  }
+  w.betas = RandomVector(model.num_betas(), 0.5, 7);
+  return w;
+}
+
+class HumorTermTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    file_ = new nn::testing::TempFile("humor_term.safetensors");
+    nn::testing::WriteRandomHumor(file_->path(), 32, 4, 3);
+    prior_ = new nn::HumorPrior(nn::HumorPrior::FromFile(file_->path()));
+  }
+  static void TearDownTestSuite() {
+    delete prior_;
+    delete file_;
+  }
+  static nn::testing::TempFile* file_;
+  static nn::HumorPrior* prior_;
+};
+nn::testing::TempFile* HumorTermTest::file_ = nullptr;
+nn::HumorPrior* HumorTermTest::prior_ = nullptr;
+
+TEST_F(HumorTermTest, JacobiansMatchNumericDifferences) {
+  const body::BodyModel model = MakeTestModel();
+  const Window w = MakeWindow(model);
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+  GroundFrame(Eigen::Vector3d(0.05, 1.0, -0.1), 0.95, &R, &t);
+  HumorTransitionCost probe(&model, prior_, 30.0, R, t, 0.075, 0.0);
+  const auto params = w.Pointers();
+  const double nll = probe.Nll(params.data());
+  ASSERT_TRUE(std::isfinite(nll));
+  HumorTransitionCost cost(&model, prior_, 30.0, R, t, 0.075, nll - 100.0);
+  double r;
+  ASSERT_TRUE(cost.Evaluate(params.data(), &r, nullptr));
+  EXPECT_NEAR(r * r, 0.075 * 100.0, 1e-9);  // r^2 = w (nll - level)
+  // Central differences, block by block. (ceres::GradientChecker reports large errors on this cost while these
+  // differences agree to ~1e-9; the cause was not found, see the issue note.)
+  std::vector<std::vector<double>> jac(13);
+  std::vector<double*> jp(13);
+  for (int b = 0; b < 13; ++b) {
+    jac[b].resize(cost.parameter_block_sizes()[b]);
+    jp[b] = jac[b].data();
+  }
+  ASSERT_TRUE(cost.Evaluate(params.data(), &r, jp.data()));
+  Window probe_window = w;
+  auto ptrs = probe_window.Pointers();
+  for (int b = 0; b < 13; ++b) {
+    double* x = const_cast<double*>(ptrs[b]);
+    for (int i = 0; i < cost.parameter_block_sizes()[b]; ++i) {
+      const double old = x[i];
+      double plus, minus;
+      x[i] = old + 1e-6;
+      ASSERT_TRUE(cost.Evaluate(ptrs.data(), &plus, nullptr));
+      x[i] = old - 1e-6;
+      ASSERT_TRUE(cost.Evaluate(ptrs.data(), &minus, nullptr));
+      x[i] = old;
+      EXPECT_NEAR(jac[b][i], (plus - minus) / 2e-6, 1e-7 * std::max(1.0, std::abs(jac[b][i])))
+          << "block " << b << " entry " << i;
+    }
+  }
+}
+
+TEST_F(HumorTermTest, InvariantToHeadingAndHorizontalPlacement) {
+  // HuMoR canonicalises each transition: turning the whole window about the up axis and sliding it along the
+  // ground leaves the likelihood unchanged.
+  const body::BodyModel model = MakeTestModel();
+  Window w = MakeWindow(model);
+  Eigen::Matrix3d R;
+  Eigen::Vector3d t;
+  GroundFrame(Eigen::Vector3d(0, 1, 0), 0.0, &R, &t);
+  HumorTransitionCost cost(&model, prior_, 30.0, R, t, 1.0, 0.0);
+  const double before = cost.Nll(w.Pointers().data());
+  const Eigen::AngleAxisd yaw(0.7, Eigen::Vector3d::UnitY());
+  for (int f = 0; f < 4; ++f) {
+    // Rotate the body about the world origin (pelvis offsets included) by turning root and translation.
+    Eigen::Vector3d aa(w.root[f][0], w.root[f][1], w.root[f][2]);
+    const Eigen::AngleAxisd root(aa.norm(), aa.normalized());
+    const Eigen::AngleAxisd turned(yaw * root);
+    const Eigen::Vector3d axis = turned.angle() * turned.axis();
+    // The root rotates about the rest pelvis, so the translation follows the pelvis: use the FK pelvis.
+    std::vector<double> pose(3 * model.num_joints(), 0.0), pelvis(3);
+    for (int c = 0; c < 3; ++c) pose[c] = w.root[f][c];
+    std::copy(w.body[f].begin(), w.body[f].end(), pose.begin() + 3);
+    body::KeypointRegressor first = body::IdentityJointRegressor(model);
+    std::vector<double> joints(3 * model.num_joints());
+    const double zero[3] = {0, 0, 0};
+    body::KeypointsWithJacobian(model, first, pose.data(), w.betas.data(), zero, joints.data(), nullptr);
+    const Eigen::Vector3d j0(joints[0], joints[1], joints[2]);
+    const Eigen::Vector3d tr(w.transl[f][0], w.transl[f][1], w.transl[f][2]);
+    const Eigen::Vector3d moved = yaw * (tr + j0) - j0 + Eigen::Vector3d(1.5, 0.0, -2.0);
+    for (int c = 0; c < 3; ++c) {
+      w.root[f][c] = axis[c];
+      w.transl[f][c] = moved[c];
+    }
+  }
+  EXPECT_NEAR(cost.Nll(w.Pointers().data()), before, 1e-8 * std::max(1.0, std::abs(before)));
+}
+
+}  // namespace
+}  // namespace m3c::motion
+
