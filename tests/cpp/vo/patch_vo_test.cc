@@ -1,0 +1,139 @@
+#include "vo/patch_vo.h"
+
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <opencv2/imgproc.hpp>
+
+namespace m3c::vo {
+namespace {
+
+constexpr int kW = 320, kH = 240;
+
+cv::Mat Texture(int size, unsigned seed) {
+  cv::RNG rng(seed);
+  cv::Mat coarse(size, size, CV_32F), fine(size, size, CV_32F);
+  rng.fill(coarse, cv::RNG::NORMAL, 0.0, 1.0);
+  rng.fill(fine, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(coarse, coarse, cv::Size(0, 0), 8.0);
+  cv::GaussianBlur(fine, fine, cv::Size(0, 0), 2.0);
+  cv::Mat sum = coarse * 10.0 + fine * 3.0;
+  cv::normalize(sum, sum, 15, 240, cv::NORM_MINMAX);
+  cv::Mat out;
+  sum.convertTo(out, CV_8U);
+  return out;
+}
+
+// Exact rendering of a textured plane z = depth (world) by a homography: texture pixel (s, t) is the world point
+// (x0 + res s, y0 + res t, depth).
+cv::Mat RenderPlane(const cv::Mat& texture, const Intrinsics& K, const Rigid3& cam_from_world, double depth) {
+  const double res = 0.01, x0 = -0.5 * texture.cols * res, y0 = -0.5 * texture.rows * res;
+  Eigen::Matrix3d A;
+  A << res, 0, x0, 0, res, y0, 0, 0, depth;
+  Eigen::Matrix3d Km;
+  Km << K.fx, 0, K.cx, 0, K.fy, K.cy, 0, 0, 1;
+  Eigen::Matrix3d M = cam_from_world.rotation.toRotationMatrix() * A;
+  M.col(2) += cam_from_world.translation;
+  const Eigen::Matrix3d H = Km * M;
+  cv::Mat Hcv(3, 3, CV_64F);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) Hcv.at<double>(r, c) = H(r, c);
+  cv::Mat out;
+  cv::warpPerspective(texture, out, Hcv, cv::Size(kW, kH), cv::INTER_LINEAR, cv::BORDER_CONSTANT, cv::Scalar(0));
+  return out;
+}
+
+Rigid3 CamFromWorldAt(int i) {
+  // Camera centre along a gentle curve, slowly yawing; cam_from_world = inverse of world_from_cam.
+  const Eigen::Vector3d centre(0.04 * i, 0.01 * std::sin(0.3 * i), 0.03 * i);
+  const Eigen::Quaterniond world_from_cam = ExpSO3(Eigen::Vector3d(0.0, 0.004 * i, 0.002 * i));
+  return Rigid3(world_from_cam, centre).Inverse();
+}
+
+double AteOverPathLength(const std::vector<Rigid3>& estimated_world_from_cam, const std::vector<Rigid3>& true_world_from_cam) {
+  const int n = static_cast<int>(estimated_world_from_cam.size());
+  Eigen::Matrix3Xd est(3, n), gt(3, n);
+  double path = 0.0;
+  for (int i = 0; i < n; ++i) {
+    est.col(i) = estimated_world_from_cam[i].translation;
+    gt.col(i) = true_world_from_cam[i].translation;
+    if (i > 0) path += (gt.col(i) - gt.col(i - 1)).norm();
+  }
+  const Eigen::Matrix4d sim = Eigen::umeyama(est, gt, true);
+  const Eigen::Matrix3Xd aligned = (sim.topLeftCorner<3, 3>() * est).colwise() + sim.topRightCorner<3, 1>();
+  return std::sqrt((aligned - gt).colwise().squaredNorm().mean()) / path;
+}
+
+TEST(PatchVO, PlanarSceneTrajectoryWithinTwoPercent) {
+  const cv::Mat texture = Texture(900, 1);
+  const Intrinsics K = Intrinsics::Default(kW, kH);
+  PatchVOOptions options;
+  options.patches_per_frame = 64;
+  PatchVO vo(options);  // default intrinsics == K
+  std::vector<Rigid3> truth;
+  const Rigid3 world_from_first = CamFromWorldAt(0).Inverse();
+  for (int i = 0; i < 30; ++i) {
+    vo.AddFrame(RenderPlane(texture, K, CamFromWorldAt(i), 3.0));
+    truth.push_back(world_from_first.Inverse() * CamFromWorldAt(i).Inverse());
+  }
+  const PatchVOResult r = vo.Finish();
+  ASSERT_EQ(r.world_from_cam.size(), 30u);
+  EXPECT_FALSE(r.static_camera);
+  EXPECT_DOUBLE_EQ(r.intrinsics.fx, K.fx);
+  EXPECT_LT(LeftMinus(r.world_from_cam[0], Rigid3()).norm(), 1e-12);
+  const double ate = AteOverPathLength(r.world_from_cam, truth);
+  EXPECT_LT(ate, 0.02) << "ATE / path length";
+  // Rotation follows the truth (rotations are scale free).
+  for (int i = 0; i < 30; ++i) {
+    EXPECT_LT(LogSO3(r.world_from_cam[i].rotation * truth[i].rotation.conjugate()).norm(), 0.01) << i;
+  }
+  EXPECT_GT(r.stats.num_keyframes, 2);
+  for (const auto& q : r.quality) EXPECT_GE(q.tracked, 0);
+}
+
+TEST(PatchVO, StaticCameraIsReportedWithIdentityTrajectory) {
+  const cv::Mat texture = Texture(900, 2);
+  const cv::Mat frame = RenderPlane(texture, Intrinsics::Default(kW, kH), Rigid3(), 3.0);
+  PatchVO vo;
+  for (int i = 0; i < 15; ++i) vo.AddFrame(frame);
+  const PatchVOResult r = vo.Finish();
+  EXPECT_TRUE(r.static_camera);
+  for (const auto& pose : r.world_from_cam) EXPECT_LT(LeftMinus(pose, Rigid3()).norm(), 1e-6);
+}
+
+TEST(PatchVO, ClearErrorsForUnusableInput) {
+  const cv::Mat texture = Texture(900, 3);
+  const cv::Mat frame = RenderPlane(texture, Intrinsics::Default(kW, kH), Rigid3(), 3.0);
+  {
+    PatchVO vo;
+    vo.AddFrame(frame);
+    try {
+      vo.Finish();
+      FAIL() << "one frame must be rejected";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("too few frames"), std::string::npos) << e.what();
+    }
+  }
+  {
+    PatchVO vo;
+    const cv::Mat flat(kH, kW, CV_8U, cv::Scalar(90));
+    for (int i = 0; i < 5; ++i) vo.AddFrame(flat);
+    try {
+      vo.Finish();
+      FAIL() << "textureless frames must be rejected";
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("no texture"), std::string::npos) << e.what();
+    }
+  }
+  {
+    PatchVO vo;
+    vo.AddFrame(frame);
+    EXPECT_THROW(vo.AddFrame(cv::Mat(100, 100, CV_8U, cv::Scalar(0))), std::invalid_argument);
+    EXPECT_THROW(vo.AddFrame(frame, cv::Mat(10, 10, CV_8U)), std::invalid_argument);
+    EXPECT_THROW(vo.AddFrame(frame, cv::Mat(), cv::Mat(kH, kW, CV_64F)), std::invalid_argument);
+  }
+  EXPECT_THROW(PatchVO(PatchVOOptions{}, Intrinsics{-1, 1, 0, 0}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace m3c::vo
