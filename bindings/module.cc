@@ -5,9 +5,11 @@ namespace py = pybind11;
 
 namespace m3c::bindings {
 void BindBody(py::module_& m);
+void BindVO(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "M3C C++ core (Eigen, Ceres, OpenCV). Use the m3c package's public API rather than this module.";
   m3c::bindings::BindBody(m);
+  m3c::bindings::BindVO(m);
 }

@@ -34,6 +34,13 @@ class FrontEnd {
   virtual std::vector<Eigen::Vector2d> SamplePatches(int frame, int count) = 0;
   // Measures each request (patch from its host frame) in `target_frame`. All hosts and the target must be held.
   virtual std::vector<TrackResult> Track(int target_frame, const std::vector<TrackRequest>& requests) = 0;
+  // A stricter second look at measurements before they enter the bundle adjustment (the LK front-end: a
+  // forward-backward check); clears `ok` where it fails. PatchVO calls it only for keyframes, so frames that
+  // stay out of the graph pay for one pass. The default accepts everything.
+  virtual void Verify(int target_frame, const std::vector<TrackRequest>& requests,
+                      std::vector<TrackResult>* results) {
+    (void)target_frame, (void)requests, (void)results;
+  }
   // The VO no longer needs this frame (neither as host nor as target).
   virtual void ReleaseFrame(int frame) = 0;
 };

@@ -51,11 +51,11 @@ std::vector<TrackResult> LucasKanadeFrontEnd::Track(int target_frame, const std:
   const double margin = options_.window_px / 2 + 1;
   const double max_x = target.gray.cols - 1 - margin, max_y = target.gray.rows - 1 - margin;
 
-  // One forward and one backward LK call per host frame.
+  // One LK call per host frame.
   std::map<int, std::vector<int>> by_host;
   for (int i = 0; i < static_cast<int>(requests.size()); ++i) by_host[requests[i].host_frame].push_back(i);
-  std::vector<cv::Point2f> host_pts, fwd_pts, back_pts;
-  std::vector<uchar> status_f, status_b;
+  std::vector<cv::Point2f> host_pts, fwd_pts;
+  std::vector<uchar> status;
   std::vector<float> err;
   for (const auto& [host_id, idx] : by_host) {
     const Frame& host = Get(host_id);
@@ -66,17 +66,12 @@ std::vector<TrackResult> LucasKanadeFrontEnd::Track(int target_frame, const std:
       host_pts[k] = cv::Point2f(static_cast<float>(r.host_uv.x()), static_cast<float>(r.host_uv.y()));
       fwd_pts[k] = cv::Point2f(static_cast<float>(r.predicted_uv.x()), static_cast<float>(r.predicted_uv.y()));
     }
-    cv::calcOpticalFlowPyrLK(host.pyramid, target.pyramid, host_pts, fwd_pts, status_f, err, win,
-                             options_.pyramid_levels, criteria, cv::OPTFLOW_USE_INITIAL_FLOW, options_.min_eigen);
-    back_pts = host_pts;
-    cv::calcOpticalFlowPyrLK(target.pyramid, host.pyramid, fwd_pts, back_pts, status_b, err, win,
+    cv::calcOpticalFlowPyrLK(host.pyramid, target.pyramid, host_pts, fwd_pts, status, err, win,
                              options_.pyramid_levels, criteria, cv::OPTFLOW_USE_INITIAL_FLOW, options_.min_eigen);
     for (size_t k = 0; k < idx.size(); ++k) {
-      if (!status_f[k] || !status_b[k]) continue;
+      if (!status[k]) continue;
       const cv::Point2f p = fwd_pts[k];
       if (!(p.x >= margin && p.y >= margin && p.x <= max_x && p.y <= max_y)) continue;
-      const cv::Point2f fb = back_pts[k] - host_pts[k];
-      if (fb.x * fb.x + fb.y * fb.y > options_.forward_backward_px * options_.forward_backward_px) continue;
       if (options_.reject_masked && !target.mask.empty() &&
           target.mask.at<uchar>(cvRound(p.y), cvRound(p.x)) != 0) {
         continue;
@@ -87,7 +82,48 @@ std::vector<TrackResult> LucasKanadeFrontEnd::Track(int target_frame, const std:
       out.ok = true;
     }
   }
+  if (options_.forward_backward_in_track) BackwardCheck(target_frame, requests, &results);
   return results;
+}
+
+void LucasKanadeFrontEnd::Verify(int target_frame, const std::vector<TrackRequest>& requests,
+                                 std::vector<TrackResult>* results) {
+  if (!options_.forward_backward_in_track) BackwardCheck(target_frame, requests, results);
+}
+
+void LucasKanadeFrontEnd::BackwardCheck(int target_frame, const std::vector<TrackRequest>& requests,
+                                        std::vector<TrackResult>* results) const {
+  M3C_CHECK(results->size() == requests.size()) << results->size() << " results for " << requests.size() << " requests";
+  const Frame& target = Get(target_frame);
+  const cv::Size win(options_.window_px, options_.window_px);
+  const cv::TermCriteria criteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, options_.max_iterations,
+                                  options_.epsilon);
+  std::map<int, std::vector<int>> by_host;
+  for (int i = 0; i < static_cast<int>(requests.size()); ++i) {
+    if ((*results)[i].ok) by_host[requests[i].host_frame].push_back(i);
+  }
+  std::vector<cv::Point2f> host_pts, fwd_pts, back_pts;
+  std::vector<uchar> status;
+  std::vector<float> err;
+  const double max_fb2 = options_.forward_backward_px * options_.forward_backward_px;
+  for (const auto& [host_id, idx] : by_host) {
+    const Frame& host = Get(host_id);
+    host_pts.resize(idx.size());
+    fwd_pts.resize(idx.size());
+    for (size_t k = 0; k < idx.size(); ++k) {
+      const TrackRequest& r = requests[idx[k]];
+      host_pts[k] = cv::Point2f(static_cast<float>(r.host_uv.x()), static_cast<float>(r.host_uv.y()));
+      const Eigen::Vector2d& uv = (*results)[idx[k]].uv;
+      fwd_pts[k] = cv::Point2f(static_cast<float>(uv.x()), static_cast<float>(uv.y()));
+    }
+    back_pts = host_pts;
+    cv::calcOpticalFlowPyrLK(target.pyramid, host.pyramid, fwd_pts, back_pts, status, err, win,
+                             options_.pyramid_levels, criteria, cv::OPTFLOW_USE_INITIAL_FLOW, options_.min_eigen);
+    for (size_t k = 0; k < idx.size(); ++k) {
+      const cv::Point2f fb = back_pts[k] - host_pts[k];
+      if (!status[k] || fb.x * fb.x + fb.y * fb.y > max_fb2) (*results)[idx[k]].ok = false;
+    }
+  }
 }
 
 void LucasKanadeFrontEnd::ReleaseFrame(int frame) { frames_.erase(frame); }

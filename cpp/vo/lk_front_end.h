@@ -20,6 +20,7 @@ struct LucasKanadeOptions {
   double epsilon = 0.02;       // LK stop criterion, pixels
   double min_eigen = 1e-3;     // OpenCV's minEigThreshold: rejects textureless windows
   double forward_backward_px = 0.75;  // max |host - track_back(track(host))|
+  bool forward_backward_in_track = false;  // true: check inside Track; false: only when Verify is called
   bool reject_masked = true;   // drop measurements inside the target's dilated mask
   unsigned seed = 0;
 };
@@ -29,7 +30,10 @@ class LucasKanadeFrontEnd final : public FrontEnd {
   explicit LucasKanadeFrontEnd(const LucasKanadeOptions& options = {});
   void AddFrame(int frame, const cv::Mat& gray, const cv::Mat& mask) override;
   std::vector<Eigen::Vector2d> SamplePatches(int frame, int count) override;
+  // Forward LK (and the mask test); with `forward_backward_in_track` also the forward-backward check.
   std::vector<TrackResult> Track(int target_frame, const std::vector<TrackRequest>& requests) override;
+  // Forward-backward check of earlier Track results (no-op for results Track already checked).
+  void Verify(int target_frame, const std::vector<TrackRequest>& requests, std::vector<TrackResult>* results) override;
   void ReleaseFrame(int frame) override;
 
   int num_frames_held() const { return static_cast<int>(frames_.size()); }
@@ -41,6 +45,8 @@ class LucasKanadeFrontEnd final : public FrontEnd {
     std::vector<cv::Mat> pyramid;
   };
   const Frame& Get(int frame) const;
+  void BackwardCheck(int target_frame, const std::vector<TrackRequest>& requests,
+                     std::vector<TrackResult>* results) const;
 
   LucasKanadeOptions options_;
   std::map<int, Frame> frames_;

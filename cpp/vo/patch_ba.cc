@@ -188,8 +188,6 @@ PatchBASummary SolvePatchBA(const PatchBAOptions& options, PatchBAData* data) {
       problem.SetParameterBlockConstant(&depths[p]);
     } else {
       depths[p] = std::clamp(depths[p], options.min_inverse_depth, options.max_inverse_depth);
-      problem.SetParameterLowerBound(&depths[p], 0, options.min_inverse_depth);
-      problem.SetParameterUpperBound(&depths[p], 0, options.max_inverse_depth);
       ++summary.num_free_patches;
     }
     ordering->AddElementToGroup(&depths[p], 0);
@@ -224,7 +222,11 @@ PatchBASummary SolvePatchBA(const PatchBAOptions& options, PatchBAData* data) {
       if (pose_used[i]) data->cam_from_world[i] = Rigid3::FromParams(&pose_params[7 * i]);
     }
     for (int p = 0; p < num_patches; ++p) {
-      if (patch_used[p]) data->patches[p].inverse_depth = depths[p];
+      // Clamped after the solve, as DPVO clamps after each update (Ceres bounds would double the Jacobian
+      // evaluations per iteration).
+      if (patch_used[p] && !data->patches[p].fixed) {
+        data->patches[p].inverse_depth = std::clamp(depths[p], options.min_inverse_depth, options.max_inverse_depth);
+      }
     }
   }
   summary.solve_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -115,7 +115,7 @@ struct PatchBAOptions {
   int dense_max_poses = 40;
   int max_iterations = 10;
   double function_tolerance = 1e-6;
-  double min_inverse_depth = 1e-3;  // DPVO clamps inverse depth; here as Ceres bounds
+  double min_inverse_depth = 1e-3;  // free inverse depths are clamped to this range after the solve (DPVO)
   double max_inverse_depth = 10.0;
   int num_threads = 1;
 };

@@ -374,13 +374,14 @@ struct PatchVO::Impl {
     return changed;
   }
 
-  // DPVO's flow_mag between keyframe indices i and j, over the patches hosted at i.
-  double MotionMagnitude(int i, int j) const {
-    const Rigid3 j_from_i = frames[keyframes[j]].cam_from_world * frames[keyframes[i]].cam_from_world.Inverse();
+  // DPVO's flow_mag: mean of beta |full flow| + (1 - beta) |translation-only flow| of the patches hosted at
+  // `host_frame` when seen from `target_from_world`; infinity when the host has no patches.
+  double FlowMagnitude(int host_frame, const Rigid3& target_from_world) const {
+    const Rigid3 j_from_i = target_from_world * frames[host_frame].cam_from_world.Inverse();
     const Eigen::Matrix3d R = j_from_i.rotation.toRotationMatrix();
     double sum = 0.0;
     int n = 0;
-    for (int p : frames[keyframes[i]].hosted) {
+    for (int p : frames[host_frame].hosted) {
       const Patch& patch = patches[p];
       if (patch.dead) continue;
       const Eigen::Vector3d b = K.Unproject(patch.uv);
@@ -400,7 +401,8 @@ struct PatchVO::Impl {
     const int k = n - options.keyframe_index;
     const int i = k - 1, j = k + 1;
     if (i < 0 || k < 1 || j >= n) return;
-    const double m = 0.5 * (MotionMagnitude(i, j) + MotionMagnitude(j, i));
+    const double m = 0.5 * (FlowMagnitude(keyframes[i], frames[keyframes[j]].cam_from_world) +
+                            FlowMagnitude(keyframes[j], frames[keyframes[i]].cam_from_world));
     if (!(m < options.keyframe_threshold_px)) return;
     const int f = keyframes[k], ref = keyframes[k - 1];
     Frame& frame = frames[f];
@@ -460,20 +462,33 @@ struct PatchVO::Impl {
       }
     }
     t0 = Clock::now();
-    const std::vector<TrackResult> results = front_end->Track(t, requests);
+    std::vector<TrackResult> results = front_end->Track(t, requests);
     stats.front_end_seconds += Seconds(t0);
-    int tracked = 0;
-    for (size_t i = 0; i < results.size(); ++i) {
-      if (!results[i].ok) continue;
-      AddObservation(request_patch[i], t, results[i]);
-      patches[request_patch[i]].last_uv = results[i].uv;
-      ++tracked;
-    }
+    int measured = 0;
+    for (const TrackResult& r : results) measured += r.ok;
     frames[t].quality.attempted = static_cast<int>(requests.size());
-    frames[t].quality.tracked = tracked;
+
+    // Commits the measurements still marked ok; returns how many.
+    auto commit = [&](const std::vector<TrackResult>& res) {
+      int count = 0;
+      for (size_t i = 0; i < res.size(); ++i) {
+        if (!res[i].ok) continue;
+        AddObservation(request_patch[i], t, res[i]);
+        patches[request_patch[i]].last_uv = res[i].uv;
+        ++count;
+      }
+      frames[t].quality.tracked = count;
+      return count;
+    };
+    auto verify_and_commit = [&]() {
+      t0 = Clock::now();
+      front_end->Verify(t, requests, &results);
+      stats.front_end_seconds += Seconds(t0);
+      return commit(results);
+    };
 
     if (!initialized) {
-      if (tracked < options.min_texture_patches) {
+      if (measured < options.min_texture_patches) {
         // Lost before the map existed: start again from this frame if it can.
         Restart();
         if (!TryStart(t, depth)) Release(t);
@@ -482,8 +497,9 @@ struct PatchVO::Impl {
       // Motion probe: median displacement since the last keyframe.
       const int last = keyframes.back();
       std::vector<double> flow;
-      for (int o : frames[t].observations) {
-        const Patch& patch = patches[observations[o].patch];
+      for (size_t i = 0; i < results.size(); ++i) {
+        if (!results[i].ok) continue;
+        const Patch& patch = patches[request_patch[i]];
         Eigen::Vector2d prev = patch.uv;
         bool found = patch.host == last;
         for (int po : patch.observations) {
@@ -492,9 +508,10 @@ struct PatchVO::Impl {
             found = true;
           }
         }
-        if (found) flow.push_back((observations[o].uv - prev).norm());
+        if (found) flow.push_back((results[i].uv - prev).norm());
       }
       if (flow.empty() || Median(flow) < options.init_min_flow_px) {
+        commit(results);
         frames[t].ref = last;
         frames[t].delta = Rigid3();
         Release(t);
@@ -502,13 +519,52 @@ struct PatchVO::Impl {
       }
     }
 
+    Rigid3 pose = predicted;
+    if (initialized && options.new_keyframe_flow_px > 0) {
+      // Motion-only pose against the current map. A frame that moved less than new_keyframe_flow_px (DPVO's
+      // flow measure) since the last keyframe stays out of the graph, its pose kept relative to that keyframe:
+      // it would be removed by the keyframe test anyway, and skipping it saves its patches and a window BA.
+      std::vector<Eigen::Vector4d> points;
+      std::vector<Eigen::Vector2d> uvs;
+      for (size_t i = 0; i < results.size(); ++i) {
+        const Patch& p = patches[request_patch[i]];
+        if (!results[i].ok || !p.optimized || p.dead) continue;
+        points.push_back(WorldPoint(p, false));
+        uvs.push_back(results[i].uv);
+      }
+      if (static_cast<int>(points.size()) >= options.min_refine_observations) {
+        PoseRefineOptions ro;
+        ro.loss_scale_px = options.loss_scale_px;
+        ro.max_iterations = 6;
+        const PoseRefineResult r = RefinePose(K, points, uvs, predicted, ro);
+        if (r.improved) pose = r.cam_from_world;
+        const int last = keyframes.back();
+        if (FlowMagnitude(last, pose) < options.new_keyframe_flow_px) {
+          // Unverified measurements are gated by their reprojection error under the fitted pose instead.
+          for (size_t i = 0; i < results.size(); ++i) {
+            Eigen::Vector2d uv;
+            if (results[i].ok && patches[request_patch[i]].optimized &&
+                !(Project(patches[request_patch[i]], pose, &uv) && (uv - results[i].uv).norm() < options.outlier_threshold_px)) {
+              results[i].ok = false;
+            }
+          }
+          commit(results);
+          frames[t].ref = last;
+          frames[t].delta = pose * frames[last].cam_from_world.Inverse();
+          Release(t);
+          return;
+        }
+      }
+    }
+    verify_and_commit();
+
     // The new frame becomes a keyframe.
     frames[t].keyframe = true;
     frames[t].quality.keyframe = true;
-    frames[t].cam_from_world = predicted;
+    frames[t].cam_from_world = pose;
     keyframes.push_back(t);
     RebuildKeyframeIndex();
-    if (!depth.empty() && initialized) AlignDepthScale(t, depth, predicted);
+    if (!depth.empty() && initialized) AlignDepthScale(t, depth, pose);
     CreatePatches(t, depth);
 
     // Backward edges: the new patches into the previous keyframes.
@@ -529,7 +585,8 @@ struct PatchVO::Impl {
         back_patch.push_back(p);
       }
       t0 = Clock::now();
-      const std::vector<TrackResult> back_results = front_end->Track(target, back);
+      std::vector<TrackResult> back_results = front_end->Track(target, back);
+      front_end->Verify(target, back, &back_results);
       stats.front_end_seconds += Seconds(t0);
       for (size_t i = 0; i < back_results.size(); ++i) {
         if (back_results[i].ok) AddObservation(back_patch[i], target, back_results[i]);
@@ -550,12 +607,51 @@ struct PatchVO::Impl {
     ReleaseOldKeyframes();
   }
 
+  // The first bundle adjustment, from identity poses. With little parallax it has a local minimum that trades the
+  // translation direction against rotation; with init_multi_start it also starts from a straight motion along
+  // each camera axis (both signs, DPVO-like step per keyframe) and keeps the start with the lowest robust cost.
   void Initialise() {
-    const PatchBASummary s = RunBA(1, 0, options.init_iterations);
-    stats.init_ba_iterations = s.iterations;
-    stats.init_ba_initial_cost = s.initial_cost;
-    stats.init_ba_final_cost = s.final_cost;
-    stats.init_ba_seconds = s.solve_seconds;
+    const int n = static_cast<int>(keyframes.size());
+    std::vector<int> patch_ids;
+    for (int f : keyframes) {
+      for (int p : frames[f].hosted) {
+        if (!patches[p].dead) patch_ids.push_back(p);
+      }
+    }
+    std::vector<double> start_depths;
+    for (int p : patch_ids) start_depths.push_back(patches[p].inverse_depth);
+    std::vector<Eigen::Vector3d> directions = {Eigen::Vector3d::Zero()};
+    if (options.init_multi_start) {
+      for (int axis = 0; axis < 3; ++axis) {
+        for (double sign : {1.0, -1.0}) directions.push_back(sign * Eigen::Vector3d::Unit(axis));
+      }
+    }
+    const double step = options.init_min_flow_px / K.fx;  // camera shift per keyframe, in units of patch depth
+    double best_cost = std::numeric_limits<double>::infinity();
+    std::vector<Rigid3> best_poses;
+    std::vector<double> best_depths;
+    for (size_t d = 0; d < directions.size(); ++d) {
+      for (size_t i = 0; i < patch_ids.size(); ++i) patches[patch_ids[i]].inverse_depth = start_depths[i];
+      for (int k = 0; k < n; ++k) {
+        frames[keyframes[k]].cam_from_world = Rigid3(Eigen::Quaterniond::Identity(), -(step * k) * directions[d]);
+      }
+      const PatchBASummary s = RunBA(1, 0, options.init_iterations);
+      stats.init_ba_seconds += s.solve_seconds;
+      stats.init_ba_starts += 1;
+      if (d == 0) stats.init_ba_initial_cost = s.initial_cost;
+      if (!s.usable || !(s.final_cost < best_cost)) continue;
+      best_cost = s.final_cost;
+      stats.init_ba_iterations = s.iterations;
+      stats.init_ba_final_cost = s.final_cost;
+      best_poses.clear();
+      for (int f : keyframes) best_poses.push_back(frames[f].cam_from_world);
+      best_depths.clear();
+      for (int p : patch_ids) best_depths.push_back(patches[p].inverse_depth);
+    }
+    if (!best_poses.empty()) {
+      for (int k = 0; k < n; ++k) frames[keyframes[k]].cam_from_world = best_poses[k];
+      for (size_t i = 0; i < patch_ids.size(); ++i) patches[patch_ids[i]].inverse_depth = best_depths[i];
+    }
     initialized = true;
     UpdateOutliers(0);
   }

@@ -112,7 +112,8 @@ TEST(LucasKanadeFrontEnd, TracksKnownShiftAndRejectsMasked) {
   ASSERT_GE(centres.size(), 40u);
   std::vector<TrackRequest> req;
   for (const auto& c : centres) req.push_back({0, c, c});
-  const auto res = fe.Track(1, req);
+  auto res = fe.Track(1, req);
+  fe.Verify(1, req, &res);
   int ok = 0, masked_region = 0;
   for (size_t i = 0; i < res.size(); ++i) {
     const Eigen::Vector2d expected = centres[i] + Eigen::Vector2d(3.4, -2.3);
@@ -139,9 +140,13 @@ TEST(LucasKanadeFrontEnd, ForwardBackwardCheckRejectsUnrelatedImage) {
   const auto centres = fe.SamplePatches(0, 80);
   std::vector<TrackRequest> req;
   for (const auto& c : centres) req.push_back({0, c, c});
-  int ok = 0;
-  for (const auto& r : fe.Track(1, req)) ok += r.ok;
+  auto res = fe.Track(1, req);
+  int forward_ok = 0, ok = 0;
+  for (const auto& r : res) forward_ok += r.ok;
+  fe.Verify(1, req, &res);
+  for (const auto& r : res) ok += r.ok;
   EXPECT_LT(ok, static_cast<int>(0.2 * centres.size()));
+  EXPECT_LT(ok, forward_ok);  // the check removed measurements the forward pass had accepted
 }
 
 }  // namespace
