@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <numeric>
+#include <sstream>
 #include <unordered_map>
 
 #include <opencv2/imgproc.hpp>
@@ -674,8 +675,10 @@ struct PatchVO::Impl {
     if (!initialized) {
       result.static_camera = true;
       FitStaticRotations();
-      result.message = "near-static camera: fewer than 3 frames moved the patches by " +
-                       std::to_string(options.init_min_flow_px) + " px; translation set to zero";
+      std::ostringstream message;
+      message << "near-static camera: fewer than 3 frames moved the patches by " << options.init_min_flow_px
+              << " px (processing resolution); translation set to zero, rotation fitted";
+      result.message = message.str();
     } else {
       // Final pass over all keyframes; a second one when the outlier set moved.
       PatchBASummary s = RunBA(1, 0, options.final_iterations);

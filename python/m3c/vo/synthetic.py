@@ -169,11 +169,12 @@ def static_trajectory(num_frames: int) -> np.ndarray:
 
 
 def following_occluders(world_from_cam: np.ndarray, count: int = 2, seed: int = 5) -> list[Occluder]:
-    """Occluders that walk along with the camera (nearly still in the image, the case that breaks VO)."""
+    """Occluders that walk along with the camera, about 3 m ahead (nearly still in the image: the case that
+    breaks VO), with a high-contrast texture so an unmasked gradient sampler favours them."""
     rng = np.random.default_rng(seed)
     occluders = []
     for k in range(count):
-        offset = np.array([(-0.45 if k % 2 == 0 else 0.5) + 0.1 * rng.standard_normal(), 0.35, 1.6 + 0.5 * k])
+        offset = np.array([(-0.6 if k % 2 == 0 else 0.55) + 0.1 * rng.standard_normal(), 0.3, 2.8 + 0.4 * k])
         phase = rng.uniform(0, 2 * np.pi)
 
         def centre(i: int, offset=offset, phase=phase) -> np.ndarray:
@@ -181,13 +182,14 @@ def following_occluders(world_from_cam: np.ndarray, count: int = 2, seed: int = 
             sway = np.array([0.08 * np.sin(0.3 * i + phase), 0.02 * np.sin(0.9 * i + phase), 0.0])
             return cam_centre + offset + sway
 
-        occluders.append(Occluder(centre=centre, texture=make_texture(256, seed=100 + k, contrast=2.2)))
+        occluders.append(Occluder(centre=centre, width=0.5, height=1.0, texel=0.004,
+                                  texture=make_texture(256, seed=100 + k, contrast=2.5)))
     return occluders
 
 
 def render_sequence(world_from_cam: np.ndarray, width: int = 320, height: int = 240,
                     occluders: list[Occluder] = (), noise_sigma: float = 0.0, seed: int = 0,
-                    supersample: int = 2) -> SyntheticSequence:
+                    supersample: int = 1) -> SyntheticSequence:
     """Renders every pose; noise_sigma adds Gaussian pixel noise (grey levels) before quantisation."""
     renderer = RoomRenderer(width, height, supersample=supersample, seed=seed)
     rng = np.random.default_rng(seed + 1)
