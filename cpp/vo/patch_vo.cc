@@ -671,13 +671,14 @@ struct PatchVO::Impl {
     const int T = static_cast<int>(frames.size());
     const int first = keyframes.front();
 
-    if (!initialized && keyframes.size() >= 3) Initialise();
+    // Short sequences that moved but never reached init_frames keyframes are initialised with what there is.
+    if (!initialized && keyframes.size() >= 2) Initialise();
     if (!initialized) {
       result.static_camera = true;
       FitStaticRotations();
       std::ostringstream message;
-      message << "near-static camera: fewer than 3 frames moved the patches by " << options.init_min_flow_px
-              << " px (processing resolution); translation set to zero, rotation fitted";
+      message << "near-static camera: no frame moved the patches by " << options.init_min_flow_px
+              << " px (median, processing resolution) from the first; translation set to zero, rotation fitted";
       result.message = message.str();
     } else {
       // Final pass over all keyframes; a second one when the outlier set moved.

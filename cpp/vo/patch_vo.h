@@ -18,8 +18,8 @@
 //     its pose is kept relative to the previous keyframe.
 // Finish(): a final bundle adjustment over all keyframes; non-keyframe poses are composed from their stored
 // relative pose (DPVO's interpolation of removed frames) and then refined motion-only against the final map.
-// A camera that never moves enough to initialise is reported static: translation zero, rotation fitted to the
-// patches taken at infinity.
+// A camera whose patches never move init_min_flow_px (median) away from the first keyframe is reported static:
+// translation zero, rotation fitted to the patches taken at infinity.
 #pragma once
 
 #include <memory>

@@ -118,3 +118,16 @@ def test_static_camera_with_noise_and_a_moving_person_is_still_static():
     assert result.static_camera
     np.testing.assert_allclose(result.camera_centres, 0.0, atol=1e-12)
     assert _rotation_errors_deg(result.world_from_cam, poses).max() < 0.1
+
+
+def test_short_clip_initialises_with_the_frames_it_has(room_sequence):
+    # Two and four frames (every third pose): fewer than init_frames keyframes, initialised at the end.
+    seq = room_sequence
+    frames, truth = seq.frames[:12:3], seq.world_from_cam[:12:3]
+    rel_truth = (np.linalg.inv(truth[0]) @ truth)[:, :3, 3]
+    for T in (2, 4):
+        result = run_vo(frames[:T], intrinsics=seq.intrinsics)
+        assert not result.static_camera
+        est = result.camera_centres[T - 1]
+        cos = est @ rel_truth[T - 1] / (np.linalg.norm(est) * np.linalg.norm(rel_truth[T - 1]))
+        assert np.degrees(np.arccos(min(1.0, cos))) < 3.0

@@ -30,18 +30,19 @@ def plot_trajectories(path: str | Path, panels: list[dict], title: str | None = 
     fig, axes = plt.subplots(len(panels), 2, figsize=(10, 4.2 * len(panels)), squeeze=False)
     for row, panel in enumerate(panels):
         top, side = axes[row]
-        for label, poses in panel["curves"]:
+        for i, (label, poses) in enumerate(panel["curves"]):
             c = np.asarray(poses)[:, :3, 3]
             top.plot(c[:, 0], c[:, 2], ".-", ms=2, lw=1, label=label)
             side.plot(c[:, 2], -c[:, 1], ".-", ms=2, lw=1, label=label)
-            top.plot(c[:1, 0], c[:1, 2], "ko", ms=4)
-            side.plot(c[:1, 2], -c[:1, 1], "ko", ms=4)
+            if i == 0:  # start of the first curve
+                top.plot(c[:1, 0], c[:1, 2], "ko", ms=4)
+                side.plot(c[:1, 2], -c[:1, 1], "ko", ms=4)
         top.set_xlabel("x (right)")
         top.set_ylabel("z (forward)")
         side.set_xlabel("z (forward)")
         side.set_ylabel("-y (up)")
-        top.set_title(f"{panel['title']}: top view")
-        side.set_title(f"{panel['title']}: side view")
+        top.set_title(f"{panel['title']}: top view", fontsize=10)
+        side.set_title(f"{panel['title']}: side view", fontsize=10)
         for ax in (top, side):
             ax.set_aspect("equal", adjustable="datalim")
             ax.grid(True, alpha=0.3)
