@@ -1,6 +1,7 @@
-"""Patch VO accuracy on the synthetic room sequences (known poses): ATE after Sim(3) alignment as a percentage of
-the path length, for the plain room, pixel noise, moving occluders with and without masks, and depth
-initialisation on a tight iteration budget. Ratios compare each variant with its reference in the same run.
+"""Patch VO accuracy on the synthetic room sequences (known poses): ATE after Sim(3) alignment as a
+percentage of the path length, for the plain room, pixel noise, moving occluders with and without masks, and
+depth initialisation on a tight iteration budget. Ratios compare each variant with its reference in the same
+run.
 
     PYTHONPATH=python python3 bench/vo_accuracy.py
 """
@@ -29,11 +30,14 @@ def main() -> None:
           f"path length {np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1).sum():.2f} m")
 
     rows = []
-    rows.append(("room, known intrinsics", ate_percent(run_vo(plain.frames, intrinsics=plain.intrinsics), plain)))
+    rows.append(("room, known intrinsics",
+                 ate_percent(run_vo(plain.frames, intrinsics=plain.intrinsics), plain)))
     rows.append(("room, default intrinsics", ate_percent(run_vo(plain.frames), plain)))
-    rows.append(("room, pixel noise sigma 2", ate_percent(run_vo(noisy.frames, intrinsics=noisy.intrinsics), noisy)))
+    rows.append(("room, pixel noise sigma 2",
+                 ate_percent(run_vo(noisy.frames, intrinsics=noisy.intrinsics), noisy)))
     unmasked = ate_percent(run_vo(occluded.frames, intrinsics=occluded.intrinsics), occluded)
-    masked = ate_percent(run_vo(occluded.frames, masks=occluded.masks, intrinsics=occluded.intrinsics), occluded)
+    masked = ate_percent(run_vo(occluded.frames, masks=occluded.masks, intrinsics=occluded.intrinsics),
+                         occluded)
     sampling = ate_percent(run_vo(occluded.frames, masks=occluded.masks, intrinsics=occluded.intrinsics,
                                   config=VOConfig(reject_masked=False)), occluded)
     rows += [("occluders, no masks", unmasked), ("occluders, masks", masked),
@@ -43,9 +47,10 @@ def main() -> None:
     tight = VOConfig(init_multi_start=False, init_iterations=3, window_iterations=1, final_iterations=0,
                      refine_non_keyframes=False)
     no_depth = ate_percent(run_vo(plain.frames, intrinsics=plain.intrinsics, config=tight), plain)
-    with_depth = ate_percent(run_vo(plain.frames, depths=depths, intrinsics=plain.intrinsics, config=tight), plain)
-    rows += [("tight budget, constant depth init", no_depth), ("tight budget, depth-map init (scale 3.7, 5% noise)",
-                                                               with_depth)]
+    with_depth = ate_percent(run_vo(plain.frames, depths=depths, intrinsics=plain.intrinsics, config=tight),
+                             plain)
+    rows += [("tight budget, constant depth init", no_depth),
+             ("tight budget, depth-map init (scale 3.7, 5% noise)", with_depth)]
     short = VOConfig(init_multi_start=False, init_iterations=3)
     c_none = run_vo(plain.frames[:20], intrinsics=plain.intrinsics, config=short).stats
     c_depth = run_vo(plain.frames[:20], depths=depths[:20], intrinsics=plain.intrinsics, config=short).stats

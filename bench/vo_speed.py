@@ -3,9 +3,9 @@
 Input: /work/shared/data/video/moving_camera/*.mp4 when present (a fixed box over the walker stands in for the
 person masks), else a synthetic 960x540 room sequence. Prints frames per second (wall clock and process CPU
 time), bundle-adjustment time per window, and, as the reference measured in the same process, the speed of a
-bare OpenCV KLT tracker (the same number of points, forward-backward checked, frame to frame) on the same frames.
+bare OpenCV KLT tracker (as many points, forward-backward checked, frame to frame) on the same frames.
 
-    PYTHONPATH=python python3 bench/vo_speed.py [--video PATH] [--plot docs/images/vo_trajectory.png] [--repeat 3]
+    PYTHONPATH=python python3 bench/vo_speed.py [--video PATH] [--plot PNG] [--no-plot] [--repeat 3]
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ DEFAULT_VIDEO = Path("/work/shared/data/video/moving_camera/glamr_pexels-walking
 
 
 def klt_reference(frames: np.ndarray, num_points: int, max_side: int) -> float:
-    """Seconds for a plain KLT tracker: resize, pyramidal LK of num_points frame to frame, FB check, re-detect."""
+    """Seconds for a plain KLT tracker: resize, pyramidal LK frame to frame, FB check, re-detect."""
     import cv2
     h, w = frames.shape[1:3]
     scale = min(1.0, max_side / max(h, w))
@@ -56,7 +56,8 @@ def synthetic_video(num_frames: int = 90):
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--video", type=Path, default=DEFAULT_VIDEO)
     parser.add_argument("--plot", type=Path, default=Path("docs/images/vo_trajectory.png"))
     parser.add_argument("--no-plot", action="store_true")
@@ -71,7 +72,8 @@ def main() -> None:
         decode = time.perf_counter() - t0
         masks = np.zeros(frames.shape, bool)
         masks[:, 235:500, 395:525] = True
-        source = f"{args.video.name} ({frames.shape[2]}x{frames.shape[1]}, {len(frames)} frames, {fps:.2f} fps)"
+        height, width = frames.shape[1:3]
+        source = f"{args.video.name} ({width}x{height}, {len(frames)} frames, {fps:.2f} fps)"
     else:
         frames, masks, synthetic = synthetic_video()
         decode = float("nan")
@@ -98,12 +100,14 @@ def main() -> None:
     print(f"patch VO (process CPU time):    {T / cpu:7.1f} fps")
     print(f"window BA:                      {1e3 * s['window_ba_seconds'] / n_win:7.1f} ms/window over "
           f"{s['window_ba_count']} windows ({s['num_keyframes']} keyframes kept)")
-    print(f"initial BA:                     {1e3 * s['init_ba_seconds']:7.1f} ms ({s['init_ba_starts']} starts)")
+    print(f"initial BA:                     {1e3 * s['init_ba_seconds']:7.1f} ms "
+          f"({s['init_ba_starts']} starts)")
     print(f"final BA:                       {1e3 * s['final_ba_seconds']:7.1f} ms")
     print(f"front-end:                      {1e3 * s['front_end_seconds'] / T:7.1f} ms/frame")
     print(f"reference KLT tracker:          {T / klt:7.1f} fps; patch VO / KLT speed ratio {klt / wall:.2f}")
     if synthetic is not None:
-        print(f"ATE (Sim(3)) / path length:     {100 * relative_ate(result.world_from_cam, synthetic.world_from_cam):.3f} %")
+        ate = relative_ate(result.world_from_cam, synthetic.world_from_cam)
+        print(f"ATE (Sim(3)) / path length:     {100 * ate:.3f} %")
 
     if not args.no_plot:
         from m3c.vo.plot import plot_trajectories

@@ -175,7 +175,8 @@ py::dict RunPatchVO(const py::array& frames_in, const py::handle& masks, const p
   const int T = static_cast<int>(frames.shape(0)), H = static_cast<int>(frames.shape(1)),
             W = static_cast<int>(frames.shape(2));
   const bool color = frames.ndim() == 4;
-  const std::string expected = "(T=" + std::to_string(T) + ", H=" + std::to_string(H) + ", W=" + std::to_string(W) + ")";
+  const std::string expected =
+      "(T=" + std::to_string(T) + ", H=" + std::to_string(H) + ", W=" + std::to_string(W) + ")";
   py::array mask_arr;
   if (!masks.is_none()) {
     mask_arr = py::array::ensure(masks, py::array::c_style);
@@ -224,8 +225,8 @@ py::dict RunPatchVO(const py::array& frames_in, const py::handle& masks, const p
 }  // namespace
 
 void BindVO(py::module_& m) {
-  py::class_<vo::GradientSamplingOptions>(m, "GradientSamplingOptions",
-                                          "Gradient-biased patch sampling (DPVO GRADIENT_BIAS, masks zero the gradient).")
+  py::class_<vo::GradientSamplingOptions>(
+      m, "GradientSamplingOptions", "Gradient-biased patch sampling (DPVO GRADIENT_BIAS, masks zero the gradient).")
       .def(py::init<>())
       .def_readwrite("pool_px", &vo::GradientSamplingOptions::pool_px)
       .def_readwrite("candidate_factor", &vo::GradientSamplingOptions::candidate_factor)

@@ -240,8 +240,8 @@ std::vector<double> ReprojectionErrors(const PatchBAData& data) {
   for (const PatchBAObservation& o : data.observations) {
     const PatchBAPatch& patch = data.patches[o.patch];
     const Rigid3 target_from_host = data.cam_from_world[o.target] * data.cam_from_world[patch.host].Inverse();
-    const Eigen::Vector3d y =
-        target_from_host.rotation * data.intrinsics.Unproject(patch.uv) + patch.inverse_depth * target_from_host.translation;
+    const Eigen::Vector3d y = target_from_host.rotation * data.intrinsics.Unproject(patch.uv) +
+                              patch.inverse_depth * target_from_host.translation;
     const double z = std::max(y.z(), kMinDepthRatio);
     const Eigen::Vector2d uv(data.intrinsics.fx * y.x() / z + data.intrinsics.cx,
                              data.intrinsics.fy * y.y() / z + data.intrinsics.cy);

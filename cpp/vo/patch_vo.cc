@@ -103,7 +103,8 @@ struct PatchVO::Impl {
   // Reprojection of patch p into a camera (pixels); false if behind it.
   bool Project(const Patch& p, const Rigid3& target_from_world, Eigen::Vector2d* uv) const {
     const Rigid3 target_from_host = target_from_world * PoseOf(p.host).Inverse();
-    const Eigen::Vector3d y = target_from_host.rotation * K.Unproject(p.uv) + p.inverse_depth * target_from_host.translation;
+    const Eigen::Vector3d y =
+        target_from_host.rotation * K.Unproject(p.uv) + p.inverse_depth * target_from_host.translation;
     if (y.z() < kMinDepthRatio) return false;
     *uv = Eigen::Vector2d(K.fx * y.x() / y.z() + K.cx, K.fy * y.y() / y.z() + K.cy);
     return std::isfinite(uv->x()) && std::isfinite(uv->y());
@@ -138,7 +139,9 @@ struct PatchVO::Impl {
           << "frames must be at least 32x32 pixels, got " << input_size.width << "x" << input_size.height;
       if (!input_intrinsics.Valid()) input_intrinsics = Intrinsics::Default(input_size.width, input_size.height);
       const int side = std::max(input_size.width, input_size.height);
-      scale = (options.max_image_side > 0 && side > options.max_image_side) ? double(options.max_image_side) / side : 1.0;
+      scale = (options.max_image_side > 0 && side > options.max_image_side)
+                  ? double(options.max_image_side) / side
+                  : 1.0;
       size = scale < 1.0 ? cv::Size(std::max(1, static_cast<int>(std::lround(input_size.width * scale))),
                                     std::max(1, static_cast<int>(std::lround(input_size.height * scale))))
                          : input_size;
@@ -305,7 +308,6 @@ struct PatchVO::Impl {
       return s;
     };
     std::vector<int> patch_ids;
-    std::vector<int> obs_ids;
     for (int k = std::max(0, first_patch_host); k < static_cast<int>(keyframes.size()); ++k) {
       for (int p : frames[keyframes[k]].hosted) {
         const Patch& patch = patches[p];
@@ -329,7 +331,6 @@ struct PatchVO::Impl {
           bo.uv = ob.uv;
           bo.weight = ob.weight;
           data.observations.push_back(bo);
-          obs_ids.push_back(o);
           ++used;
         }
       }
@@ -543,9 +544,10 @@ struct PatchVO::Impl {
         if (FlowMagnitude(last, pose) < options.new_keyframe_flow_px) {
           // Unverified measurements are gated by their reprojection error under the fitted pose instead.
           for (size_t i = 0; i < results.size(); ++i) {
+            const Patch& p = patches[request_patch[i]];
             Eigen::Vector2d uv;
-            if (results[i].ok && patches[request_patch[i]].optimized &&
-                !(Project(patches[request_patch[i]], pose, &uv) && (uv - results[i].uv).norm() < options.outlier_threshold_px)) {
+            if (results[i].ok && p.optimized &&
+                !(Project(p, pose, &uv) && (uv - results[i].uv).norm() < options.outlier_threshold_px)) {
               results[i].ok = false;
             }
           }

@@ -62,7 +62,8 @@ PoseRefineResult RefinePose(const Intrinsics& K, const std::vector<Eigen::Vector
       Eigen::Matrix<double, 2, 6> J;
       J.leftCols<3>() = points_in_world[i].w() * dpi;
       // Rotation-only updates turn R but keep t: d(R x)/dphi = -[R x]x with R x = y - w t.
-      const Eigen::Vector3d rotated = options.rotation_only ? Eigen::Vector3d(y - points_in_world[i].w() * result.cam_from_world.translation) : y;
+      const Eigen::Vector3d rotated =
+          options.rotation_only ? Eigen::Vector3d(y - points_in_world[i].w() * result.cam_from_world.translation) : y;
       J.rightCols<3>() = -dpi * Skew(rotated);
       // IRLS weight of the Cauchy loss: rho'(|r|^2) = 1 / (1 + |r|^2 / s^2).
       const double w = 1.0 / (1.0 + residuals[i].squaredNorm() / s2);

@@ -1,4 +1,4 @@
-"""Patch VO API: shapes, validation messages, streaming vs batch, metrics, and the synthetic renderer itself."""
+"""Patch VO API: shapes, validation messages, streaming vs batch, metrics, and the synthetic renderer."""
 
 import numpy as np
 import pytest
@@ -109,7 +109,8 @@ def test_run_vo_output_layout(short_sequence):
     np.testing.assert_allclose(result.world_from_cam[0], np.eye(4), atol=1e-12)
     np.testing.assert_allclose(result.world_from_cam[:, 3], np.tile([0, 0, 0, 1.0], (T, 1)))
     rotations = result.world_from_cam[:, :3, :3]
-    np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), np.tile(np.eye(3), (T, 1, 1)), atol=1e-9)
+    identity = np.tile(np.eye(3), (T, 1, 1))
+    np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), identity, atol=1e-9)
     np.testing.assert_allclose(result.intrinsics, default_intrinsics(160, 120))
     np.testing.assert_allclose(result.intrinsics, [200.0, 200.0, 80.0, 60.0])
     for key in ("attempted", "tracked", "inliers", "reprojection_rms_px", "keyframe", "refined"):

@@ -1,4 +1,4 @@
-"""Patch VO on the real sequences in /work/shared/data (skipped where the data or OpenCV for Python is absent)."""
+"""Patch VO on the real sequences in /work/shared/data (skipped where the data or Python OpenCV is absent)."""
 
 from pathlib import Path
 

@@ -58,7 +58,8 @@ def test_masks_reduce_error_with_moving_occluders(occluded_sequence):
     unmasked = run_vo(seq.frames, intrinsics=seq.intrinsics)
     masked = run_vo(seq.frames, masks=seq.masks, intrinsics=seq.intrinsics)
     # The thesis's change by itself: masks only zero the sampling gradient; measurements are not rejected.
-    sampling_only = run_vo(seq.frames, masks=seq.masks, intrinsics=seq.intrinsics, config=VOConfig(reject_masked=False))
+    sampling_only = run_vo(seq.frames, masks=seq.masks, intrinsics=seq.intrinsics,
+                           config=VOConfig(reject_masked=False))
     ate_unmasked = relative_ate(unmasked.world_from_cam, seq.world_from_cam)
     for name, result in (("masked", masked), ("sampling-only", sampling_only)):
         ate = relative_ate(result.world_from_cam, seq.world_from_cam)
@@ -68,8 +69,8 @@ def test_masks_reduce_error_with_moving_occluders(occluded_sequence):
 
 def test_depth_initialisation_speeds_convergence(room_sequence):
     seq = room_sequence
-    # Single start and a 3-iteration budget for the initial bundle adjustment: with depth-initialised patches it
-    # is already near its converged cost; with constant inverse depth it is far from it.
+    # Single start and a 3-iteration budget for the initial bundle adjustment: with depth-initialised patches
+    # it is already near its converged cost; with constant inverse depth it is far from it.
     # Only the initialisation matters here, which happens within the first 20 frames.
     frames, depths = seq.frames[:20], seq.depths[:20]
     short = VOConfig(init_multi_start=False, init_iterations=3)
@@ -85,9 +86,9 @@ def test_depth_initialisation_speeds_convergence(room_sequence):
 
 
 def test_depth_initialisation_reduces_error_on_a_tight_budget(room_sequence):
-    """DPVO-like budget (few iterations per update, no final pass): depth-initialised patches need no iterations
-    to find their depth, so the online trajectory is more accurate. The depth maps carry an unknown scale and 5%
-    noise, as a monocular depth network's would."""
+    """DPVO-like budget (few iterations per update, no final pass): depth-initialised patches need no
+    iterations to find their depth, so the online trajectory is more accurate. The depth maps carry an unknown
+    scale and 5% noise, as a monocular depth network's would."""
     seq = room_sequence
     rng = np.random.default_rng(0)
     depths = (seq.depths * 3.7 * np.exp(0.05 * rng.standard_normal(seq.depths.shape))).astype(np.float32)

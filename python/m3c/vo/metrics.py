@@ -14,7 +14,8 @@ def umeyama_sim3(source: np.ndarray, target: np.ndarray) -> tuple[float, np.ndar
     source = np.asarray(source, dtype=np.float64)
     target = np.asarray(target, dtype=np.float64)
     if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or source.shape[0] < 3:
-        raise ValueError(f"source and target must both have shape (N >= 3, 3), got {source.shape} and {target.shape}")
+        raise ValueError(
+            f"source and target must both have shape (N >= 3, 3), got {source.shape} and {target.shape}")
     mu_s, mu_t = source.mean(0), target.mean(0)
     xs, xt = source - mu_s, target - mu_t
     cov = xt.T @ xs / len(source)

@@ -19,8 +19,8 @@ def default_intrinsics(width: int, height: int) -> np.ndarray:
 class VOConfig:
     """Patch VO settings (pixel quantities at the processing resolution, longer side <= max_image_side).
 
-    The patch graph is DPVO's; DPVO's numbers (96 patches, lifetime 13, window 10, removal 22, keyframe index 4)
-    are sized for a GPU, the defaults here for a CPU (64, 10, 8, 16, 4).
+    The patch graph is DPVO's; DPVO's numbers (96 patches, lifetime 13, window 10, removal 22, keyframe
+    index 4) are sized for a GPU, the defaults here for a CPU (64, 10, 8, 16, 4).
     """
     max_image_side: int = 640
     patches_per_frame: int = 64
@@ -53,7 +53,8 @@ class VOConfig:
     seed: int = 0
 
     _LK_FIELDS = {"lk_window_px": "window_px", "lk_pyramid_levels": "pyramid_levels",
-                  "forward_backward_px": "forward_backward_px", "reject_masked": "reject_masked", "seed": "seed"}
+                  "forward_backward_px": "forward_backward_px", "reject_masked": "reject_masked",
+                  "seed": "seed"}
     _SAMPLING_FIELDS = {"mask_dilation_px": "mask_dilation_px", "gradient_pool_px": "pool_px",
                         "min_gradient": "min_gradient"}
 
@@ -79,7 +80,8 @@ class VOResult:
     """Camera trajectory of every input frame.
 
     world_from_cam: (T, 4, 4) float64; world = the first camera (OpenCV axes: x right, y down, z forward);
-        monocular, so the scale is arbitrary (median patch depth of the first keyframe = 1, or the depth maps').
+        monocular, so the scale is arbitrary (median patch depth of the first keyframe = 1, or the depth
+        maps').
     intrinsics: (4,) fx, fy, cx, cy at input resolution (given, or default_intrinsics).
     quality: per-frame arrays: attempted / tracked (front-end measurements), inliers (used by the final
         estimate, reprojection error < outlier threshold), reprojection_rms_px (processing resolution),
@@ -102,15 +104,16 @@ class VOResult:
 
     @property
     def tracking_ratio(self) -> np.ndarray:
-        """Per-frame fraction of attempted measurements that the front-end accepted (1 where none attempted)."""
+        """Per-frame fraction of attempted measurements the front-end accepted (1 where none attempted)."""
         attempted = self.quality["attempted"].astype(np.float64)
         return np.where(attempted > 0, self.quality["tracked"] / np.maximum(attempted, 1), 1.0)
 
     @classmethod
     def from_core(cls, d: dict) -> "VOResult":
         return cls(world_from_cam=np.asarray(d["world_from_cam"]), intrinsics=np.asarray(d["intrinsics"]),
-                   quality={k: np.asarray(v) for k, v in d["quality"].items()}, static_camera=bool(d["static_camera"]),
-                   stats=dict(d["stats"]), message=str(d["message"]), processing_scale=float(d["processing_scale"]))
+                   quality={k: np.asarray(v) for k, v in d["quality"].items()},
+                   static_camera=bool(d["static_camera"]), stats=dict(d["stats"]), message=str(d["message"]),
+                   processing_scale=float(d["processing_scale"]))
 
 
 def _check_intrinsics(intrinsics) -> np.ndarray | None:
@@ -120,7 +123,8 @@ def _check_intrinsics(intrinsics) -> np.ndarray | None:
     if k.shape == (3, 3):
         k = np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]])
     if k.shape != (4,):
-        raise ValueError(f"intrinsics must be (4,) = (fx, fy, cx, cy) or a (3, 3) matrix, got shape {k.shape}")
+        raise ValueError(
+            f"intrinsics must be (4,) = (fx, fy, cx, cy) or a (3, 3) matrix, got shape {k.shape}")
     return k
 
 
@@ -132,13 +136,15 @@ def run_vo(frames: np.ndarray, masks: np.ndarray | None = None, depths: np.ndarr
         frames: uint8 (T, H, W) gray or (T, H, W, 3) RGB (BGR with bgr=True).
         masks: None or bool (T, H, W), True on people (their gradient is zeroed so no patch is placed there,
             and measurements landing there are rejected).
-        depths: None or float (T, H, W) per-pixel depth (any consistent unit) to initialise patch inverse depth.
+        depths: None or float (T, H, W) per-pixel depth (any consistent unit) to initialise patch inverse
+            depth.
         intrinsics: None, (fx, fy, cx, cy) or a 3x3 K, pixels of the input frames.
         config: VOConfig.
     """
     frames = np.asarray(frames)
     if frames.dtype != np.uint8:
-        raise ValueError(f"frames must be uint8, got {frames.dtype}; convert with np.clip(x, 0, 255).astype(np.uint8)")
+        raise ValueError(
+            f"frames must be uint8, got {frames.dtype}; convert with np.clip(x, 0, 255).astype(np.uint8)")
     config = config or VOConfig()
     out = _core.run_patch_vo(frames, masks, depths, _check_intrinsics(intrinsics), config.to_core(), bgr)
     return VOResult.from_core(out)
@@ -150,7 +156,8 @@ class VisualOdometry:
     def __init__(self, intrinsics=None, config: VOConfig | None = None, bgr: bool = False):
         self._vo = _core.PatchVO((config or VOConfig()).to_core(), _check_intrinsics(intrinsics), bgr)
 
-    def add_frame(self, frame: np.ndarray, mask: np.ndarray | None = None, depth: np.ndarray | None = None) -> None:
+    def add_frame(self, frame: np.ndarray, mask: np.ndarray | None = None,
+                  depth: np.ndarray | None = None) -> None:
         self._vo.add_frame(np.asarray(frame), mask, depth)
 
     @property

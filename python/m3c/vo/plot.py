@@ -13,7 +13,8 @@ def _pyplot():
     try:
         import matplotlib
     except ImportError as e:  # pragma: no cover - depends on the environment
-        raise ImportError("plotting needs matplotlib: pip install 'm3c[viz]' (or pip install matplotlib)") from e
+        raise ImportError(
+            "plotting needs matplotlib: pip install 'm3c[viz]' (or pip install matplotlib)") from e
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt

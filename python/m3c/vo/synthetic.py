@@ -141,7 +141,8 @@ class RoomRenderer:
             inside = ((t > 1e-9) & (t < best_t) & (local_x >= 0) & (local_x <= occ.width) & (local_y >= 0)
                       & (local_y <= occ.height))
             if np.any(inside):
-                intensity[inside] = _sample(occ.texture, local_x[inside] / occ.texel, local_y[inside] / occ.texel)
+                intensity[inside] = _sample(occ.texture, local_x[inside] / occ.texel,
+                                            local_y[inside] / occ.texel)
                 best_t[inside] = t[inside]
                 occluded |= inside
         s = self.supersample

@@ -19,14 +19,17 @@ def _cv2():
 
 
 def video_info(path: str | Path) -> dict:
-    """{'width', 'height', 'fps', 'frame_count'} as the container reports them (frame_count may be approximate)."""
+    """{'width', 'height', 'fps', 'frame_count'} as the container reports them (frame_count may be
+    approximate)."""
     cv2 = _cv2()
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise FileNotFoundError(f"cannot open video {path}: missing file or a codec OpenCV cannot read")
     try:
-        return {"width": int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), "height": int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
-                "fps": float(cap.get(cv2.CAP_PROP_FPS)), "frame_count": int(cap.get(cv2.CAP_PROP_FRAME_COUNT))}
+        return {"width": int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
+                "height": int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)),
+                "fps": float(cap.get(cv2.CAP_PROP_FPS)),
+                "frame_count": int(cap.get(cv2.CAP_PROP_FRAME_COUNT))}
     finally:
         cap.release()
 
@@ -56,7 +59,8 @@ def iter_video_frames(path: str | Path, gray: bool = True, max_frames: int | Non
 
 def read_video(path: str | Path, gray: bool = True, max_frames: int | None = None, stride: int = 1
                ) -> tuple[np.ndarray, float]:
-    """All frames as one array ((T, H, W) gray or (T, H, W, 3) RGB, uint8) and the frame rate (per kept frame)."""
+    """All frames as one array ((T, H, W) gray or (T, H, W, 3) RGB, uint8) and the frame rate of the kept
+    frames."""
     frames = list(iter_video_frames(path, gray=gray, max_frames=max_frames, stride=stride))
     if not frames:
         raise ValueError(f"video {path} has no decodable frames")

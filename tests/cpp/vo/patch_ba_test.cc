@@ -26,7 +26,8 @@ struct TangentResidual {
     ExpSO3(delta + 3, q);
     const Eigen::Quaternion<T> dq(q[0], q[1], q[2], q[3]);
     const Eigen::Quaternion<T> r = dq * pose.rotation.cast<T>();
-    const Eigen::Matrix<T, 3, 1> t = dq * pose.translation.cast<T>() + Eigen::Matrix<T, 3, 1>(delta[0], delta[1], delta[2]);
+    const Eigen::Matrix<T, 3, 1> rho(delta[0], delta[1], delta[2]);
+    const Eigen::Matrix<T, 3, 1> t = dq * pose.translation.cast<T>() + rho;
     out[0] = r.x(), out[1] = r.y(), out[2] = r.z(), out[3] = r.w();
     out[4] = t[0], out[5] = t[1], out[6] = t[2];
   }
@@ -165,7 +166,8 @@ TEST(LeftSE3Manifold, PlusMinusRoundTrip) {
     for (int k = 0; k < 6; ++k) EXPECT_NEAR(back[k], delta[k], 1e-10);
     // Plus is left multiplication: y = [Exp(phi), rho] * x as 4x4 matrices.
     Eigen::Matrix4d left = Eigen::Matrix4d::Identity();
-    left.topLeftCorner<3, 3>() = Eigen::AngleAxisd(delta.tail<3>().norm(), delta.tail<3>().normalized()).toRotationMatrix();
+    const Eigen::Vector3d phi = delta.tail<3>();
+    left.topLeftCorner<3, 3>() = Eigen::AngleAxisd(phi.norm(), phi.normalized()).toRotationMatrix();
     left.topRightCorner<3, 1>() = delta.head<3>();
     const Eigen::Matrix4d expected = left * x.ToMatrix();
     EXPECT_LT((Rigid3::FromParams(yp).ToMatrix() - expected).cwiseAbs().maxCoeff(), 1e-12);
@@ -200,7 +202,8 @@ Scene MakeScene(int num_poses, int patches_per_pose, unsigned seed) {
       for (int j = std::max(0, h - 3); j < std::min(num_poses, h + 4); ++j) {
         if (j == h) continue;
         const Rigid3 j_from_h = d.cam_from_world[j] * d.cam_from_world[h].Inverse();
-        const Eigen::Vector3d y = j_from_h.rotation * d.intrinsics.Unproject(p.uv) + p.inverse_depth * j_from_h.translation;
+        const Eigen::Vector3d y =
+            j_from_h.rotation * d.intrinsics.Unproject(p.uv) + p.inverse_depth * j_from_h.translation;
         PatchBAObservation o;
         o.patch = id;
         o.target = j;
@@ -268,7 +271,9 @@ TEST(SolvePatchBA, CauchyLossResistsGrossOutliers) {
   PatchBAData corrupted = Perturb(scene.truth, 2, 22);
   std::mt19937 rng(23);
   std::uniform_real_distribution<double> u(-40.0, 40.0);
-  for (size_t i = 0; i < corrupted.observations.size(); i += 10) corrupted.observations[i].uv += Eigen::Vector2d(u(rng), u(rng));
+  for (size_t i = 0; i < corrupted.observations.size(); i += 10) {
+    corrupted.observations[i].uv += Eigen::Vector2d(u(rng), u(rng));
+  }
 
   PatchBAOptions robust;
   robust.max_iterations = 50;

@@ -50,7 +50,8 @@ Rigid3 CamFromWorldAt(int i) {
   return Rigid3(world_from_cam, centre).Inverse();
 }
 
-double AteOverPathLength(const std::vector<Rigid3>& estimated_world_from_cam, const std::vector<Rigid3>& true_world_from_cam) {
+double AteOverPathLength(const std::vector<Rigid3>& estimated_world_from_cam,
+                         const std::vector<Rigid3>& true_world_from_cam) {
   const int n = static_cast<int>(estimated_world_from_cam.size());
   Eigen::Matrix3Xd est(3, n), gt(3, n);
   double path = 0.0;

@@ -30,7 +30,9 @@ TEST(RefinePose, RecoversSixDofPose) {
   MakeObservations(truth, false, 1, &pts, &uvs);
   // A few gross outliers the Cauchy weights must ignore.
   for (int i = 0; i < 6; ++i) uvs[i * 7] += Eigen::Vector2d(30.0, -25.0);
-  const Rigid3 init = LeftPlus(truth, (Eigen::Matrix<double, 6, 1>() << 0.1, -0.05, 0.08, 0.03, 0.02, -0.04).finished());
+  Eigen::Matrix<double, 6, 1> offset;
+  offset << 0.1, -0.05, 0.08, 0.03, 0.02, -0.04;
+  const Rigid3 init = LeftPlus(truth, offset);
   PoseRefineOptions o;
   o.max_iterations = 30;
   const PoseRefineResult r = RefinePose(kK, pts, uvs, init, o);
