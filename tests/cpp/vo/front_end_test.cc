@@ -119,7 +119,9 @@ TEST(LucasKanadeFrontEnd, TracksKnownShiftAndRejectsMasked) {
     const Eigen::Vector2d expected = centres[i] + Eigen::Vector2d(3.4, -2.3);
     if (expected.x() < 66) {  // mask (60 px) + dilation (4 px) + rounding
       masked_region += 1;
-      if (expected.x() < 63) EXPECT_FALSE(res[i].ok) << "measurement inside the target mask was kept";
+      if (expected.x() < 63) {
+        EXPECT_FALSE(res[i].ok) << "measurement inside the target mask was kept";
+      }
       continue;
     }
     if (!res[i].ok) continue;

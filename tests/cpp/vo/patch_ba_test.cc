@@ -288,7 +288,9 @@ TEST(SolvePatchBA, CauchyLossResistsGrossOutliers) {
   // The gross outliers stand out in the reprojection errors at the robust solution.
   const std::vector<double> err = ReprojectionErrors(a);
   for (size_t i = 0; i < err.size(); ++i) {
-    if (i % 10 != 0) EXPECT_LT(err[i], 0.5) << i;
+    if (i % 10 != 0) {
+      EXPECT_LT(err[i], 0.5) << i;
+    }
   }
 }
 

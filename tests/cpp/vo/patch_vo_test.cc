@@ -92,6 +92,65 @@ TEST(PatchVO, PlanarSceneTrajectoryWithinTwoPercent) {
   for (const auto& q : r.quality) EXPECT_GE(q.tracked, 0);
 }
 
+// A front-end that measures exactly: patches on a grid, measurements are the true projections of the sloped
+// plane z = 3 + 0.4 y (world) seen through the host pixel. Exercises the graph and the bundle adjustment alone.
+class OracleFrontEnd final : public FrontEnd {
+ public:
+  OracleFrontEnd(const Intrinsics& K, std::vector<Rigid3> cam_from_world) : K_(K), poses_(std::move(cam_from_world)) {}
+  void AddFrame(int, const cv::Mat&, const cv::Mat&) override {}
+  std::vector<Eigen::Vector2d> SamplePatches(int frame, int count) override {
+    std::vector<Eigen::Vector2d> out;
+    for (int i = 0; i < count; ++i) {
+      out.emplace_back(20.0 + std::fmod(37.0 * i + 11.0 * frame, 280.0),
+                       20.0 + std::fmod(23.0 * i + 7.0 * frame, 200.0));
+    }
+    return out;
+  }
+  std::vector<TrackResult> Track(int target, const std::vector<TrackRequest>& requests) override {
+    std::vector<TrackResult> results(requests.size());
+    for (size_t i = 0; i < requests.size(); ++i) {
+      const Rigid3 world_from_host = poses_[requests[i].host_frame].Inverse();
+      const Eigen::Vector3d origin = world_from_host.translation;
+      const Eigen::Vector3d ray = world_from_host.rotation * K_.Unproject(requests[i].host_uv);
+      // z - 0.4 y = 3 along origin + s ray.
+      const double s = (3.0 - origin.z() + 0.4 * origin.y()) / (ray.z() - 0.4 * ray.y());
+      const Eigen::Vector3d x_in_target = poses_[target] * (origin + s * ray);
+      if (s <= 0 || x_in_target.z() <= 0.1) continue;
+      const Eigen::Vector2d uv = K_.Project(x_in_target);
+      if (uv.x() < 0 || uv.y() < 0 || uv.x() > kW - 1 || uv.y() > kH - 1) continue;
+      results[i].uv = uv;
+      results[i].weight = 1.0;
+      results[i].ok = true;
+    }
+    return results;
+  }
+  void ReleaseFrame(int) override {}
+
+ private:
+  Intrinsics K_;
+  std::vector<Rigid3> poses_;
+};
+
+TEST(PatchVO, ExactMeasurementsGiveExactTrajectoryThroughAReplaceableFrontEnd) {
+  const Intrinsics K = Intrinsics::Default(kW, kH);
+  std::vector<Rigid3> cam_from_world, truth;
+  for (int i = 0; i < 40; ++i) cam_from_world.push_back(CamFromWorldAt(i));
+  const Rigid3 first_from_world = cam_from_world[0];
+  for (const Rigid3& p : cam_from_world) truth.push_back(first_from_world * p.Inverse());
+  PatchVOOptions options;
+  options.final_iterations = 50;
+  PatchVO vo(options, K, std::make_unique<OracleFrontEnd>(K, cam_from_world));
+  const cv::Mat blank(kH, kW, CV_8U, cv::Scalar(0));  // the oracle ignores pixels
+  for (int i = 0; i < 40; ++i) vo.AddFrame(blank);
+  const PatchVOResult r = vo.Finish();
+  EXPECT_FALSE(r.static_camera);
+  EXPECT_LT(AteOverPathLength(r.world_from_cam, truth), 1e-4);
+  for (int i = 0; i < 40; ++i) {
+    EXPECT_LT(LogSO3(r.world_from_cam[i].rotation * truth[i].rotation.conjugate()).norm(), 1e-5) << i;
+    EXPECT_LT(r.quality[i].reprojection_rms_px, 1e-3) << i;
+  }
+}
+
 TEST(PatchVO, StaticCameraIsReportedWithIdentityTrajectory) {
   const cv::Mat texture = Texture(900, 2);
   const cv::Mat frame = RenderPlane(texture, Intrinsics::Default(kW, kH), Rigid3(), 3.0);
