@@ -81,7 +81,7 @@ py::dict ResultToDict(const PatchVOResult& r) {
   auto pm = poses.mutable_unchecked<3>();
   py::array_t<int32_t> attempted(T), tracked(T), inliers(T);
   py::array_t<double> rms(T);
-  py::array_t<bool> keyframe(T), refined(T);
+  py::array_t<bool> keyframe(T), interpolated(T), refined(T);
   for (py::ssize_t t = 0; t < T; ++t) {
     const Eigen::Matrix4d m = r.world_from_cam[t].ToMatrix();
     for (int i = 0; i < 4; ++i)
@@ -92,6 +92,7 @@ py::dict ResultToDict(const PatchVOResult& r) {
     inliers.mutable_at(t) = q.inliers;
     rms.mutable_at(t) = q.reprojection_rms_px;
     keyframe.mutable_at(t) = q.keyframe;
+    interpolated.mutable_at(t) = q.interpolated;
     refined.mutable_at(t) = q.refined;
   }
   py::array_t<double> K(4);
@@ -103,6 +104,7 @@ py::dict ResultToDict(const PatchVOResult& r) {
   quality["inliers"] = inliers;
   quality["reprojection_rms_px"] = rms;
   quality["keyframe"] = keyframe;
+  quality["interpolated"] = interpolated;
   quality["refined"] = refined;
   const vo::PatchVOStats& s = r.stats;
   py::dict stats;
@@ -307,7 +309,7 @@ Args:
 Returns:
     dict with world_from_cam (T, 4, 4) float64 (world = first camera, OpenCV axes, arbitrary scale),
     intrinsics (4,), processing_scale, quality (per-frame arrays attempted, tracked, inliers,
-    reprojection_rms_px, keyframe, refined), static_camera, stats, message.
+    reprojection_rms_px, keyframe, interpolated, refined), static_camera, stats, message.
 )doc");
 }
 

@@ -53,6 +53,7 @@ struct PatchVO::Impl {
     int ref = -1;            // non-keyframes: cam_from_world = delta * pose(ref); -1: identity (before the map)
     Rigid3 delta;
     bool released = false;   // the front-end no longer holds it
+    bool motion_estimated = true;  // false: skipped before initialisation, delta is a placeholder
     FrameQuality quality;
     std::vector<int> observations;
     std::vector<int> hosted;
@@ -516,6 +517,7 @@ struct PatchVO::Impl {
         commit(results);
         frames[t].ref = last;
         frames[t].delta = Rigid3();
+        frames[t].motion_estimated = false;
         Release(t);
         return;
       }
@@ -693,7 +695,7 @@ struct PatchVO::Impl {
         stats.final_ba_seconds += s.solve_seconds;
         UpdateOutliers(0);
       }
-      if (options.refine_non_keyframes) RefineNonKeyframes(false);
+      ResolveNonKeyframes(false, options.refine_non_keyframes);
       result.message = "ok";
     }
 
@@ -743,15 +745,28 @@ struct PatchVO::Impl {
     return x;
   }
 
-  // Motion-only refinement against the (fixed) final map of every non-keyframe after the first keyframe, or, for
-  // a static camera, the rotation of every frame against the first keyframe's patches taken at infinity. Every
-  // non-keyframe ends with an absolute pose (ref = -1, delta = cam_from_world).
-  void RefineNonKeyframes(bool rotation_only) {
+  // Every non-keyframe ends with an absolute pose (ref = -1, delta = cam_from_world): composed from its relative
+  // pose, or interpolated when it was skipped before initialisation; with `refine`, then fitted motion-only to
+  // the (fixed) final map. For a static camera (rotation_only) every frame's rotation is fitted to the first
+  // keyframe's patches taken at infinity.
+  void ResolveNonKeyframes(bool rotation_only, bool refine) {
     const int T = static_cast<int>(frames.size());
     const int first = keyframes.front();
     std::vector<Rigid3> pose(T);
     for (int t = 0; t < T; ++t) pose[t] = PoseOf(t);
-    for (int t = first + 1; t < T; ++t) {
+    if (!rotation_only) {
+      // Frames skipped before initialisation have no motion estimate of their own: interpolate between the
+      // keyframes around them (slerp on rotation, linear on the camera centre).
+      for (int t = first + 1; t < T; ++t) {
+        if (frames[t].keyframe || frames[t].motion_estimated) continue;
+        const auto next = std::lower_bound(keyframes.begin(), keyframes.end(), t);
+        if (next == keyframes.end() || next == keyframes.begin()) continue;
+        const int b = *next, a = *(next - 1);
+        pose[t] = Interpolate(pose[a], pose[b], double(t - a) / double(b - a));
+        frames[t].quality.interpolated = true;
+      }
+    }
+    for (int t = first + 1; t < T && refine; ++t) {
       if (frames[t].keyframe && !rotation_only) continue;
       std::vector<Eigen::Vector4d> points;
       std::vector<Eigen::Vector2d> uvs;
@@ -784,7 +799,7 @@ struct PatchVO::Impl {
   void FitStaticRotations() {
     // Every keyframe stays at the identity; translations are zero; rotations against patches at infinity.
     for (int f : keyframes) frames[f].cam_from_world = Rigid3();
-    RefineNonKeyframes(true);
+    ResolveNonKeyframes(true, true);
   }
 };
 

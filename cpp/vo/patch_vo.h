@@ -17,7 +17,8 @@
 //     beta * |full flow| + (1 - beta) * |translation-only flow| (DPVO's flow_mag), is below keyframe_threshold_px;
 //     its pose is kept relative to the previous keyframe.
 // Finish(): a final bundle adjustment over all keyframes; non-keyframe poses are composed from their stored
-// relative pose (DPVO's interpolation of removed frames) and then refined motion-only against the final map.
+// relative pose (DPVO's interpolation of removed frames), or interpolated between the surrounding keyframes for
+// frames skipped before initialisation, and then refined motion-only against the final map.
 // A camera whose patches never move init_min_flow_px (median) away from the first keyframe is reported static:
 // translation zero, rotation fitted to the patches taken at infinity.
 #pragma once
@@ -80,7 +81,8 @@ struct FrameQuality {
   int inliers = 0;          // measurements used by the final estimate with reprojection error < outlier threshold
   double reprojection_rms_px = 0.0;  // over the inliers, processing resolution; 0 if none
   bool keyframe = false;
-  bool refined = false;     // a non-keyframe pose refined against the final map (false: relative pose only)
+  bool interpolated = false;  // skipped before initialisation: pose interpolated between the keyframes around it
+  bool refined = false;       // a non-keyframe pose refined motion-only against the final map
 };
 
 struct PatchVOStats {

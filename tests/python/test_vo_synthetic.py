@@ -132,3 +132,13 @@ def test_short_clip_initialises_with_the_frames_it_has(room_sequence):
         est = result.camera_centres[T - 1]
         cos = est @ rel_truth[T - 1] / (np.linalg.norm(est) * np.linalg.norm(rel_truth[T - 1]))
         assert np.degrees(np.arccos(min(1.0, cos))) < 3.0
+
+
+
+def test_non_keyframe_poses_without_refinement(room_sequence):
+    """Keyframes from the bundle adjustment, the other frames only from their stored relative pose."""
+    seq = room_sequence
+    result = run_vo(seq.frames, intrinsics=seq.intrinsics, config=VOConfig(refine_non_keyframes=False))
+    assert not result.quality["refined"].any()
+    assert not result.quality["keyframe"].all()
+    assert relative_ate(result.world_from_cam, seq.world_from_cam) <= 0.01

@@ -85,7 +85,8 @@ class VOResult:
     intrinsics: (4,) fx, fy, cx, cy at input resolution (given, or default_intrinsics).
     quality: per-frame arrays: attempted / tracked (front-end measurements), inliers (used by the final
         estimate, reprojection error < outlier threshold), reprojection_rms_px (processing resolution),
-        keyframe, refined (non-keyframe pose refined against the final map).
+        keyframe, interpolated (skipped before initialisation, pose interpolated between keyframes),
+        refined (non-keyframe pose refined motion-only against the final map).
     static_camera: the camera never moved enough to initialise; translation is zero, rotation fitted.
     stats: timings (seconds) and counts.
     """

@@ -43,7 +43,7 @@ cv::Mat RenderPlane(const cv::Mat& texture, const Intrinsics& K, const Rigid3& c
   return out;
 }
 
-Rigid3 CamFromWorldAt(int i) {
+Rigid3 CamFromWorldAt(double i) {
   // Camera centre along a gentle curve, slowly yawing; cam_from_world = inverse of world_from_cam.
   const Eigen::Vector3d centre(0.04 * i, 0.01 * std::sin(0.3 * i), 0.03 * i);
   const Eigen::Quaterniond world_from_cam = ExpSO3(Eigen::Vector3d(0.0, 0.004 * i, 0.002 * i));
@@ -149,6 +149,29 @@ TEST(PatchVO, ExactMeasurementsGiveExactTrajectoryThroughAReplaceableFrontEnd) {
     EXPECT_LT(LogSO3(r.world_from_cam[i].rotation * truth[i].rotation.conjugate()).norm(), 1e-5) << i;
     EXPECT_LT(r.quality[i].reprojection_rms_px, 1e-3) << i;
   }
+}
+
+TEST(PatchVO, FramesSkippedBeforeInitialisationAreInterpolated) {
+  // A slow start (a quarter step per frame, ~1 px of flow) makes the motion probe skip frames; they are then
+  // interpolated between the keyframes around them.
+  const cv::Mat texture = Texture(900, 4);
+  const Intrinsics K = Intrinsics::Default(kW, kH);
+  std::vector<double> s;
+  for (int i = 0; i < 16; ++i) s.push_back(0.25 * i);
+  while (s.size() < 40) s.push_back(s.back() + 1.0);
+  PatchVOOptions options;
+  options.refine_non_keyframes = false;
+  PatchVO vo(options);
+  std::vector<Rigid3> truth;
+  for (double si : s) {
+    vo.AddFrame(RenderPlane(texture, K, CamFromWorldAt(si), 3.0));
+    truth.push_back(CamFromWorldAt(0) * CamFromWorldAt(si).Inverse());
+  }
+  const PatchVOResult r = vo.Finish();
+  int interpolated = 0;
+  for (const FrameQuality& q : r.quality) interpolated += q.interpolated;
+  EXPECT_GE(interpolated, 4);
+  EXPECT_LT(AteOverPathLength(r.world_from_cam, truth), 0.02);
 }
 
 TEST(PatchVO, StaticCameraIsReportedWithIdentityTrajectory) {
