@@ -75,6 +75,7 @@ struct PatchVO::Impl {
   bool initialized = false;
   bool finished = false;
   double depth_scale = 1.0;  // inverse depth = depth_scale / depth_map
+  int restarted_at = -1;     // last frame where tracking restarted before initialisation
   PatchVOStats stats;
   Clock::time_point start_time;
 
@@ -467,9 +468,8 @@ struct PatchVO::Impl {
     t0 = Clock::now();
     std::vector<TrackResult> results = front_end->Track(t, requests);
     stats.front_end_seconds += Seconds(t0);
-    int measured = 0;
-    for (const TrackResult& r : results) measured += r.ok;
     frames[t].quality.attempted = static_cast<int>(requests.size());
+    bool verified = false;
 
     // Commits the measurements still marked ok; returns how many.
     auto commit = [&](const std::vector<TrackResult>& res) {
@@ -483,18 +483,32 @@ struct PatchVO::Impl {
       frames[t].quality.tracked = count;
       return count;
     };
-    auto verify_and_commit = [&]() {
+    auto verify = [&]() {
+      if (verified) return;
       t0 = Clock::now();
       front_end->Verify(t, requests, &results);
       stats.front_end_seconds += Seconds(t0);
-      return commit(results);
+      verified = true;
     };
 
     if (!initialized) {
+      // Before the map exists every decision rests on raw measurements, so check them all.
+      verify();
+      int measured = 0;
+      for (const TrackResult& r : results) measured += r.ok;
       if (measured < options.min_texture_patches) {
-        // Lost before the map existed: start again from this frame if it can.
-        Restart();
-        if (!TryStart(t, depth)) Release(t);
+        // Lost before the map existed: start again from this frame if it has texture, else keep waiting.
+        if (static_cast<int>(front_end->SamplePatches(t, options.patches_per_frame).size()) >=
+            options.min_texture_patches) {
+          Restart();
+          TryStart(t, depth);
+          restarted_at = t;
+        } else {
+          commit(results);
+          frames[t].ref = keyframes.back();
+          frames[t].motion_estimated = false;
+          Release(t);
+        }
         return;
       }
       // Motion probe: median displacement since the last keyframe.
@@ -561,7 +575,8 @@ struct PatchVO::Impl {
         }
       }
     }
-    verify_and_commit();
+    verify();
+    commit(results);
 
     // The new frame becomes a keyframe.
     frames[t].keyframe = true;
@@ -697,6 +712,11 @@ struct PatchVO::Impl {
       }
       ResolveNonKeyframes(false, options.refine_non_keyframes);
       result.message = "ok";
+    }
+
+    if (restarted_at >= 0) {
+      result.message += "; tracking was lost before initialisation and restarted at frame " +
+                        std::to_string(restarted_at) + ", earlier frames keep the identity pose";
     }
 
     // Quality per frame at the final estimate.

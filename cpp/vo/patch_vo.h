@@ -55,7 +55,7 @@ struct PatchVOOptions {
   double flow_beta = 0.5;
   // Initialisation.
   int init_frames = 8;
-  double init_min_flow_px = 5.0;  // DPVO: 2 px at 1/4 resolution
+  double init_min_flow_px = 3.0;  // median of forward-backward-checked measurements
   int init_iterations = 12;
   bool init_multi_start = true;  // also start the first BA from straight motions along the camera axes
   double motion_damping = 0.5;  // DPVO's DAMPED_LINEAR motion model

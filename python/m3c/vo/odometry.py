@@ -32,7 +32,7 @@ class VOConfig:
     keyframe_threshold_px: float = 12.0
     new_keyframe_flow_px: float = 6.0
     init_frames: int = 8
-    init_min_flow_px: float = 5.0
+    init_min_flow_px: float = 3.0
     init_iterations: int = 12
     init_multi_start: bool = True
     window_iterations: int = 4

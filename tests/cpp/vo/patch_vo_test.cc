@@ -174,6 +174,24 @@ TEST(PatchVO, FramesSkippedBeforeInitialisationAreInterpolated) {
   EXPECT_LT(AteOverPathLength(r.world_from_cam, truth), 0.02);
 }
 
+TEST(PatchVO, SceneCutBeforeInitialisationRestartsTracking) {
+  const cv::Mat first_scene = Texture(900, 5), second_scene = Texture(900, 6);
+  const Intrinsics K = Intrinsics::Default(kW, kH);
+  PatchVO vo;
+  for (int i = 0; i < 3; ++i) vo.AddFrame(RenderPlane(first_scene, K, CamFromWorldAt(0.1 * i), 3.0));
+  std::vector<Rigid3> truth;
+  for (int i = 0; i < 30; ++i) {
+    vo.AddFrame(RenderPlane(second_scene, K, CamFromWorldAt(i), 3.0));
+    truth.push_back(CamFromWorldAt(0) * CamFromWorldAt(i).Inverse());
+  }
+  const PatchVOResult r = vo.Finish();
+  EXPECT_NE(r.message.find("restarted at frame 3"), std::string::npos) << r.message;
+  for (int i = 0; i < 3; ++i) EXPECT_LT(LeftMinus(r.world_from_cam[i], Rigid3()).norm(), 1e-12);
+  const std::vector<Rigid3> after(r.world_from_cam.begin() + 3, r.world_from_cam.end());
+  EXPECT_LT(LeftMinus(after[0], Rigid3()).norm(), 1e-12);  // the new first camera is the world
+  EXPECT_LT(AteOverPathLength(after, truth), 0.02);
+}
+
 TEST(PatchVO, StaticCameraIsReportedWithIdentityTrajectory) {
   const cv::Mat texture = Texture(900, 2);
   const cv::Mat frame = RenderPlane(texture, Intrinsics::Default(kW, kH), Rigid3(), 3.0);
