@@ -1,0 +1,316 @@
+// Bindings for cpp/vo: the patch visual odometry (streaming class and whole-sequence function) and its options.
+// Frames are uint8 numpy arrays (H, W) gray or (H, W, 3) RGB/BGR; masks bool/uint8 (H, W), non-zero = person;
+// depth maps float (H, W) along the camera z axis (any consistent unit; <= 0 or non-finite = unknown).
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include "bindings/numpy_util.h"
+#include "vo/patch_vo.h"
+
+namespace m3c::bindings {
+
+namespace {
+
+using vo::Intrinsics;
+using vo::PatchVO;
+using vo::PatchVOOptions;
+using vo::PatchVOResult;
+
+using U8Array = py::array_t<uint8_t, py::array::c_style>;
+
+// A frame as a gray cv::Mat that owns its pixels (the numpy buffer may go away once the GIL is released).
+cv::Mat FrameToGray(const py::array& frame, const std::string& name, bool bgr) {
+  if (frame.dtype().kind() != 'u' || frame.itemsize() != 1) {
+    throw py::value_error(name + " must be uint8, got dtype " + std::string(py::str(frame.dtype())));
+  }
+  U8Array a = U8Array::ensure(frame);
+  if (a.ndim() == 2) {
+    return cv::Mat(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)), CV_8UC1,
+                   const_cast<uint8_t*>(a.data()))
+        .clone();
+  }
+  if (a.ndim() == 3 && a.shape(2) == 3) {
+    const cv::Mat color(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)), CV_8UC3,
+                        const_cast<uint8_t*>(a.data()));
+    cv::Mat gray;
+    cv::cvtColor(color, gray, bgr ? cv::COLOR_BGR2GRAY : cv::COLOR_RGB2GRAY);
+    return gray;
+  }
+  ShapeError(name, "(H, W) or (H, W, 3)", a);
+}
+
+cv::Mat MaskToMat(const py::handle& obj, const std::string& name, int h, int w) {
+  if (obj.is_none()) return cv::Mat();
+  py::array raw = py::array::ensure(obj);
+  if (!raw) throw py::value_error(name + " must be a boolean array");
+  const char kind = raw.dtype().kind();
+  if (!((kind == 'b' || kind == 'u') && raw.itemsize() == 1)) {
+    throw py::value_error(name + " must be bool or uint8, got dtype " + std::string(py::str(raw.dtype())));
+  }
+  if (raw.ndim() != 2 || raw.shape(0) != h || raw.shape(1) != w) {
+    ShapeError(name, "(" + std::to_string(h) + ", " + std::to_string(w) + ")", raw);
+  }
+  py::array c = py::array::ensure(raw, py::array::c_style);
+  return cv::Mat(h, w, CV_8UC1, const_cast<void*>(c.data())).clone();
+}
+
+cv::Mat DepthToMat(const py::handle& obj, const std::string& name, int h, int w) {
+  if (obj.is_none()) return cv::Mat();
+  auto a = AsArray<float>(obj, name);
+  if (a.ndim() != 2 || a.shape(0) != h || a.shape(1) != w) {
+    ShapeError(name, "(" + std::to_string(h) + ", " + std::to_string(w) + ")", a);
+  }
+  return cv::Mat(h, w, CV_32FC1, const_cast<float*>(a.data())).clone();
+}
+
+Intrinsics ParseIntrinsics(const py::handle& obj) {
+  if (obj.is_none()) return Intrinsics{};
+  auto a = AsArray<double>(obj, "intrinsics");
+  if (a.ndim() != 1 || a.shape(0) != 4) ShapeError("intrinsics", "(4,) = (fx, fy, cx, cy)", a);
+  const Intrinsics K{a.at(0), a.at(1), a.at(2), a.at(3)};
+  if (!K.Valid()) throw py::value_error("intrinsics must be finite with fx, fy > 0");
+  return K;
+}
+
+py::dict ResultToDict(const PatchVOResult& r) {
+  const py::ssize_t T = static_cast<py::ssize_t>(r.world_from_cam.size());
+  py::array_t<double> poses({T, py::ssize_t{4}, py::ssize_t{4}});
+  auto pm = poses.mutable_unchecked<3>();
+  py::array_t<int32_t> attempted(T), tracked(T), inliers(T);
+  py::array_t<double> rms(T);
+  py::array_t<bool> keyframe(T), interpolated(T), refined(T);
+  for (py::ssize_t t = 0; t < T; ++t) {
+    const Eigen::Matrix4d m = r.world_from_cam[t].ToMatrix();
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) pm(t, i, j) = m(i, j);
+    const vo::FrameQuality& q = r.quality[t];
+    attempted.mutable_at(t) = q.attempted;
+    tracked.mutable_at(t) = q.tracked;
+    inliers.mutable_at(t) = q.inliers;
+    rms.mutable_at(t) = q.reprojection_rms_px;
+    keyframe.mutable_at(t) = q.keyframe;
+    interpolated.mutable_at(t) = q.interpolated;
+    refined.mutable_at(t) = q.refined;
+  }
+  py::array_t<double> K(4);
+  K.mutable_at(0) = r.intrinsics.fx, K.mutable_at(1) = r.intrinsics.fy;
+  K.mutable_at(2) = r.intrinsics.cx, K.mutable_at(3) = r.intrinsics.cy;
+  py::dict quality;
+  quality["attempted"] = attempted;
+  quality["tracked"] = tracked;
+  quality["inliers"] = inliers;
+  quality["reprojection_rms_px"] = rms;
+  quality["keyframe"] = keyframe;
+  quality["interpolated"] = interpolated;
+  quality["refined"] = refined;
+  const vo::PatchVOStats& s = r.stats;
+  py::dict stats;
+  stats["num_frames"] = s.num_frames;
+  stats["num_keyframes"] = s.num_keyframes;
+  stats["num_patches"] = s.num_patches;
+  stats["num_observations"] = s.num_observations;
+  stats["window_ba_count"] = s.window_ba_count;
+  stats["window_ba_seconds"] = s.window_ba_seconds;
+  stats["init_ba_starts"] = s.init_ba_starts;
+  stats["init_ba_iterations"] = s.init_ba_iterations;
+  stats["init_ba_initial_cost"] = s.init_ba_initial_cost;
+  stats["init_ba_final_cost"] = s.init_ba_final_cost;
+  stats["init_ba_seconds"] = s.init_ba_seconds;
+  stats["final_ba_iterations"] = s.final_ba_iterations;
+  stats["final_ba_seconds"] = s.final_ba_seconds;
+  stats["front_end_seconds"] = s.front_end_seconds;
+  stats["total_seconds"] = s.total_seconds;
+  py::dict out;
+  out["world_from_cam"] = poses;
+  out["intrinsics"] = K;
+  out["processing_scale"] = r.processing_scale;
+  out["quality"] = quality;
+  out["static_camera"] = r.static_camera;
+  out["stats"] = stats;
+  out["message"] = r.message;
+  return out;
+}
+
+// A streaming wrapper that converts numpy frames.
+class PyPatchVO {
+ public:
+  PyPatchVO(const PatchVOOptions& options, const py::handle& intrinsics, bool bgr)
+      : vo_(options, ParseIntrinsics(intrinsics)), bgr_(bgr) {}
+
+  void AddFrame(const py::array& frame, const py::handle& mask, const py::handle& depth) {
+    const std::string idx = "[" + std::to_string(vo_.num_frames()) + "]";
+    cv::Mat gray = FrameToGray(frame, "frame" + idx, bgr_);
+    cv::Mat m = MaskToMat(mask, "mask" + idx, gray.rows, gray.cols);
+    cv::Mat d = DepthToMat(depth, "depth" + idx, gray.rows, gray.cols);
+    py::gil_scoped_release release;
+    vo_.AddFrame(gray, m, d);
+  }
+
+  py::dict Finish() {
+    PatchVOResult r;
+    {
+      py::gil_scoped_release release;
+      r = vo_.Finish();
+    }
+    return ResultToDict(r);
+  }
+
+  int num_frames() const { return vo_.num_frames(); }
+
+ private:
+  PatchVO vo_;
+  bool bgr_;
+};
+
+py::dict RunPatchVO(const py::array& frames_in, const py::handle& masks, const py::handle& depths,
+                    const py::handle& intrinsics, const PatchVOOptions& options, bool bgr) {
+  if (frames_in.dtype().kind() != 'u' || frames_in.itemsize() != 1) {
+    throw py::value_error("frames must be uint8, got dtype " + std::string(py::str(frames_in.dtype())));
+  }
+  if (!(frames_in.ndim() == 3 || (frames_in.ndim() == 4 && frames_in.shape(3) == 3))) {
+    ShapeError("frames", "(T, H, W) or (T, H, W, 3)", frames_in);
+  }
+  const U8Array frames = U8Array::ensure(frames_in);
+  const int T = static_cast<int>(frames.shape(0)), H = static_cast<int>(frames.shape(1)),
+            W = static_cast<int>(frames.shape(2));
+  const bool color = frames.ndim() == 4;
+  const std::string expected =
+      "(T=" + std::to_string(T) + ", H=" + std::to_string(H) + ", W=" + std::to_string(W) + ")";
+  py::array mask_arr;
+  if (!masks.is_none()) {
+    mask_arr = py::array::ensure(masks, py::array::c_style);
+    if (!mask_arr) throw py::value_error("masks must be a boolean array");
+    const char kind = mask_arr.dtype().kind();
+    if (!((kind == 'b' || kind == 'u') && mask_arr.itemsize() == 1)) {
+      throw py::value_error("masks must be bool or uint8, got dtype " + std::string(py::str(mask_arr.dtype())));
+    }
+    if (mask_arr.ndim() != 3 || mask_arr.shape(0) != T || mask_arr.shape(1) != H || mask_arr.shape(2) != W) {
+      ShapeError("masks", expected, mask_arr);
+    }
+  }
+  py::array_t<float, py::array::c_style> depth_arr;
+  if (!depths.is_none()) {
+    depth_arr = AsArray<float>(depths, "depths");
+    if (depth_arr.ndim() != 3 || depth_arr.shape(0) != T || depth_arr.shape(1) != H || depth_arr.shape(2) != W) {
+      ShapeError("depths", expected, depth_arr);
+    }
+  }
+  const Intrinsics K = ParseIntrinsics(intrinsics);
+  const uint8_t* fp = frames.data();
+  const uint8_t* mp = masks.is_none() ? nullptr : static_cast<const uint8_t*>(mask_arr.data());
+  const float* dp = depths.is_none() ? nullptr : depth_arr.data();
+  PatchVOResult r;
+  {
+    py::gil_scoped_release release;
+    PatchVO vo(options, K);
+    const size_t plane = static_cast<size_t>(H) * W;
+    for (int t = 0; t < T; ++t) {
+      cv::Mat gray;
+      if (color) {
+        const cv::Mat c(H, W, CV_8UC3, const_cast<uint8_t*>(fp + 3 * plane * t));
+        cv::cvtColor(c, gray, bgr ? cv::COLOR_BGR2GRAY : cv::COLOR_RGB2GRAY);
+      } else {
+        gray = cv::Mat(H, W, CV_8UC1, const_cast<uint8_t*>(fp + plane * t));
+      }
+      const cv::Mat m = mp ? cv::Mat(H, W, CV_8UC1, const_cast<uint8_t*>(mp + plane * t)) : cv::Mat();
+      const cv::Mat d = dp ? cv::Mat(H, W, CV_32FC1, const_cast<float*>(dp + plane * t)) : cv::Mat();
+      vo.AddFrame(gray, m, d);  // PatchVO copies what it keeps
+    }
+    r = vo.Finish();
+  }
+  return ResultToDict(r);
+}
+
+}  // namespace
+
+void BindVO(py::module_& m) {
+  py::class_<vo::GradientSamplingOptions>(
+      m, "GradientSamplingOptions", "Gradient-biased patch sampling (DPVO GRADIENT_BIAS, masks zero the gradient).")
+      .def(py::init<>())
+      .def_readwrite("pool_px", &vo::GradientSamplingOptions::pool_px)
+      .def_readwrite("candidate_factor", &vo::GradientSamplingOptions::candidate_factor)
+      .def_readwrite("min_gradient", &vo::GradientSamplingOptions::min_gradient)
+      .def_readwrite("margin_px", &vo::GradientSamplingOptions::margin_px)
+      .def_readwrite("mask_dilation_px", &vo::GradientSamplingOptions::mask_dilation_px);
+
+  py::class_<vo::LucasKanadeOptions>(m, "LucasKanadeOptions", "Pyramidal Lucas-Kanade front-end settings.")
+      .def(py::init<>())
+      .def_readwrite("sampling", &vo::LucasKanadeOptions::sampling)
+      .def_readwrite("window_px", &vo::LucasKanadeOptions::window_px)
+      .def_readwrite("pyramid_levels", &vo::LucasKanadeOptions::pyramid_levels)
+      .def_readwrite("max_iterations", &vo::LucasKanadeOptions::max_iterations)
+      .def_readwrite("epsilon", &vo::LucasKanadeOptions::epsilon)
+      .def_readwrite("min_eigen", &vo::LucasKanadeOptions::min_eigen)
+      .def_readwrite("forward_backward_px", &vo::LucasKanadeOptions::forward_backward_px)
+      .def_readwrite("reject_masked", &vo::LucasKanadeOptions::reject_masked)
+      .def_readwrite("seed", &vo::LucasKanadeOptions::seed);
+
+  py::class_<PatchVOOptions>(m, "PatchVOOptions", "Patch VO settings; see cpp/vo/patch_vo.h for each field.")
+      .def(py::init<>())
+      .def_readwrite("max_image_side", &PatchVOOptions::max_image_side)
+      .def_readwrite("patches_per_frame", &PatchVOOptions::patches_per_frame)
+      .def_readwrite("patch_lifetime", &PatchVOOptions::patch_lifetime)
+      .def_readwrite("backward_frames", &PatchVOOptions::backward_frames)
+      .def_readwrite("optimization_window", &PatchVOOptions::optimization_window)
+      .def_readwrite("removal_window", &PatchVOOptions::removal_window)
+      .def_readwrite("keyframe_index", &PatchVOOptions::keyframe_index)
+      .def_readwrite("keyframe_threshold_px", &PatchVOOptions::keyframe_threshold_px)
+      .def_readwrite("new_keyframe_flow_px", &PatchVOOptions::new_keyframe_flow_px)
+      .def_readwrite("flow_beta", &PatchVOOptions::flow_beta)
+      .def_readwrite("init_frames", &PatchVOOptions::init_frames)
+      .def_readwrite("init_min_flow_px", &PatchVOOptions::init_min_flow_px)
+      .def_readwrite("init_iterations", &PatchVOOptions::init_iterations)
+      .def_readwrite("init_multi_start", &PatchVOOptions::init_multi_start)
+      .def_readwrite("motion_damping", &PatchVOOptions::motion_damping)
+      .def_readwrite("window_iterations", &PatchVOOptions::window_iterations)
+      .def_readwrite("final_iterations", &PatchVOOptions::final_iterations)
+      .def_readwrite("loss_scale_px", &PatchVOOptions::loss_scale_px)
+      .def_readwrite("outlier_threshold_px", &PatchVOOptions::outlier_threshold_px)
+      .def_readwrite("num_threads", &PatchVOOptions::num_threads)
+      .def_readwrite("refine_non_keyframes", &PatchVOOptions::refine_non_keyframes)
+      .def_readwrite("min_refine_observations", &PatchVOOptions::min_refine_observations)
+      .def_readwrite("use_depth", &PatchVOOptions::use_depth)
+      .def_readwrite("depth_window_px", &PatchVOOptions::depth_window_px)
+      .def_readwrite("min_texture_patches", &PatchVOOptions::min_texture_patches)
+      .def_readwrite("lucas_kanade", &PatchVOOptions::lucas_kanade);
+
+  py::class_<PyPatchVO>(m, "PatchVO", R"doc(
+Streaming patch visual odometry (DPVO-style patch graph, Ceres bundle adjustment, Lucas-Kanade front-end).
+
+Args:
+    options: PatchVOOptions.
+    intrinsics: None or (4,) = (fx, fy, cx, cy) in pixels of the input frames; None uses
+        f = sqrt(W^2 + H^2), (cx, cy) = (W/2, H/2).
+    bgr: 3-channel frames are BGR (OpenCV) rather than RGB.
+)doc")
+      .def(py::init<const PatchVOOptions&, const py::handle&, bool>(), py::arg("options"),
+           py::arg("intrinsics") = py::none(), py::arg("bgr") = false)
+      .def("add_frame", &PyPatchVO::AddFrame, py::arg("frame"), py::arg("mask") = py::none(),
+           py::arg("depth") = py::none(),
+           "Adds one frame: uint8 (H, W) or (H, W, 3); mask None or bool/uint8 (H, W); depth None or float (H, W).")
+      .def("finish", &PyPatchVO::Finish, "Final optimisation; returns the result dict (see run_patch_vo).")
+      .def_property_readonly("num_frames", &PyPatchVO::num_frames);
+
+  m.def("run_patch_vo", &RunPatchVO, py::arg("frames"), py::arg("masks") = py::none(),
+        py::arg("depths") = py::none(), py::arg("intrinsics") = py::none(), py::arg("options") = PatchVOOptions(),
+        py::arg("bgr") = false, R"doc(
+Patch visual odometry over a whole sequence.
+
+Args:
+    frames: uint8 (T, H, W) gray or (T, H, W, 3) RGB (BGR with bgr=True).
+    masks: None or bool/uint8 (T, H, W); True = person (gradient zeroed, measurements rejected).
+    depths: None or float (T, H, W) depth along z, any consistent unit; <= 0 or non-finite = unknown.
+    intrinsics: None or (4,) = (fx, fy, cx, cy), pixels.
+    options: PatchVOOptions.
+
+Returns:
+    dict with world_from_cam (T, 4, 4) float64 (world = first camera, OpenCV axes, arbitrary scale),
+    intrinsics (4,), processing_scale, quality (per-frame arrays attempted, tracked, inliers,
+    reprojection_rms_px, keyframe, interpolated, refined), static_camera, stats, message.
+)doc");
+}
+
+}  // namespace m3c::bindings

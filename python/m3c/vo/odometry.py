@@ -1,0 +1,169 @@
+"""Public API of the patch visual odometry (the C++ core behind m3c._core.run_patch_vo / PatchVO)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from m3c import _core
+
+
+def default_intrinsics(width: int, height: int) -> np.ndarray:
+    """(fx, fy, cx, cy) used when the camera is unknown, as WHAM: f = sqrt(W^2 + H^2), centre (W/2, H/2)."""
+    f = float(np.hypot(width, height))
+    return np.array([f, f, width / 2.0, height / 2.0])
+
+
+@dataclass
+class VOConfig:
+    """Patch VO settings (pixel quantities at the processing resolution, longer side <= max_image_side).
+
+    The patch graph is DPVO's; DPVO's numbers (96 patches, lifetime 13, window 10, removal 22, keyframe
+    index 4) are sized for a GPU, the defaults here for a CPU (64, 10, 8, 16, 4).
+    """
+    max_image_side: int = 640
+    patches_per_frame: int = 64
+    patch_lifetime: int = 10
+    backward_frames: int = 3
+    optimization_window: int = 8
+    removal_window: int = 16
+    keyframe_index: int = 4
+    keyframe_threshold_px: float = 12.0
+    new_keyframe_flow_px: float = 6.0
+    init_frames: int = 8
+    init_min_flow_px: float = 3.0
+    init_iterations: int = 12
+    init_multi_start: bool = True
+    window_iterations: int = 4
+    final_iterations: int = 25
+    loss_scale_px: float = 1.5
+    outlier_threshold_px: float = 3.0
+    refine_non_keyframes: bool = True
+    use_depth: bool = True
+    num_threads: int = 1
+    # Front-end (Lucas-Kanade + gradient-biased sampling).
+    lk_window_px: int = 15
+    lk_pyramid_levels: int = 3
+    forward_backward_px: float = 0.75
+    reject_masked: bool = True
+    mask_dilation_px: int = 4
+    gradient_pool_px: int = 7
+    min_gradient: float = 3.0
+    seed: int = 0
+
+    _LK_FIELDS = {"lk_window_px": "window_px", "lk_pyramid_levels": "pyramid_levels",
+                  "forward_backward_px": "forward_backward_px", "reject_masked": "reject_masked",
+                  "seed": "seed"}
+    _SAMPLING_FIELDS = {"mask_dilation_px": "mask_dilation_px", "gradient_pool_px": "pool_px",
+                        "min_gradient": "min_gradient"}
+
+    def to_core(self) -> _core.PatchVOOptions:
+        options = _core.PatchVOOptions()
+        lk = options.lucas_kanade
+        sampling = lk.sampling
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in self._LK_FIELDS:
+                setattr(lk, self._LK_FIELDS[f.name], value)
+            elif f.name in self._SAMPLING_FIELDS:
+                setattr(sampling, self._SAMPLING_FIELDS[f.name], value)
+            else:
+                setattr(options, f.name, value)
+        lk.sampling = sampling
+        options.lucas_kanade = lk
+        return options
+
+
+@dataclass
+class VOResult:
+    """Camera trajectory of every input frame.
+
+    world_from_cam: (T, 4, 4) float64; world = the first camera (OpenCV axes: x right, y down, z forward);
+        monocular, so the scale is arbitrary (median patch depth of the first keyframe = 1, or the depth
+        maps').
+    intrinsics: (4,) fx, fy, cx, cy at input resolution (given, or default_intrinsics).
+    quality: per-frame arrays: attempted / tracked (front-end measurements), inliers (used by the final
+        estimate, reprojection error < outlier threshold), reprojection_rms_px (processing resolution),
+        keyframe, interpolated (skipped before initialisation, pose interpolated between keyframes),
+        refined (non-keyframe pose refined motion-only against the final map).
+    static_camera: the camera never moved enough to initialise; translation is zero, rotation fitted.
+    stats: timings (seconds) and counts.
+    """
+    world_from_cam: np.ndarray
+    intrinsics: np.ndarray
+    quality: dict[str, np.ndarray]
+    static_camera: bool
+    stats: dict[str, float]
+    message: str
+    processing_scale: float = 1.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def camera_centres(self) -> np.ndarray:
+        return self.world_from_cam[:, :3, 3]
+
+    @property
+    def tracking_ratio(self) -> np.ndarray:
+        """Per-frame fraction of attempted measurements the front-end accepted (1 where none attempted)."""
+        attempted = self.quality["attempted"].astype(np.float64)
+        return np.where(attempted > 0, self.quality["tracked"] / np.maximum(attempted, 1), 1.0)
+
+    @classmethod
+    def from_core(cls, d: dict) -> "VOResult":
+        return cls(world_from_cam=np.asarray(d["world_from_cam"]), intrinsics=np.asarray(d["intrinsics"]),
+                   quality={k: np.asarray(v) for k, v in d["quality"].items()},
+                   static_camera=bool(d["static_camera"]), stats=dict(d["stats"]), message=str(d["message"]),
+                   processing_scale=float(d["processing_scale"]))
+
+
+def _check_intrinsics(intrinsics) -> np.ndarray | None:
+    if intrinsics is None:
+        return None
+    k = np.asarray(intrinsics, dtype=np.float64)
+    if k.shape == (3, 3):
+        k = np.array([k[0, 0], k[1, 1], k[0, 2], k[1, 2]])
+    if k.shape != (4,):
+        raise ValueError(
+            f"intrinsics must be (4,) = (fx, fy, cx, cy) or a (3, 3) matrix, got shape {k.shape}")
+    return k
+
+
+def run_vo(frames: np.ndarray, masks: np.ndarray | None = None, depths: np.ndarray | None = None,
+           intrinsics=None, config: VOConfig | None = None, bgr: bool = False) -> VOResult:
+    """Patch visual odometry over a frame array.
+
+    Args:
+        frames: uint8 (T, H, W) gray or (T, H, W, 3) RGB (BGR with bgr=True).
+        masks: None or bool (T, H, W), True on people (their gradient is zeroed so no patch is placed there,
+            and measurements landing there are rejected).
+        depths: None or float (T, H, W) per-pixel depth (any consistent unit) to initialise patch inverse
+            depth.
+        intrinsics: None, (fx, fy, cx, cy) or a 3x3 K, pixels of the input frames.
+        config: VOConfig.
+    """
+    frames = np.asarray(frames)
+    if frames.dtype != np.uint8:
+        raise ValueError(
+            f"frames must be uint8, got {frames.dtype}; convert with np.clip(x, 0, 255).astype(np.uint8)")
+    config = config or VOConfig()
+    out = _core.run_patch_vo(frames, masks, depths, _check_intrinsics(intrinsics), config.to_core(), bgr)
+    return VOResult.from_core(out)
+
+
+class VisualOdometry:
+    """Streaming interface: add frames one by one (e.g. while decoding a video), then finish()."""
+
+    def __init__(self, intrinsics=None, config: VOConfig | None = None, bgr: bool = False):
+        self._vo = _core.PatchVO((config or VOConfig()).to_core(), _check_intrinsics(intrinsics), bgr)
+
+    def add_frame(self, frame: np.ndarray, mask: np.ndarray | None = None,
+                  depth: np.ndarray | None = None) -> None:
+        self._vo.add_frame(np.asarray(frame), mask, depth)
+
+    @property
+    def num_frames(self) -> int:
+        return self._vo.num_frames
+
+    def finish(self) -> VOResult:
+        return VOResult.from_core(self._vo.finish())
