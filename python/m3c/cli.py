@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -39,6 +40,36 @@ def _body_convert(args) -> int:
     return 0
 
 
+def _vo(args) -> int:
+    from m3c.io import save_npz_atomic
+    from m3c.vo import run_vo_video
+
+    result = run_vo_video(args.video, intrinsics=args.intrinsics, max_frames=args.max_frames)
+    out = Path(args.out)
+    save_npz_atomic(out / "camera_trajectory.npz", world_from_cam=result.world_from_cam.astype(np.float32),
+                    intrinsics=result.intrinsics, fps=np.float64(result.extra["fps"]),
+                    static_camera=np.bool_(result.static_camera),
+                    **{f"quality_{k}": v for k, v in result.quality.items()})
+    centres = result.camera_centres
+    print(f"{args.video}: {len(centres)} frames, {result.message}")
+    print(f"camera path length {np.linalg.norm(np.diff(centres, axis=0), axis=1).sum():.3f} (VO units; "
+          f"monocular, so the scale is arbitrary), median tracking ratio {np.median(result.tracking_ratio):.2f}")
+    try:
+        from m3c.vo.plot import plot_trajectories
+    except ImportError:
+        plot_trajectories = None
+    if plot_trajectories is not None:
+        try:
+            plot_trajectories(out / "camera_trajectory.png",
+                              [{"title": Path(args.video).name, "curves": [("patch VO", result.world_from_cam)]}])
+            print(f"wrote {out / 'camera_trajectory.npz'} and {out / 'camera_trajectory.png'}")
+            return 0
+        except ImportError:
+            pass
+    print(f"wrote {out / 'camera_trajectory.npz'} (install the 'viz' extra, matplotlib, for the plot)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="m3c", description="M3C: world-grounded human motion capture.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -52,6 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("out")
     convert.add_argument("--smpl-layout", action="store_true", help="reduce SMPL-H/SMPL-X to SMPL's 24 joints")
     convert.set_defaults(func=_body_convert)
+    vo = sub.add_parser("vo", help="camera trajectory of a video (patch visual odometry, no people masked yet)")
+    vo.add_argument("video")
+    vo.add_argument("--out", required=True, help="output folder")
+    vo.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                    help="pixels; default f = sqrt(W^2 + H^2), principal point at the centre")
+    vo.add_argument("--max-frames", type=int)
+    vo.set_defaults(func=_vo)
     return parser
 
 

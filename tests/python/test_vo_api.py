@@ -197,3 +197,28 @@ def test_video_helpers_round_trip(short_sequence, tmp_path):
     assert result.extra["fps"] == pytest.approx(12.5)
     with pytest.raises(FileNotFoundError, match="cannot open video"):
         read_video(tmp_path / "missing.mp4")
+
+
+def test_cli_writes_the_trajectory_with_user_permissions(short_sequence, tmp_path, capsys):
+    cv2 = pytest.importorskip("cv2", reason="opencv-python-headless is needed for video files")
+    import os
+    import stat
+
+    from m3c.cli import main
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 12.5, (160, 120))
+    for frame in short_sequence.frames:
+        writer.write(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
+    writer.release()
+    out = tmp_path / "out"
+    fx, fy, cx, cy = short_sequence.intrinsics
+    assert main(["vo", str(path), "--out", str(out), "--intrinsics", str(fx), str(fy), str(cx), str(cy)]) == 0
+    saved = np.load(out / "camera_trajectory.npz")
+    assert saved["world_from_cam"].shape == (24, 4, 4)
+    np.testing.assert_allclose(saved["intrinsics"], short_sequence.intrinsics)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE((out / "camera_trajectory.npz").stat().st_mode) == 0o666 & ~umask
+    assert main(["vo", str(tmp_path / "missing.mp4"), "--out", str(out)]) == 2
+    assert "cannot open video" in capsys.readouterr().err
