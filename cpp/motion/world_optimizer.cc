@@ -181,6 +181,18 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return cam;
   };
 
+  // Per-point weights weight * p for contact probabilities p >= threshold at frame f; empty if none is in contact.
+  auto contact_weights = [&](const TrackInput& tr, int f, double weight) {
+    std::vector<double> w(tr.contacts.cols());
+    bool any = false;
+    for (int c = 0; c < tr.contacts.cols(); ++c) {
+      const double p = tr.contacts(f, c);
+      w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
+      any = any || w[c] > 0;
+    }
+    return any ? w : std::vector<double>();
+  };
+
   // Builders of the built-in terms.
   auto add_builtin = [&](const std::string& term, double weight, ceres::Problem* problem) {
     for (size_t i = 0; i < tracks.size(); ++i) {
@@ -228,28 +240,16 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         }
       } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
         for (int f = 0; f + 1 < n; ++f) {
-          std::vector<double> w(tr.contacts.cols());
-          bool any = false;
-          for (int c = 0; c < tr.contacts.cols(); ++c) {
-            const double p = tr.contacts(f, c);
-            w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
-            any = any || w[c] > 0;
-          }
-          if (!any) continue;
+          const std::vector<double> w = contact_weights(tr, f, weight);
+          if (w.empty()) continue;
           problem->AddResidualBlock(new PointStencilCost(model_, contact_regressor_, {-1.0, 1.0}, w), nullptr,
                                     {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1],
                                      vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]});
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
         for (int f = 0; f < n; ++f) {
-          std::vector<double> w(tr.contacts.cols());
-          bool any = false;
-          for (int c = 0; c < tr.contacts.cols(); ++c) {
-            const double p = tr.contacts(f, c);
-            w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
-            any = any || w[c] > 0;
-          }
-          if (!any) continue;
+          const std::vector<double> w = contact_weights(tr, f, weight);
+          if (w.empty()) continue;
           problem->AddResidualBlock(
               new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
                                     tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
