@@ -68,7 +68,7 @@ def test_graph_from_test_pipeline():
     assert graph.upstream(["slow_b"]) == {"source", "slow_a", "slow_b"}
     assert graph.downstream(["other"]) == {"other", "total", "report"}
     dot = graph.to_dot({"source": "cached"})
-    assert '"slow_a" -> "slow_b" [label="data"];' in dot
+    assert '"slow_a" -> "slow_b";' in dot
     assert 'subgraph "cluster_output"' in dot and dot.startswith("digraph m3c {")
 
 

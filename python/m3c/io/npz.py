@@ -31,7 +31,8 @@ def write_npz(path: str | Path, arrays: dict, compress: bool = False) -> None:
             info.compress_type = method
             info.external_attr = 0o644 << 16
             with archive.open(info, "w", force_zip64=True) as member:
-                np.lib.format.write_array(member, np.ascontiguousarray(array), allow_pickle=False)
+                # (np.ascontiguousarray would turn a 0-d array into a 1-d one)
+                np.lib.format.write_array(member, np.asarray(array, order="C"), allow_pickle=False)
 
 
 def save_npz_reproducible(path: str | Path, arrays: dict, compress: bool = False) -> None:

@@ -95,7 +95,8 @@ class Graph:
             levels.setdefault(self.nodes[name].level, []).append(name)
         for level, names in levels.items():
             lines.append(f'  subgraph "cluster_{level}" {{')
-            lines.append(f'    label="{level}-level"; style=dashed; color="#999999";')
+            title = "SMPL" if level == "smpl" else level
+            lines.append(f'    label="{title}-level"; style=dashed; color="#999999";')
             for name in names:
                 node = self.nodes[name]
                 label = name if node.type_name == name else f"{name}\\n({node.type_name})"
@@ -103,7 +104,9 @@ class Graph:
                 lines.append(f'    "{name}" [label="{label}", fillcolor="{fill}"];')
             lines.append("  }")
         for e in self.edges:
-            lines.append(f'  "{e.source}" -> "{e.target}" [label="{e.output}"];')
+            # Label only the outputs of nodes that have several (one-output edges are named by their source).
+            label = f' [label="{e.output}"]' if len(self.nodes[e.source].outputs) > 1 else ""
+            lines.append(f'  "{e.source}" -> "{e.target}"{label};')
         lines.append("}")
         return "\n".join(lines) + "\n"
 

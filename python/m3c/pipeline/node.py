@@ -106,11 +106,16 @@ class Node:
     @classmethod
     def code_version(cls) -> str:
         """The node's version string plus a digest of its class source: editing the node re-runs it."""
-        try:
-            source = inspect.getsource(cls)
-        except (OSError, TypeError):
-            source = ""
-        return f"{cls.version}:{hashlib.sha256(source.encode()).hexdigest()[:16]}"
+        if cls not in _SOURCE_DIGESTS:
+            try:
+                source = inspect.getsource(cls)
+            except (OSError, TypeError):
+                source = ""
+            _SOURCE_DIGESTS[cls] = hashlib.sha256(source.encode()).hexdigest()[:16]
+        return f"{cls.version}:{_SOURCE_DIGESTS[cls]}"
+
+
+_SOURCE_DIGESTS: dict[type, str] = {}
 
 
 _REGISTRY: dict[str, type[Node]] = {}

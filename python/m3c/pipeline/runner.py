@@ -25,7 +25,7 @@ from m3c.io import atomic_path
 from m3c.pipeline.cache import Cache, digest, file_digest
 from m3c.pipeline.config import PipelineConfig, Settings
 from m3c.pipeline.graph import Graph
-from m3c.pipeline.node import ComponentUnavailable, FileRef, InputError, Node, PipelineError
+from m3c.pipeline.node import ComponentUnavailable, FileRef, InputError, Node, PipelineError, config_to_dict
 from m3c.pipeline.progress import Progress
 
 LOG = logging.getLogger("m3c.pipeline")
@@ -77,6 +77,14 @@ class RunContext:
     def body_model(self):
         """The configured body model (settings.body_model, else the open model), loaded once per run."""
         return self._runner.body_model()
+
+    def upstream_nodes(self) -> dict[str, dict]:
+        """Type and config of every node this node depends on (they are part of its cache key through its
+        inputs' keys), for recording which backends produced a result."""
+        graph = self._runner.graph
+        names = graph.upstream([self.node]) - {self.node}
+        return {n: {"type": graph.nodes[n].type_name, "config": config_to_dict(graph.nodes[n].config)}
+                for n in graph.order if n in names}
 
     def models_dir(self) -> Path | None:
         """The checkpoint folder: settings.models_dir, else $M3C_MODELS, else None."""
@@ -314,7 +322,8 @@ class Runner:
                 outputs = node.run(ctx, inputs)
             finally:
                 node.unload()
-                _free_memory()
+                if type(node).load is not Node.load:  # it held models: reclaim them now
+                    _free_memory()
             if not isinstance(outputs, dict) or set(outputs) != set(node.outputs):
                 got = sorted(outputs) if isinstance(outputs, dict) else type(outputs).__name__
                 raise PipelineError(f"node {node.name!r} ({node.type_name}) must return its outputs "
