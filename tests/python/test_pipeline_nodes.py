@@ -232,3 +232,49 @@ def test_camera_scale_from_planted_feet():
     # A static camera (no baseline) gives no estimate.
     static = np.tile(np.eye(4), (40, 1, 1))
     assert estimate_vo_scale(model, tracks, static)[0] is None
+
+
+def test_patches_node_isolates_the_focused_person(tmp_path):
+    from m3c.io.video import VideoWriter
+    from m3c.nodes.load import save_outputs
+    from m3c.nodes.records import decode_image
+    from m3c.pipeline import PipelineConfig, run_pipeline
+    from m3c.pipeline.cache import Cache
+
+    # Person A (red, in front) and person B (blue) overlap; 3 identical frames.
+    frame = np.full((80, 120, 3), 90, np.uint8)
+    frame[15:76, 40:91] = (255, 0, 0)  # B: x 40..90, y 15..75 (BGR blue)
+    frame[20:71, 20:51] = (0, 0, 255)  # A: x 20..50, y 20..70 (BGR red), drawn over B
+    with VideoWriter(tmp_path / "v.mp4", 10.0, (120, 80)) as writer:
+        for _ in range(3):
+            writer.write(frame)
+    boxes = np.array([[20, 20, 50, 70], [40, 15, 90, 75]] * 3, np.float32)
+    save_outputs(tmp_path / "detections", {"detections": {
+        "frame": np.repeat(np.arange(3), 2), "box": boxes, "score": np.tile([0.9, 0.8], 3).astype(np.float32)}})
+    masks = encode_masks([(np.ones((51, 31), bool), 20, 20), (np.ones((61, 51), bool), 40, 15)] * 3)
+    save_outputs(tmp_path / "masks", {"masks": masks})
+    config = PipelineConfig.from_yaml(f"""
+settings: {{visualize: true}}
+nodes:
+  frames: {{}}
+  detections: {{type: load, config: {{path: {tmp_path / 'detections'}, outputs: [detections]}}}}
+  masks: {{type: load, config: {{path: {tmp_path / 'masks'}, outputs: [masks]}}}}
+  boxes: {{inputs: {{video: frames.video, detections: detections.detections}}}}
+  patches:
+    inputs: {{video: frames.video, detections: detections.detections, boxes: boxes.boxes, masks: masks.masks}}
+    config: {{size: 60, jpeg_quality: 100}}
+""")
+    out = tmp_path / "out"
+    report = run_pipeline(config, out, {"video": tmp_path / "v.mp4"}, show_progress=False)
+    key = dict((r.name, r.key) for r in report.records)
+    square = Cache(out / "cache").load("boxes", key["boxes"])["boxes"]["square"]
+    np.testing.assert_allclose(square[0], [5, 15, 65, 75])  # A padded to 15..55 x 15..75, squared to 60
+    patch = decode_image(Cache(out / "cache").load("patches", key["patches"])["patches"], 0).astype(int)
+    # One source pixel per patch pixel here: patch (i, j) shows frame (5 + i, 15 + j).
+    def at(x, y):
+        return patch[y - 15, x - 5]
+    assert np.abs(at(35, 45) - [0, 0, 255]).max() < 40  # A itself
+    assert np.abs(at(60, 40) - [255, 255, 255]).max() < 40  # B's pixels outside A's mask: white
+    assert np.abs(at(10, 20) - [90, 90, 90]).max() < 40  # background outside B's box: kept
+    assert (out / "viz" / "patches" / "patches.jpg").is_file()
+    assert list((out / "viz" / "boxes").glob("boxes_frame*.jpg"))

@@ -316,11 +316,15 @@ class LiftNode(Node):
             return None
 
     def key_config(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError
         from m3c.pipeline.cache import file_digest
 
         config = asdict(self.config)
         if self.config.method != "camera":
-            path = self._wham_checkpoint(ctx)
+            try:
+                path = self._wham_checkpoint(ctx)
+            except CheckpointNotFoundError:  # method wham without its file: check() reports it
+                path = None
             config["checkpoint_digest"] = file_digest(path) if path is not None else None
         return config
 

@@ -110,7 +110,18 @@ class WorldView:
         meshes += [Mesh(to_camera(v, self.pose), faces, track_colour(tid)) for v, tid in bodies]
         background = np.full((self.height, self.width, 3), 250, np.uint8)
         image, _ = render(meshes, self.intrinsics, self.width, self.height, background=background)
-        # Camera path so far (lines are drawn over the meshes, without a depth test).
+        # Camera path so far and its shadow on the ground (lines are drawn over the meshes, without a depth
+        # test), and a drop line from the camera to the ground, so the camera's height reads at a glance.
+        shadow = camera_path.copy()
+        shadow[:, 1] = self.ground_height
+        uv, z = self.project(shadow)
+        points = [tuple(int(round(c)) for c in p) for p, d in zip(uv, z) if d > 0.05 and np.isfinite(p).all()]
+        for p, q in zip(points[:-1], points[1:]):
+            cv2.line(image, p, q, (150, 150, 150), 2, cv2.LINE_AA)
+        drop, dz = self.project(np.stack([camera_path[-1], shadow[-1]]))
+        if (dz > 0.05).all() and np.isfinite(drop).all():
+            cv2.line(image, tuple(int(round(c)) for c in drop[0]), tuple(int(round(c)) for c in drop[1]),
+                     (120, 120, 120), 1, cv2.LINE_AA)
         uv, z = self.project(camera_path)
         points = [tuple(int(round(c)) for c in p) for p, d in zip(uv, z) if d > 0.05 and np.isfinite(p).all()]
         for p, q in zip(points[:-1], points[1:]):
