@@ -2,7 +2,6 @@
 load/unload around each node, failures that leave no partial entries, and a run killed (SIGKILL) at any
 point that resumes to byte-identical outputs."""
 
-import os
 import signal
 import subprocess
 import sys
@@ -13,13 +12,13 @@ import numpy as np
 import pytest
 from pipeline_test_nodes import ModelNode, pipeline_yaml
 
-from m3c.pipeline import PipelineConfig, PipelineError, Runner, run_pipeline
+from m3c.pipeline import PipelineConfig, PipelineError, run_pipeline
 
 TESTS_DIR = Path(__file__).resolve().parent
 PYTHON_DIR = TESTS_DIR.parents[1] / "python"
 
 
-def run(config, out, log=None, monkeypatch=None):
+def run(config, out):
     return run_pipeline(config, out, show_progress=False)
 
 
@@ -206,8 +205,9 @@ def test_run_killed_at_a_sweep_of_moments_resumes_to_identical_outputs(tmp_path)
     reference = tmp_path / "reference"
     run(PipelineConfig.from_yaml(pipeline_yaml(0.02)), reference)
     expected = tree_bytes(reference)
-    # Moments from the start of slow_a (each slow node takes ~0.24 s) through the last nodes' commits.
-    for i, offset in enumerate([0.0, 0.07, 0.13, 0.2, 0.26, 0.33, 0.4, 0.47, 0.53]):
+    # Moments from the start of slow_a (each slow node takes ~0.24 s) through the commits and publishing of the
+    # last nodes and the run report (a run killed while writing the report once left its temporary file).
+    for i, offset in enumerate([0.0, 0.07, 0.13, 0.2, 0.26, 0.33, 0.4, 0.47, 0.53, 0.58, 0.63, 0.68, 0.75]):
         out = tmp_path / f"out{i}"
         proc = start_run(out, delay=0.02)
         try:

@@ -2,7 +2,6 @@
 pixel rays, occlusion, back-face culling, and shading direction."""
 
 import numpy as np
-import pytest
 
 from m3c.viz.raster import Buffers, Mesh, rasterize, render, vertex_normals
 

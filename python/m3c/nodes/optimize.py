@@ -11,9 +11,6 @@ import yaml
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
 from m3c.pipeline import Node, PipelineError, register_node
 
-TRACK_KEYS = ("keypoints", "transl", "root_orient", "body_pose", "betas", "ground_normal", "ground_offset",
-              "contacts")
-
 
 def optimizer_config(overrides: dict) -> OptimizerConfig:
     """The default recipe (from the C++ core) with `overrides` (the YAML mapping of OptimizerConfig) applied."""

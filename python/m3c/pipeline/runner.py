@@ -234,9 +234,9 @@ class Runner:
         report = RunReport(str(self.out_dir))
         try:
             with self._lock():
-                stale = self.cache.remove_stale_temporaries()
+                stale = self.cache.remove_stale_temporaries() + self._remove_stale_files()
                 if stale:
-                    LOG.info("removed %d unfinished cache entr%s of an interrupted run", stale,
+                    LOG.info("removed %d unfinished file(s) or cache entr%s of an interrupted run", stale,
                              "y" if stale == 1 else "ies")
                 self._execute(plan, report)
         except BaseException:
@@ -247,6 +247,19 @@ class Runner:
             if self.out_dir.exists():
                 self._write_report(report)
         return report
+
+    def _remove_stale_files(self) -> int:
+        """Temporary files a killed run left beside the files written atomically here (atomic_path names them
+        .<name>.<random><suffix>): published results, the run report, pictures. Call with the run lock."""
+        names = {name for node in self.graph.nodes.values() for name in node.publish.values()}
+        stale = [p for name in sorted(names) for p in self.out_dir.glob(f".{name}.*")]
+        stale += list(self.cache.root.glob(".last_run.json.*"))
+        for path in stale:
+            path.unlink(missing_ok=True)
+        folders = list((self.out_dir / "viz").glob(".tmp-*"))
+        for folder in folders:
+            shutil.rmtree(folder, ignore_errors=True)
+        return len(stale) + len(folders)
 
     @contextlib.contextmanager
     def _lock(self):
