@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 from pipeline_test_nodes import ModelNode, pipeline_yaml
 
+import m3c
 from m3c.pipeline import PipelineConfig, PipelineError, run_pipeline
 
 TESTS_DIR = Path(__file__).resolve().parent
-PYTHON_DIR = TESTS_DIR.parents[1] / "python"
+# The subprocess imports the same m3c as this process (the source tree in development, the installed package
+# in CI).
+PYTHON_DIR = Path(m3c.__file__).resolve().parents[1]
 
 
 def run(config, out):
