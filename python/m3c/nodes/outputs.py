@@ -14,7 +14,7 @@ from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays
 from m3c.io.video import VideoWriter
 from m3c.nodes.frames import stream_frames
-from m3c.pipeline import FileRef, Node, register_node
+from m3c.pipeline import ComponentUnavailable, FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
 
@@ -278,6 +278,13 @@ class CameraPlotNode(Node):
     outputs = ("plot",)
     settings = ("body_model",)
     publish = {"plot": "camera_trajectory.png"}
+
+    def check(self, ctx) -> None:
+        import importlib.util
+
+        if importlib.util.find_spec("matplotlib") is None:
+            raise ComponentUnavailable(self.name, "matplotlib", "install the viz extra (pip install 'm3c[viz]'), "
+                                       "or remove the camera_plot node from the pipeline config")
 
     def run(self, ctx, inputs):
         from m3c.viz.plots import camera_trajectory_plot

@@ -168,7 +168,11 @@ class LocalTracksNode(Node):
         return track
 
     def visualize(self, ctx, inputs, outputs, folder):
-        import matplotlib
+        try:
+            import matplotlib
+        except ImportError:
+            ctx.log.warning("no track picture: matplotlib is not installed (pip install 'm3c[viz]')")
+            return []
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
