@@ -35,7 +35,8 @@ def wham_trajectory(lifter, model, track: dict, world_from_cam: np.ndarray, root
     world_from_cam: (T, 4, 4) metric cameras in the world; root_world / transl_world: the camera lift of the
     track (n, 3), which fixes where the trajectory starts.
     """
-    dtype = next(lifter.parameters()).dtype
+    parameter = next(lifter.parameters())
+    dtype, device = parameter.dtype, parameter.device
     frames = track["first_frame"] + np.arange(track["num_frames"])
     n = len(frames)
     if n < 2:
@@ -44,18 +45,21 @@ def wham_trajectory(lifter, model, track: dict, world_from_cam: np.ndarray, root
     box3 = np.stack([(box[:, 0] + box[:, 2]) / 2, (box[:, 1] + box[:, 3]) / 2, box[:, 2] - box[:, 0]], axis=1)
     keypoints = np.asarray(track["keypoints"], dtype=np.float64)
     x, mask = keypoint_inputs(keypoints[..., :2], keypoints[..., 2], box3, (video["width"], video["height"]))
-    x = x.to(dtype)[None]
-    init_kp = torch.cat([torch.as_tensor(_root_centred_keypoints(model, track).reshape(1, 1, -1), dtype=dtype),
-                         x[:, :1]], dim=-1)
+    x = x.to(dtype=dtype, device=device)[None]
+    init_kp = torch.cat([torch.as_tensor(_root_centred_keypoints(model, track).reshape(1, 1, -1), dtype=dtype,
+                                         device=device), x[:, :1]], dim=-1)
     root0 = FLIP @ Rotation.from_rotvec(root_world[0]).as_matrix()
-    init_root = matrix_to_rotation_6d_rows(torch.as_tensor(root0, dtype=dtype)).reshape(1, 1, 6)
+    init_root = matrix_to_rotation_6d_rows(torch.as_tensor(root0, dtype=dtype, device=device)).reshape(1, 1, 6)
     cam_from_world = np.transpose(FLIP @ world_from_cam[frames, :3, :3], (0, 2, 1))
-    angvel = camera_angular_velocity(torch.as_tensor(cam_from_world, dtype=dtype), float(video["fps"]))[None]
-    lifted = lifter.lift(x, mask[None], init_kp, init_root, angvel)
+    angvel = camera_angular_velocity(torch.as_tensor(cam_from_world, dtype=dtype), float(video["fps"]))
+    lifted = lifter.lift(x, mask[None].to(device), init_kp, init_root, angvel[None].to(device))
+    lifted = {k: v.cpu() if isinstance(v, torch.Tensor) else v for k, v in lifted.items()}
     if track.get("contacts") is not None:
         feet = _feet_in_wham_world(model, track, lifted)
-        lifted = lifter.refine(lifted, torch.as_tensor(feet, dtype=dtype)[None],
-                               torch.as_tensor(track["contacts"], dtype=dtype)[None])
+        lifted = lifter.refine({k: v.to(device) for k, v in lifted.items()},
+                               torch.as_tensor(feet, dtype=dtype, device=device)[None],
+                               torch.as_tensor(track["contacts"], dtype=dtype, device=device)[None])
+        lifted = {k: v.cpu() for k, v in lifted.items()}
     R = FLIP.T @ lifted["root_world"][0].double().numpy()
     trans = lifted["trans_world"][0].double().numpy() @ FLIP  # FLIP.T @ t per row (FLIP is symmetric)
     root = Rotation.from_matrix(R).as_rotvec()

@@ -343,8 +343,8 @@ class LiftNode(Node):
         if path is not None:
             from m3c.models import load_wham
 
-            self._lifter = load_wham(path)
-            ctx.log.info("WHAM lift with %s", path)
+            self._lifter = load_wham(path).to(ctx.device)
+            ctx.log.info("WHAM lift with %s on %s", path, ctx.device)
 
     def unload(self) -> None:
         self._lifter = None
