@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libceres-dev libopencv-dev
-              libgtest-dev nlohmann-json3-dev)
+              libgtest-dev nlohmann-json3-dev graphviz)
 if command -v apt-get >/dev/null 2>&1; then
   missing=()
   for pkg in "${APT_PACKAGES[@]}"; do

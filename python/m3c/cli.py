@@ -67,6 +67,97 @@ def _vo(args) -> int:
         except ImportError:
             pass
     print(f"wrote {out / 'camera_trajectory.npz'} (install the 'viz' extra, matplotlib, for the plot)")
+def _frame_range(text: str) -> tuple[int, int | None, int]:
+    """START:STOP[:STEP] (STOP exclusive, may be empty for the end)."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"expected START:STOP or START:STOP:STEP, got {text!r}")
+    try:
+        start = int(parts[0]) if parts[0] else 0
+        stop = int(parts[1]) if parts[1] else None
+        step = int(parts[2]) if len(parts) == 3 and parts[2] else 1
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frame range {text!r} must hold integers") from None
+    return start, stop, step
+
+
+def _pipeline_config(args):
+    from m3c.pipeline import PipelineConfig, parse_override
+
+    config = PipelineConfig.from_yaml(Path(args.config)) if args.config else PipelineConfig.default()
+    overrides = {}
+    if getattr(args, "intrinsics", None):
+        overrides["camera.intrinsics"] = list(args.intrinsics)
+    if getattr(args, "static_camera", False):
+        overrides["vo.static"] = True
+    if getattr(args, "frames", None):
+        start, stop, step = args.frames
+        overrides.update({"frames.start": start, "frames.stop": stop, "frames.step": step})
+    if getattr(args, "body_model", None):
+        overrides["settings.body_model"] = str(Path(args.body_model).expanduser().resolve())
+    if getattr(args, "checkpoints", None):
+        overrides["settings.models_dir"] = str(Path(args.checkpoints).expanduser().resolve())
+    if getattr(args, "visualize", False):
+        overrides["settings.visualize"] = True
+    for item in getattr(args, "set", None) or []:
+        key, value = parse_override(item)
+        overrides[key] = value
+    return config.with_overrides(overrides) if overrides else config
+
+
+def _setup_logging(verbosity: int) -> None:
+    import logging
+
+    level = {-1: logging.WARNING, 0: logging.INFO}.get(verbosity, logging.DEBUG)
+    logging.basicConfig(level=level, format="%(name)s: %(message)s", stream=sys.stderr)
+
+
+def _run(args) -> int:
+    from m3c.pipeline import Runner
+
+    _setup_logging(args.verbose - args.quiet)
+    config = _pipeline_config(args)
+    runner = Runner(config, args.out, {"video": Path(args.video)}, show_progress=not args.no_progress)
+    report = runner.run(args.until)
+    print(f"m3c: finished in {sum(r.seconds for r in report.records):.1f} s "
+          f"({len(report.ran())} node(s) ran, {len(report.records) - len(report.ran())} reused from the cache)")
+    if args.verbose - args.quiet >= 0:
+        print(report.summary())
+    for name in report.published:
+        print(f"  {Path(args.out) / name}")
+    return 0
+
+
+def _info(args) -> int:
+    from m3c.io.results import describe
+
+    print(describe(args.folder))
+    return 0
+
+
+def _graph(args) -> int:
+    from m3c.pipeline import Graph, render_dot
+
+    config = _pipeline_config(args)
+    graph = Graph.from_config(config)
+    status = None
+    if args.status:
+        import json
+
+        report = json.loads((Path(args.status) / "cache" / "last_run.json").read_text())
+        status = {r["name"]: r["status"] for r in report["records"]}
+    dot = graph.to_dot(status)
+    if args.out:
+        print(f"wrote {render_dot(dot, Path(args.out))}")
+    else:
+        sys.stdout.write(dot)
+    return 0
+
+
+def _config(args) -> int:
+    from m3c.pipeline import default_config_path
+
+    sys.stdout.write(default_config_path().read_text())
     return 0
 
 
@@ -90,16 +181,74 @@ def build_parser() -> argparse.ArgumentParser:
                     help="pixels; default f = sqrt(W^2 + H^2), principal point at the centre")
     vo.add_argument("--max-frames", type=int)
     vo.set_defaults(func=_vo)
+
+    run = sub.add_parser("run", help="capture every person's 3D motion in a video",
+                         description="Runs the pipeline on VIDEO; results, videos and the cache go to --out. "
+                                     "A second run reuses every node whose inputs and settings are unchanged.")
+    run.add_argument("video", help="input video file (any format OpenCV/FFmpeg reads)")
+    run.add_argument("--out", required=True, help="output folder (results.npz/json, overlay.mp4, world.mp4, cache/)")
+    _add_config_options(run)
+    run.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
+                     help="camera intrinsics in pixels (default: focal sqrt(W^2 + H^2), image centre)")
+    run.add_argument("--static-camera", action="store_true", help="the camera does not move (no visual odometry)")
+    run.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
+                     help="process frames START..STOP-1 (every STEP-th)")
+    run.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open model)")
+    run.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: $M3C_MODELS)")
+    run.add_argument("--until", nargs="+", metavar="NODE", help="run only these nodes and what they need")
+    run.add_argument("--visualize", action="store_true", help="also write each node's pictures under OUT/viz/")
+    run.add_argument("--no-progress", action="store_true", help="no progress lines")
+    run.add_argument("-v", "--verbose", action="count", default=0)
+    run.add_argument("-q", "--quiet", action="count", default=0)
+    run.set_defaults(func=_run)
+
+    info = sub.add_parser("info", help="summarise the results in an output folder")
+    info.add_argument("folder")
+    info.set_defaults(func=_info)
+
+    graph = sub.add_parser("graph", help="draw the pipeline graph (Graphviz dot text, or .svg/.png via `dot`)")
+    _add_config_options(graph)
+    graph.add_argument("--out", metavar="FILE", help="write FILE (.dot, .svg, .png, .pdf) instead of printing dot")
+    graph.add_argument("--status", metavar="DIR", help="colour nodes by the last run in output folder DIR")
+    graph.set_defaults(func=_graph)
+
+    config = sub.add_parser("config", help="print the default pipeline config (YAML) to start your own from")
+    config.set_defaults(func=_config)
     return parser
 
 
+def _add_config_options(parser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="pipeline config YAML (default: the built-in one; see "
+                                                         "`m3c config`)")
+    parser.add_argument("--set", action="append", metavar="NODE.SETTING=VALUE",
+                        help="change one setting, e.g. --set optimize.enabled=false (repeatable)")
+
+
+# Exit codes: 0 success, 1 internal error (a bug: please report it with the traceback), 2 bad input or
+# configuration, 3 a component or model file the run needs is not available, 130 interrupted.
+EXIT_INPUT, EXIT_UNAVAILABLE = 2, 3
+
+
 def main(argv: list[str] | None = None) -> int:
+    from m3c.pipeline import ComponentUnavailable, PipelineError, PipelineUnavailable
+
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (FileNotFoundError, ValueError) as err:
+    except PipelineUnavailable as err:
         print(f"m3c: error: {err}", file=sys.stderr)
-        return 2
+        if getattr(args, "out", None) and Path(args.out).is_dir():
+            print(f"m3c: nothing was computed that depends on them; the cache in {args.out} is kept", file=sys.stderr)
+        return EXIT_UNAVAILABLE
+    except ComponentUnavailable as err:
+        print(f"m3c: error: {err}", file=sys.stderr)
+        return EXIT_UNAVAILABLE
+    except (PipelineError, FileNotFoundError, ValueError) as err:
+        print(f"m3c: error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("m3c: interrupted; finished nodes are cached, run the same command again to resume", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

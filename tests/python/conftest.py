@@ -20,3 +20,9 @@ def synthetic_body_model(synthetic_model_data):
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _pipeline_test_nodes():
+    """Registers the framework tests' node types (tests/python/pipeline_test_nodes.py)."""
+    import pipeline_test_nodes  # noqa: F401

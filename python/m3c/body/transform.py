@@ -1,0 +1,34 @@
+"""Moving SMPL parameters between coordinate frames.
+
+SMPL rotates the body about its root joint, not about the origin: a vertex is R_root (x - j0) + j0 + transl, with
+j0 the rest-pose root joint of the person's shape. Under a rigid map y = R x + c (target_from_source) the same
+body in the target frame has R_root' = R R_root and transl' = R (j0 + transl) + c - j0.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def rest_root_joint(model, betas) -> np.ndarray:
+    """The root joint (3,) of the rest pose of shape `betas` (no translation), metres."""
+    zero = np.zeros((1, model.num_joints, 3))
+    return model.joints(zero, np.asarray(betas, dtype=np.float64).reshape(-1))[0, 0]
+
+
+def transform_smpl(target_from_source, root_orient, transl, root_joint) -> tuple[np.ndarray, np.ndarray]:
+    """target_from_source (4, 4) or (n, 4, 4); root_orient (n, 3) axis-angle; transl (n, 3); root_joint (3,).
+    Returns (root_orient (n, 3), transl (n, 3)) of the same bodies in the target frame."""
+    root_orient = np.asarray(root_orient, dtype=np.float64).reshape(-1, 3)
+    transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
+    T = np.asarray(target_from_source, dtype=np.float64)
+    if T.shape == (4, 4):
+        T = np.broadcast_to(T, (len(root_orient), 4, 4))
+    if T.shape != (len(root_orient), 4, 4):
+        raise ValueError(f"target_from_source must be (4, 4) or ({len(root_orient)}, 4, 4), got {T.shape}")
+    R, c = T[:, :3, :3], T[:, :3, 3]
+    j0 = np.asarray(root_joint, dtype=np.float64).reshape(3)
+    new_root = (Rotation.from_matrix(R) * Rotation.from_rotvec(root_orient)).as_rotvec()
+    new_transl = np.einsum("nij,nj->ni", R, j0 + transl) + c - j0
+    return new_root, new_transl

@@ -1,0 +1,114 @@
+"""The result files of a run: OUT/results.npz (arrays) and OUT/results.json (summary and schema).
+
+Per-track arrays are stacked over P tracks and T processed frames, NaN (or False, or -1) outside a track's
+frames. World frame: gravity-aligned, y up, metres, ground plane y = 0 when one was found. Camera frame: OpenCV
+(x right, y down, z forward). Rotations are axis-angle. SMPL parameters follow the body model named in the JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+SCHEMA = "m3c.results/1"
+
+# name -> (shape, dtype, description); P tracks, T frames, B shape parameters.
+ARRAYS: dict[str, tuple[str, str, str]] = {
+    "frame_ids": ("T", "int64", "video frame index of each processed frame"),
+    "fps": ("", "float64", "frame rate of the processed frames (video rate / frame step)"),
+    "image_size": ("2", "int32", "width, height in pixels"),
+    "intrinsics": ("T x 4", "float32", "fx, fy, cx, cy in pixels (pixel centres at integer coordinates)"),
+    "world_from_cam": ("T x 4 x 4", "float32", "camera pose in the world (metres)"),
+    "camera_scale": ("", "float32", "metres per visual-odometry translation unit"),
+    "camera_offset": ("3", "float32", "world offset added to the scaled odometry camera centres"),
+    "track_ids": ("P", "int64", "tracker id of each track"),
+    "gender": ("P", "str", "body model gender used for each track"),
+    "valid": ("P x T", "bool", "frame lies within the track (first..last detection); values defined"),
+    "visible": ("P x T", "bool", "the person was detected in the frame (else interpolated)"),
+    "betas": ("P x B", "float32", "shape parameters (one per track)"),
+    "world_root_orient": ("P x T x 3", "float32", "root orientation in the world (axis-angle)"),
+    "world_transl": ("P x T x 3", "float32", "SMPL translation in the world (metres)"),
+    "body_pose": ("P x T x 23 x 3", "float32", "joint rotations relative to their parents (axis-angle)"),
+    "world_joints": ("P x T x 24 x 3", "float32", "SMPL joint positions in the world (metres)"),
+    "cam_root_orient": ("P x T x 3", "float32", "root orientation in each frame's camera"),
+    "cam_transl": ("P x T x 3", "float32", "SMPL translation in each frame's camera (metres)"),
+    "lift_world_root_orient": ("P x T x 3", "float32", "root orientation after the world lift, before optimization"),
+    "lift_world_transl": ("P x T x 3", "float32", "translation after the world lift, before optimization"),
+    "keypoints_2d": ("P x T x 17 x 3", "float32", "observed COCO-17 keypoints: u, v (pixels), confidence"),
+    "contacts": ("P x T x 4", "float32", "contact probability of SMPL joints 7, 8, 10, 11 (ankles, feet)"),
+    "ground_normal": ("P x T x 3", "float32", "the person's ground plane n . x + d = 0 in the world: n"),
+    "ground_offset": ("P x T", "float32", "the person's ground plane: d (metres)"),
+    "reprojection_error": ("P x T", "float32",
+                           "mean distance (pixels) between observed keypoints (confidence >= 0.4) and the projected "
+                           "final body's keypoints"),
+}
+
+
+def schema_markdown() -> str:
+    """The README table of results.npz."""
+    lines = ["| array | shape | dtype | meaning |", "|---|---|---|---|"]
+    for name, (shape, dtype, text) in ARRAYS.items():
+        lines.append(f"| `{name}` | {shape or 'scalar'} | {dtype} | {text} |")
+    return "\n".join(lines)
+
+
+def check_arrays(arrays: dict) -> None:
+    """Every schema array is present with its dtype family; nothing else is."""
+    missing, extra = set(ARRAYS) - set(arrays), set(arrays) - set(ARRAYS)
+    if missing or extra:
+        raise ValueError(f"results arrays differ from the schema: missing {sorted(missing)}, extra {sorted(extra)}")
+    for name, (_, dtype, _) in ARRAYS.items():
+        kind = np.asarray(arrays[name]).dtype.kind
+        expected = {"str": "U", "bool": "b"}.get(dtype, "i" if dtype.startswith("int") else "f")
+        if kind != expected:
+            raise ValueError(f"results array {name} has dtype {np.asarray(arrays[name]).dtype}, schema says {dtype}")
+
+
+def load_results(folder: str | Path) -> tuple[dict, dict]:
+    """(summary from results.json, arrays from results.npz) of a run's output folder."""
+    folder = Path(folder)
+    json_path, npz_path = folder / "results.json", folder / "results.npz"
+    if not json_path.is_file() or not npz_path.is_file():
+        raise FileNotFoundError(f"{folder} holds no M3C results (results.json and results.npz); run "
+                                f"`m3c run VIDEO --out {folder}` first")
+    summary = json.loads(json_path.read_text())
+    if summary.get("schema") != SCHEMA:
+        raise ValueError(f"{json_path}: schema {summary.get('schema')!r}, this M3C reads {SCHEMA!r}")
+    with np.load(npz_path, allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}
+    return summary, arrays
+
+
+def describe(folder: str | Path) -> str:
+    """A human-readable summary of a result folder (`m3c info`)."""
+    folder = Path(folder)
+    summary, arrays = load_results(folder)
+    video, camera = summary["video"], summary["camera"]
+    lines = [f"{folder}: M3C {summary['m3c_version']} results ({summary['schema']})",
+             f"video       {video['name']}: {video['width']} x {video['height']}, {video['fps']:.3f} fps, frames "
+             f"{video['frame_range'][0]}..{video['frame_range'][1] - 1} step {video['frame_range'][2]} "
+             f"({video['frames']} processed)",
+             f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
+             f"camera      {'static' if camera['static'] else 'moving'}, intrinsics {camera['intrinsics_source']} "
+             f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}], odometry: {camera['odometry']}, scale "
+             f"{camera['scale']:.4f} m/unit ({camera['scale_source']})",
+             f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}",
+             f"lift        {summary['lift']['method']}; optimization: "
+             f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"
+             if summary["optimization"]["optimized"] else f"lift        {summary['lift']['method']}; no optimization",
+             f"tracks      {len(summary['tracks'])}"]
+    for track in summary["tracks"]:
+        err = track["mean_reprojection_error_px"]
+        lines.append(f"  id {track['id']:>3}: frames {track['first_frame']}..{track['last_frame']} "
+                     f"({track['visible_frames']}/{track['frames']} detected), reprojection "
+                     f"{'n/a' if err is None else f'{err:.1f} px'}, path {track['path_length_m']:.2f} m")
+    for stage in summary["optimization"]["stages"]:
+        lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
+                     f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")
+    files = [name for name in ("results.npz", "results.json", "overlay.mp4", "world.mp4", "camera_trajectory.png")
+             if (folder / name).is_file()]
+    lines.append(f"files       {', '.join(files)}")
+    lines.append(f"arrays      {len(arrays)} in results.npz (schema in results.json['arrays'])")
+    return "\n".join(lines)

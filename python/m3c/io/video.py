@@ -1,0 +1,144 @@
+"""Video files through OpenCV: probing, streaming frames (one at a time, never the whole video), writing.
+
+Frame rate and size are read from the file, never assumed. Frame counts come from decoding: the container's
+frame count (CAP_PROP_FRAME_COUNT) is an estimate that is wrong for some files.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m3c.io.atomic import atomic_path
+
+
+class VideoError(ValueError):
+    """A video file is missing, unreadable or empty; the message names the file and the problem."""
+
+
+def _cv2():
+    try:
+        import cv2
+    except ImportError as err:  # pragma: no cover - opencv is a dependency
+        raise VideoError("reading videos needs OpenCV: pip install opencv-python-headless") from err
+    return cv2
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    path: str
+    fps: float
+    width: int
+    height: int
+    frame_count_hint: int  # from the container; count_frames() decodes to get the exact number
+
+
+def probe_video(path: str | Path) -> VideoInfo:
+    """Opens `path` and reads its frame rate, size and first frame. Raises VideoError with the reason."""
+    cv2 = _cv2()
+    path = Path(path)
+    if not path.exists():
+        raise VideoError(f"video not found: {path}")
+    if not path.is_file():
+        raise VideoError(f"not a video file: {path} is a folder")
+    cap = cv2.VideoCapture(str(path))
+    try:
+        if not cap.isOpened():
+            raise VideoError(f"cannot open {path} as a video (OpenCV/FFmpeg found no decodable stream); "
+                             "convert it to H.264 .mp4, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4")
+        ok, frame = cap.read()
+        if not ok or frame is None:
+            raise VideoError(f"{path} holds no decodable frames (empty or damaged video)")
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+        if not np.isfinite(fps) or fps <= 0:
+            raise VideoError(f"{path} does not state a frame rate; re-encode it with one "
+                             "(ffmpeg -i IN -r 30 OUT.mp4)")
+        height, width = frame.shape[:2]
+        return VideoInfo(str(path.resolve()), fps, int(width), int(height),
+                         int(max(cap.get(cv2.CAP_PROP_FRAME_COUNT), 0)))
+    finally:
+        cap.release()
+
+
+def count_frames(path: str | Path, progress=None) -> int:
+    """Number of decodable frames (grabs every frame; no pixel conversion)."""
+    cv2 = _cv2()
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    try:
+        while cap.grab():
+            n += 1
+            if progress is not None:
+                progress.update()
+    finally:
+        cap.release()
+    return n
+
+
+def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step: int = 1) \
+        -> Iterator[tuple[int, np.ndarray]]:
+    """Yields (video frame id, BGR uint8 H x W x 3 frame) for ids start, start + step, ... < stop."""
+    cv2 = _cv2()
+    if start < 0 or step < 1 or (stop is not None and stop < start):
+        raise ValueError(f"bad frame range start={start} stop={stop} step={step}")
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise VideoError(f"cannot open {path} as a video")
+    try:
+        index = 0
+        while stop is None or index < stop:
+            if index < start or (index - start) % step:
+                if not cap.grab():
+                    return
+            else:
+                ok, frame = cap.read()
+                if not ok:
+                    return
+                yield index, frame
+            index += 1
+    finally:
+        cap.release()
+
+
+class VideoWriter:
+    """Writes BGR frames to an .mp4 (MPEG-4 Part 2, readable everywhere OpenCV/FFmpeg are) atomically: the
+    file appears complete at `path` on close(), or not at all."""
+
+    def __init__(self, path: str | Path, fps: float, size: tuple[int, int]):
+        cv2 = _cv2()
+        self.path = Path(path)
+        self.size = (int(size[0]), int(size[1]))
+        self._atomic = atomic_path(self.path, suffix=".mp4")
+        self._tmp = self._atomic.__enter__()
+        self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), self.size)
+        if not self._writer.isOpened():
+            self._atomic.__exit__(VideoError, None, None)
+            raise VideoError(f"OpenCV cannot write MPEG-4 video to {self.path}")
+        self.frames = 0
+
+    def write(self, frame: np.ndarray) -> None:
+        if frame.shape[:2] != (self.size[1], self.size[0]) or frame.dtype != np.uint8:
+            raise ValueError(f"frame must be uint8 of shape ({self.size[1]}, {self.size[0]}, 3), got "
+                             f"{frame.dtype} {frame.shape}")
+        self._writer.write(np.ascontiguousarray(frame))
+        self.frames += 1
+
+    def close(self) -> None:
+        self._writer.release()
+        self._atomic.__exit__(None, None, None)
+
+    def abort(self) -> None:
+        self._writer.release()
+        self._atomic.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+    def __enter__(self) -> "VideoWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

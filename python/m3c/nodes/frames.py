@@ -1,0 +1,117 @@
+"""Frame-level sources: the video (frame rate, size, the processed frame range) and the camera intrinsics."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from m3c.io.video import VideoError, count_frames, iter_frames, probe_video
+from m3c.pipeline import InputError, Node, register_node
+
+
+@register_node
+class FramesNode(Node):
+    """Reads the video's frame rate and size and counts its frames; selects frames start, start + step, ...
+    < stop. Frames themselves are never stored: nodes that need pixels stream them with stream_frames().
+
+    Output video: path, name, fps (of the processed frames: source fps / step), source_fps, width, height,
+    num_frames (T), frame_ids (T,) video frame id of each processed frame, start, stop, step.
+    """
+
+    type_name = "frames"
+    level = "frame"
+    sources = ("video",)
+    outputs = ("video",)
+
+    @dataclass
+    class Config:
+        start: int = 0
+        stop: int | None = None  # exclusive; None = to the end
+        step: int = 1
+
+    def check(self, ctx) -> None:
+        c = self.config
+        if c.start < 0 or c.step < 1 or (c.stop is not None and c.stop <= c.start):
+            raise InputError(f"bad frame range start={c.start} stop={c.stop} step={c.step}: need 0 <= start < stop "
+                             "and step >= 1")
+        try:
+            probe_video(ctx.source("video"))
+        except VideoError as err:
+            raise InputError(str(err)) from None
+
+    def run(self, ctx, inputs):
+        path = ctx.source("video")
+        try:
+            info = probe_video(path)
+        except VideoError as err:
+            raise InputError(str(err)) from None
+        hint = info.frame_count_hint or None
+        with ctx.progress("counting frames", hint) as bar:
+            total = count_frames(path, bar)
+        if total == 0:
+            raise InputError(f"{path} holds no decodable frames")
+        stop = total if self.config.stop is None else min(self.config.stop, total)
+        frame_ids = np.arange(self.config.start, stop, self.config.step, dtype=np.int64)
+        if len(frame_ids) == 0:
+            raise InputError(f"frame range {self.config.start}:{self.config.stop} selects no frames; {path} has "
+                             f"{total} frames (0 .. {total - 1})")
+        ctx.log.info("%s: %d x %d, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
+                     info.fps, total, len(frame_ids))
+        return {"video": {"path": info.path, "name": Path(info.path).name, "fps": info.fps / self.config.step,
+                          "source_fps": info.fps, "width": info.width, "height": info.height,
+                          "num_frames": int(len(frame_ids)), "total_frames": int(total), "frame_ids": frame_ids,
+                          "start": self.config.start, "stop": int(stop), "step": self.config.step}}
+
+
+def stream_frames(ctx, video: dict) -> Iterator[tuple[int, np.ndarray]]:
+    """(processed frame index 0 .. T-1, BGR frame) for the frames the frames node selected, decoded one at a
+    time from the run's video source."""
+    ids = video["frame_ids"]
+    expected = iter(range(len(ids)))
+    for i, (frame_id, frame) in zip(expected, iter_frames(ctx.source("video"), int(video["start"]),
+                                                          int(video["stop"]), int(video["step"]))):
+        if frame_id != ids[i]:
+            raise InputError(f"video frames changed while reading: expected frame {ids[i]}, got {frame_id}")
+        yield i, frame
+
+
+def default_intrinsics(width: int, height: int) -> np.ndarray:
+    """(fx, fy, cx, cy) when the camera is unknown: focal length sqrt(W^2 + H^2) pixels (a ~53 degree
+    diagonal field of view, WHAM's choice) and the principal point at the image centre."""
+    focal = float(np.hypot(width, height))
+    return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
+@register_node
+class CameraNode(Node):
+    """The camera intrinsics (fx, fy, cx, cy) in pixels: given in the config (--intrinsics), else
+    default_intrinsics(). Output camera: intrinsics (4,) float64, source ("given" or "default")."""
+
+    type_name = "camera"
+    level = "frame"
+    inputs = ("video",)
+    outputs = ("camera",)
+
+    @dataclass
+    class Config:
+        intrinsics: list[float] | None = None  # fx fy cx cy, pixels
+
+    def check(self, ctx) -> None:
+        k = self.config.intrinsics
+        if k is not None and (len(k) != 4 or not all(np.isfinite(k)) or k[0] <= 0 or k[1] <= 0):
+            raise InputError(f"intrinsics must be 4 numbers fx fy cx cy with fx, fy > 0 (pixels), got {k}")
+
+    def run(self, ctx, inputs):
+        video = inputs["video"]
+        self.check(ctx)
+        if self.config.intrinsics is None:
+            return {"camera": {"intrinsics": default_intrinsics(video["width"], video["height"]),
+                               "source": "default"}}
+        fx, fy, cx, cy = self.config.intrinsics
+        if not (0 <= cx <= video["width"] and 0 <= cy <= video["height"]):
+            ctx.log.warning("principal point (%.1f, %.1f) lies outside the %d x %d image", cx, cy, video["width"],
+                            video["height"])
+        return {"camera": {"intrinsics": np.array([fx, fy, cx, cy], dtype=np.float64), "source": "given"}}

@@ -1,0 +1,127 @@
+"""Global optimization (thesis 4.1.4): every lifted track refined in the world by m3c.motion.optimize."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import yaml
+
+from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.pipeline import Node, PipelineError, register_node
+
+
+def optimizer_config(overrides: dict) -> OptimizerConfig:
+    """The default recipe (from the C++ core) with `overrides` (the YAML mapping of OptimizerConfig) applied."""
+    try:
+        return OptimizerConfig.from_yaml(yaml.safe_dump(overrides)) if overrides else OptimizerConfig.default()
+    except (TypeError, ValueError) as err:
+        raise PipelineError(f"optimize.optimizer: {err}") from None
+
+
+def to_motion_track(track: dict, metric_world_from_cam: np.ndarray) -> Track:
+    """The optimizer's Track. Its ground planes are given in each frame's camera coordinates (metric), so that
+    they move with the camera scale it estimates: n_cam = R^T n, d_cam = d + n . C for the world plane
+    n . x + d = 0 and the camera at C."""
+    normal, offset = track.get("ground_normal"), track.get("ground_offset")
+    if normal is not None:
+        first = int(track["first_frame"])
+        cams = metric_world_from_cam[first:first + len(normal)]
+        normal = np.asarray(normal, dtype=np.float64)
+        offset = np.asarray(offset, dtype=np.float64) + np.einsum("tj,tj->t", normal, cams[:, :3, 3])
+        normal = np.einsum("tji,tj->ti", cams[:, :3, :3], normal)
+    return Track(int(track["first_frame"]), np.asarray(track["keypoints"], dtype=np.float64),
+                 np.asarray(track["transl"]), np.asarray(track["root_orient"]), np.asarray(track["body_pose"]),
+                 np.asarray(track["betas"]), normal, offset, track.get("contacts"))
+
+
+@register_node
+class OptimizeNode(Node):
+    """Output result: tracks (the lift's tracks with optimised transl, root_orient, body_pose, betas),
+    world_from_cam (T, 4, 4) metric cameras in the world, camera_scale, camera_offset (3,), stages (per stage:
+    name, status, message, iterations, objective_before, objective_after, terms {term: [before, after]}),
+    stopped_early, optimized (False when disabled)."""
+
+    type_name = "optimize"
+    level = "track"
+    inputs = ("camera", "world")
+    outputs = ("result",)
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        enabled: bool = True
+        optimizer: dict[str, Any] = field(default_factory=dict)  # OptimizerConfig fields to override
+
+    def key_config(self, ctx):
+        # The resolved recipe: a changed default in the core re-runs the optimization.
+        return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer))}
+
+    def check(self, ctx) -> None:
+        optimizer_config(self.config.optimizer)
+
+    def run(self, ctx, inputs):
+        world = inputs["world"]
+        world_from_cam = np.asarray(world["world_from_cam"], dtype=np.float64)
+        cameras = Cameras(world_from_cam, np.asarray(inputs["camera"]["intrinsics"], dtype=np.float64),
+                          static=bool(world["static"]), initial_scale=float(world["initial_scale"]))
+        tracks = world["tracks"]
+        if not self.config.enabled or not tracks:
+            if tracks:
+                ctx.log.warning("optimization disabled: results are the world lift")
+            return {"result": {"tracks": tracks, "world_from_cam": _scaled(world_from_cam, cameras.initial_scale),
+                               "camera_scale": cameras.initial_scale, "camera_offset": np.zeros(3), "stages": [],
+                               "stopped_early": False, "optimized": False}}
+        config = optimizer_config(self.config.optimizer)
+        metric = _scaled(world_from_cam, cameras.initial_scale)
+        motion_tracks = [to_motion_track(t, metric) for t in tracks]
+        result = optimize(ctx.body_model(), motion_tracks, cameras, config)
+        final_cams = result.world_from_cam(cameras)
+        lift = _ground_lift(motion_tracks, final_cams)
+        final_cams[:, :3, 3] += lift
+        out_tracks = []
+        for track, optimized in zip(tracks, result.tracks):
+            out = dict(track)
+            out.update(transl=optimized.transl + lift, root_orient=optimized.root_orient,
+                       body_pose=optimized.body_pose, betas=optimized.betas)
+            out_tracks.append(out)
+        stages = []
+        for stage in result.stages:
+            ctx.log.info("stage %-12s %-10s %3d iterations, objective %.4g -> %.4g (%.2f s)", stage.name,
+                         stage.status, stage.iterations, stage.objective_before, stage.objective_after, stage.seconds)
+            # Stage times stay in the log: results depend only on the inputs.
+            stages.append({"name": stage.name, "status": stage.status, "message": stage.message,
+                           "iterations": int(stage.iterations), "objective_before": float(stage.objective_before),
+                           "objective_after": float(stage.objective_after),
+                           "terms": {k: [float(v[0]), float(v[1])] for k, v in stage.terms.items()}})
+        if result.stopped_early:
+            ctx.log.warning("optimization stopped early (a stage failed); results are from the last good step")
+        return {"result": {"tracks": out_tracks, "world_from_cam": final_cams,
+                           "camera_scale": float(result.camera_scale), "camera_offset": result.camera_offset + lift,
+                           "stages": stages, "stopped_early": bool(result.stopped_early), "optimized": True}}
+
+
+def _ground_lift(motion_tracks: list[Track], final_world_from_cam: np.ndarray) -> np.ndarray:
+    """The translation that puts the people's ground back at the world's y = 0 after the optimizer changed the
+    camera scale: the camera-frame planes expressed with the final cameras give world planes n.x + d = 0, and
+    moving everything by median(d) n (n their mean normal) brings them to 0. Zero when no track has a ground."""
+    normals, offsets = [], []
+    for track in motion_tracks:
+        if track.ground_normal is None:
+            continue
+        cams = final_world_from_cam[track.first_frame:track.first_frame + track.num_frames]
+        n = np.einsum("tij,tj->ti", cams[:, :3, :3], np.asarray(track.ground_normal))
+        normals.append(n)
+        offsets.append(np.asarray(track.ground_offset) - np.einsum("tj,tj->t", n, cams[:, :3, 3]))
+    if not normals:
+        return np.zeros(3)
+    normal = np.concatenate(normals).mean(axis=0)
+    normal /= np.linalg.norm(normal)
+    return float(np.median(np.concatenate(offsets))) * normal
+
+
+def _scaled(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
+    out = world_from_cam.copy()
+    out[:, :3, 3] *= scale
+    return out

@@ -1,0 +1,101 @@
+"""The data passed between nodes, and compact encodings for the bulky parts (masks, image patches).
+
+Frame-level and patch-level outputs are tables over detections: arrays of equal length N, row n being detection
+n, aligned with `detections["frame"]`. Frame indices count processed frames (0 .. T-1; the frames node maps them
+to video frame ids). Pixel coordinates follow OpenCV (as intrinsics and keypoints do): pixel (i, j)'s centre is
+at (i, j), so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]. Boxes are (x0, y0, x1, y1) in these coordinates.
+
+    detections  frame (N,) int64, box (N, 4) float32 tight person boxes, score (N,) float32
+    masks       one binary mask per detection, stored inside its tight box (encode_masks / mask_in_region)
+    boxes       square (N, 4) padded square boxes shifted into the frame (may extend past it when the person
+                is larger than the frame), crop (N, 4) the square box clipped to the frame
+    patches     one isolated, square, size x size image per detection around boxes["square"] (JPEG in a buffer)
+    keypoints   keypoints (N, 17, 3): COCO-17 (u, v, confidence), image pixels
+    body        pose (N, 24, 3) axis-angle (root orientation relative to the camera), betas (N, B), and either
+                transl (N, 3) metres in the full-image camera, or crop_cam (N, 3) = (s, tx, ty), the weak-perspective
+                camera of the patch (HMR convention: a body point X projects to patch coordinates
+                s * (X_xy + (tx, ty)) in [-1, 1]), converted to the full image in m3c.nodes.tracks (CLIFF)
+    tracking    track_id (N,) int64, -1 for detections assigned to no track
+    contacts    joint_contacts (N, 4) probabilities that SMPL joints 7, 8, 10, 11 (ankles, feet) touch the scene
+    cameras     world_from_cam (T, 4, 4) from visual odometry (translation up to scale), static (bool)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from m3c.pipeline import PipelineError
+
+
+def table_length(table: dict, columns: tuple[str, ...], where: str) -> int:
+    """Checks that `columns` of a per-detection table exist and share their first dimension; returns N."""
+    lengths = {}
+    for column in columns:
+        if column not in table:
+            raise PipelineError(f"{where}: missing column {column!r} (has {sorted(table)})")
+        lengths[column] = len(np.asarray(table[column]))
+    if len(set(lengths.values())) > 1:
+        raise PipelineError(f"{where}: columns have different lengths {lengths}")
+    return next(iter(lengths.values()), 0)
+
+
+# Masks ------------------------------------------------------------------------------------------------------
+def encode_masks(masks: list[tuple[np.ndarray, int, int]]) -> dict:
+    """Masks as (bool array h x w, x0, y0) regions of the image -> one packed bit buffer.
+    Returns {"bits": uint8, "offsets": (N + 1,) int64, "regions": (N, 4) int32 x0, y0, x1, y1}."""
+    chunks, offsets, regions = [], [0], []
+    for mask, x0, y0 in masks:
+        mask = np.asarray(mask, dtype=bool)
+        packed = np.packbits(mask.reshape(-1))
+        chunks.append(packed)
+        offsets.append(offsets[-1] + len(packed))
+        regions.append((x0, y0, x0 + mask.shape[1], y0 + mask.shape[0]))
+    return {"bits": np.concatenate(chunks) if chunks else np.zeros(0, np.uint8),
+            "offsets": np.asarray(offsets, dtype=np.int64),
+            "regions": np.asarray(regions, dtype=np.int32).reshape(-1, 4)}
+
+
+def decode_mask(masks: dict, n: int) -> tuple[np.ndarray, int, int]:
+    """Detection n's mask: (bool h x w, x0, y0)."""
+    x0, y0, x1, y1 = (int(v) for v in masks["regions"][n])
+    bits = masks["bits"][masks["offsets"][n]:masks["offsets"][n + 1]]
+    h, w = y1 - y0, x1 - x0
+    return np.unpackbits(bits, count=h * w).astype(bool).reshape(h, w), x0, y0
+
+
+def mask_in_region(masks: dict, n: int, region: tuple[int, int, int, int]) -> np.ndarray:
+    """Detection n's mask over the image region (x0, y0, x1, y1) (bool, zero outside the stored mask)."""
+    mask, mx, my = decode_mask(masks, n)
+    x0, y0, x1, y1 = region
+    out = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+    ax0, ay0 = max(x0, mx), max(y0, my)
+    ax1, ay1 = min(x1, mx + mask.shape[1]), min(y1, my + mask.shape[0])
+    if ax1 > ax0 and ay1 > ay0:
+        out[ay0 - y0:ay1 - y0, ax0 - x0:ax1 - x0] = mask[ay0 - my:ay1 - my, ax0 - mx:ax1 - mx]
+    return out
+
+
+# Patches ----------------------------------------------------------------------------------------------------
+def encode_images(images: list[np.ndarray], quality: int) -> dict:
+    """BGR uint8 images -> {"jpeg": uint8 buffer, "offsets": (N + 1,) int64}."""
+    import cv2
+
+    chunks, offsets = [], [0]
+    for image in images:
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+        if not ok:
+            raise PipelineError("JPEG encoding of a patch failed")
+        chunks.append(data.reshape(-1))
+        offsets.append(offsets[-1] + len(chunks[-1]))
+    return {"jpeg": np.concatenate(chunks) if chunks else np.zeros(0, np.uint8),
+            "offsets": np.asarray(offsets, dtype=np.int64)}
+
+
+def decode_image(store: dict, n: int) -> np.ndarray:
+    import cv2
+
+    data = store["jpeg"][store["offsets"][n]:store["offsets"][n + 1]]
+    image = cv2.imdecode(np.asarray(data), cv2.IMREAD_COLOR)
+    if image is None:
+        raise PipelineError(f"patch {n} does not decode")
+    return image

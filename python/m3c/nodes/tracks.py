@@ -1,0 +1,194 @@
+"""Local human tracks (thesis 4.1.4, "Local Human Tracks Creation").
+
+Detections are gathered by track id into one track per person spanning its first to last detection. Frames in
+between without a detection are filled: keypoints, translation, contacts and boxes linearly; root orientation
+and every body joint rotation by spherical linear interpolation on SO(3) (as SLAHMR). Betas are averaged over
+the detected frames (the optimizer keeps one shape per person).
+
+Camera: a body estimated on a patch comes with the patch's weak-perspective camera (s, tx, ty): a body point X
+projects to patch coordinates s * (X_xy + (tx, ty)) in [-1, 1]. crop_to_full_camera turns it into a translation
+in the full image's perspective camera (CLIFF's conversion), so every person sits in one camera frame at its own
+place, and the tracks keep their positions relative to each other (thesis Fig. 4.9) instead of all being centred
+in front of the camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from m3c.nodes.records import table_length
+from m3c.pipeline import InputError, Node, PipelineError, register_node
+
+
+def crop_to_full_camera(crop_cam: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
+    """Weak-perspective patch cameras (N, 3) = (s, tx, ty) of square boxes (N, 4) -> translations (N, 3) in
+    the full-image camera (metres, OpenCV frame).
+
+    The depth makes the body's scale match: tz = 2 f / (b s), with b the box side in pixels and f = (fx + fy) / 2.
+    x and y then make the body origin project where the weak-perspective camera put it, the box centre plus
+    b s (tx, ty) / 2 pixels: t_x = (c_x - p_x + b s tx / 2) tz / fx (p = principal point); for fx = fy this is
+    CLIFF's t_x = tx + 2 (c_x - p_x) / (b s).
+    """
+    crop_cam = np.asarray(crop_cam, dtype=np.float64).reshape(-1, 3)
+    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
+    fx, fy, px, py = (float(v) for v in intrinsics)
+    s, tx, ty = crop_cam.T
+    side = square[:, 2] - square[:, 0]
+    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
+    bs = side * s
+    if (bs <= 0).any() or not np.isfinite(bs).all():
+        raise ValueError("crop camera scale s and box side must be positive and finite")
+    tz = (fx + fy) / bs
+    return np.stack([(centre_x - px + bs * tx / 2) * tz / fx, (centre_y - py + bs * ty / 2) * tz / fy, tz], axis=1)
+
+
+def full_to_crop_camera(transl: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
+    """The inverse of crop_to_full_camera (for tests and for backends that fit in the full image)."""
+    transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
+    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
+    fx, fy, px, py = (float(v) for v in intrinsics)
+    side = square[:, 2] - square[:, 0]
+    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
+    bs = (fx + fy) / transl[:, 2]
+    s = bs / side
+    tx = (transl[:, 0] * fx / transl[:, 2] - centre_x + px) * 2 / bs
+    ty = (transl[:, 1] * fy / transl[:, 2] - centre_y + py) * 2 / bs
+    return np.stack([s, tx, ty], axis=1)
+
+
+def interpolate_linear(times: np.ndarray, values: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """Piecewise-linear interpolation of values (K, ...) known at increasing times (K,) onto query (M,);
+    constant beyond the ends."""
+    values = np.asarray(values, dtype=np.float64)
+    flat = values.reshape(len(times), -1)
+    out = np.stack([np.interp(query, times, flat[:, d]) for d in range(flat.shape[1])], axis=1)
+    return out.reshape((len(query),) + values.shape[1:])
+
+
+def interpolate_rotations(times: np.ndarray, rotvecs: np.ndarray, query: np.ndarray) -> np.ndarray:
+    """SO(3) slerp of axis-angle rotations (K, J, 3) known at increasing times (K,) onto query (M,) -> (M, J, 3);
+    constant beyond the ends. Each step takes the shorter arc between consecutive known rotations."""
+    rotvecs = np.asarray(rotvecs, dtype=np.float64)
+    K, J = rotvecs.shape[:2]
+    query = np.clip(np.asarray(query, dtype=np.float64), times[0], times[-1])
+    if K == 1:
+        return np.repeat(rotvecs, len(query), axis=0)
+    out = np.empty((len(query), J, 3))
+    for j in range(J):
+        out[:, j] = Slerp(times, Rotation.from_rotvec(rotvecs[:, j]))(query).as_rotvec()
+    return out
+
+
+@register_node
+class LocalTracksNode(Node):
+    """One camera-local track per tracked person (see the module docstring).
+
+    Output tracks: {"frame": "camera", "num_frames": T, "tracks": [...]}, each track with track_id, first_frame,
+    num_frames n, visible (n,) bool, detection (n,) int (-1 in gaps), keypoints (n, 17, 3) (interpolated in gaps,
+    their confidence times gap_confidence), box (n, 4) square boxes, transl (n, 3) and root_orient (n, 3) in the
+    camera frame, body_pose (n, 23, 3), betas (B,), contacts (n, 4) or absent.
+    """
+
+    type_name = "local_tracks"
+    level = "track"
+    inputs = ("video", "camera", "detections", "boxes", "keypoints", "body", "tracking", "contacts")
+    optional_inputs = ("contacts",)
+    outputs = ("tracks",)
+
+    @dataclass
+    class Config:
+        min_visible_frames: int = 5  # shorter tracks are dropped (spurious detections)
+        gap_confidence: float = 0.0  # confidence factor of interpolated keypoints (0: the optimizer ignores them)
+
+    def run(self, ctx, inputs):
+        video, camera = inputs["video"], inputs["camera"]
+        detections, boxes, keypoints = inputs["detections"], inputs["boxes"], inputs["keypoints"]
+        body, tracking, contacts = inputs["body"], inputs["tracking"], inputs["contacts"]
+        n = table_length(detections, ("frame", "score"), "detections")
+        for name, table, column in (("boxes", boxes, "square"), ("keypoints", keypoints, "keypoints"),
+                                    ("body", body, "pose"), ("tracking", tracking, "track_id")):
+            if len(table[column]) != n:
+                raise PipelineError(f"{name}.{column} has {len(table[column])} rows, detections {n}")
+        if "transl" in body:
+            transl = np.asarray(body["transl"], dtype=np.float64)
+        else:
+            transl = crop_to_full_camera(body["crop_cam"], boxes["square"], camera["intrinsics"])
+        track_ids = np.asarray(tracking["track_id"])
+        tracks, dropped = [], []
+        for track_id in np.unique(track_ids[track_ids >= 0]):
+            rows = np.flatnonzero(track_ids == track_id)
+            # One detection per frame: the best-scoring one.
+            rows = rows[np.lexsort((-detections["score"][rows], detections["frame"][rows]))]
+            rows = rows[np.r_[True, np.diff(detections["frame"][rows]) > 0]]
+            if len(rows) < self.config.min_visible_frames:
+                dropped.append(int(track_id))
+                continue
+            tracks.append(self._gather(int(track_id), rows, detections, boxes, keypoints, body, transl, contacts))
+        if dropped:
+            ctx.log.info("dropped %d track(s) seen in fewer than %d frames: ids %s", len(dropped),
+                         self.config.min_visible_frames, dropped)
+        if not tracks:
+            raise InputError(f"no person was found in the video: {n} detection(s), {len(dropped)} track(s) all "
+                             f"shorter than {self.config.min_visible_frames} frames (local_tracks.min_visible_frames)"
+                             if n else "no person was found in the video (no detections)")
+        ctx.log.info("%d track(s): %s", len(tracks),
+                     ", ".join(f"id {t['track_id']} frames {t['first_frame']}..{t['first_frame'] + t['num_frames'] - 1}"
+                               f" ({int(t['visible'].sum())} seen)" for t in tracks))
+        return {"tracks": {"frame": "camera", "num_frames": int(video["num_frames"]), "tracks": tracks}}
+
+    def _gather(self, track_id, rows, detections, boxes, keypoints, body, transl, contacts) -> dict:
+        frames = detections["frame"][rows].astype(np.int64)
+        first, last = int(frames[0]), int(frames[-1])
+        span = np.arange(first, last + 1)
+        visible = np.isin(span, frames)
+        detection = np.full(len(span), -1, dtype=np.int64)
+        detection[frames - first] = rows
+        t = frames.astype(np.float64)
+        kp = interpolate_linear(t, keypoints["keypoints"][rows], span)
+        kp[~visible, :, 2] *= self.config.gap_confidence
+        kp[visible] = keypoints["keypoints"][rows]  # exact where seen
+        pose = np.asarray(body["pose"], dtype=np.float64)[rows]
+        rot = interpolate_rotations(t, pose, span)
+        rot[visible] = pose
+        track = {
+            "track_id": track_id, "first_frame": first, "num_frames": len(span), "visible": visible,
+            "detection": detection,
+            "keypoints": kp.astype(np.float32),
+            "box": interpolate_linear(t, boxes["square"][rows], span).astype(np.float32),
+            "transl": interpolate_linear(t, transl[rows], span),
+            "root_orient": rot[:, 0],
+            "body_pose": rot[:, 1:],
+            "betas": np.asarray(body["betas"], dtype=np.float64)[rows].mean(axis=0),
+        }
+        if contacts is not None:
+            track["contacts"] = np.clip(interpolate_linear(t, contacts["joint_contacts"][rows], span), 0, 1)
+        return track
+
+    def visualize(self, ctx, inputs, outputs, folder):
+        try:
+            import matplotlib
+        except ImportError:
+            ctx.log.warning("no track picture: matplotlib is not installed (pip install 'm3c[viz]')")
+            return []
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        tracks = outputs["tracks"]["tracks"]
+        if not tracks:
+            return []
+        fig, ax = plt.subplots(figsize=(8, 0.5 + 0.4 * len(tracks)))
+        for k, track in enumerate(tracks):
+            span = track["first_frame"] + np.arange(track["num_frames"])
+            ax.scatter(span[track["visible"]], np.full(track["visible"].sum(), k), s=4, c="tab:blue")
+            ax.scatter(span[~track["visible"]], np.full((~track["visible"]).sum(), k), s=4, c="tab:orange")
+        ax.set_yticks(range(len(tracks)), [f"id {t['track_id']}" for t in tracks])
+        ax.set_xlabel("frame (blue: detected, orange: interpolated)")
+        fig.tight_layout()
+        path = folder / "tracks.png"
+        fig.savefig(path, dpi=100)
+        plt.close(fig)
+        return [path]

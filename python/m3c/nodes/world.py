@@ -1,0 +1,383 @@
+"""From camera-local tracks to the world frame (thesis 4.1.3 ground estimation, 4.1.4 world lift).
+
+World frame (M3C's convention, also in the README's output section): gravity-aligned, y up, metres; the ground
+plane is y = 0 when a ground was found; the origin lies on the ground below the first camera and +z is the first
+camera's viewing direction projected onto the ground. Visual odometry gives cameras in its own frame (the first
+camera's, translations up to scale); `scale` finds the metric size of one VO unit, `ground` the planes and the
+rigid map world_from_vo, `lift` puts every track in the world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+
+from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.ground import CAMERA_UP, ContactTrack, GroundParams, estimate_ground_planes, fit_plane, foot_vertex_ids
+from m3c.motion import CONTACT_JOINTS
+from m3c.pipeline import ComponentUnavailable, Node, PipelineError, register_node
+
+
+def _poses(track: dict) -> np.ndarray:
+    return np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+
+
+def _track_frames(track: dict) -> np.ndarray:
+    return track["first_frame"] + np.arange(track["num_frames"])
+
+
+def contact_joints_in_camera(model, track: dict) -> np.ndarray:
+    """(n, 4, 3) positions of the contact joints (ankles, feet) of a camera-frame track."""
+    joints = model.joints(_poses(track), track["betas"], track["transl"])
+    return joints[:, list(CONTACT_JOINTS)]
+
+
+def estimate_vo_scale(model, tracks: list[dict], world_from_cam: np.ndarray, threshold: float = 0.5,
+                      huber: float = 0.05, iterations: int = 10) -> tuple[float | None, int]:
+    """Metric size of one VO translation unit from planted feet.
+
+    While a contact joint stays planted (a run of detected frames with contact probability >= threshold), its
+    world position R_t x_t + s c_t is the same point w in every frame of the run (x_t: joint in the camera frame,
+    metres; R_t, c_t: VO rotation and camera centre). Eliminating w per run (centring over the run) leaves
+    a_t + s b_t = 0 with a_t = R_t x_t - mean(R x) and b_t = c_t - mean(c); s minimises sum |a_t + s b_t|^2 with
+    Huber weights (huber metres). Whole runs rather than consecutive frames give baselines long enough for the
+    camera's motion to stand out of the per-frame depth noise of camera-local bodies.
+    Returns (s, or None when the camera does not move or no foot is planted; number of frames used).
+    """
+    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
+    a_all, b_all = [], []
+    for track in tracks:
+        if "contacts" not in track:
+            continue
+        frames = _track_frames(track)
+        world_dir = np.einsum("nij,nkj->nki", R[frames], contact_joints_in_camera(model, track))  # R_t x_t
+        planted = (track["contacts"] >= threshold) & track["visible"][:, None]
+        for j in range(planted.shape[1]):
+            for run in _runs(planted[:, j]):
+                if len(run) < 2:
+                    continue
+                a = world_dir[run, j]
+                b = c[frames[run]]
+                a_all.append(a - a.mean(axis=0))
+                b_all.append(b - b.mean(axis=0))
+    if not a_all:
+        return None, 0
+    a, b = np.concatenate(a_all), np.concatenate(b_all)
+    bb = np.einsum("ij,ij->i", b, b)
+    if bb.sum() < 1e-12:
+        return None, len(a)
+    weights = np.ones(len(a))
+    s = 0.0
+    for _ in range(iterations):
+        s = -np.sum(weights * np.einsum("ij,ij->i", a, b)) / max(np.sum(weights * bb), 1e-30)
+        residual = np.linalg.norm(a + s * b, axis=1)
+        weights = np.where(residual <= huber, 1.0, huber / np.maximum(residual, 1e-12))
+    return (float(s) if s > 0 and np.isfinite(s) else None), len(a)
+
+
+def _runs(mask: np.ndarray) -> list[np.ndarray]:
+    """Index arrays of the maximal runs of True in a 1-D bool array."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [np.arange(start, stop) for start, stop in zip(edges[::2], edges[1::2])]
+
+
+@register_node
+class ScaleNode(Node):
+    """The metric size of one visual-odometry translation unit (estimate_vo_scale), the optimizer's start.
+    Output scale: value, source ("given", "planted feet", "static camera", "default")."""
+
+    type_name = "scale"
+    level = "track"
+    inputs = ("tracks", "cameras")
+    outputs = ("scale",)
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        value: float | None = None  # fixed metres per VO unit; None = estimate
+        contact_threshold: float = 0.5
+        huber: float = 0.05  # metres
+
+    def run(self, ctx, inputs):
+        cameras = inputs["cameras"]
+        if self.config.value is not None:
+            if not self.config.value > 0:
+                raise PipelineError(f"scale.value must be > 0, got {self.config.value}")
+            return {"scale": {"value": float(self.config.value), "source": "given", "frames": 0}}
+        if cameras["static"]:
+            return {"scale": {"value": 1.0, "source": "static camera", "frames": 0}}
+        s, used = estimate_vo_scale(ctx.body_model(), inputs["tracks"]["tracks"], cameras["world_from_cam"],
+                                    self.config.contact_threshold, self.config.huber)
+        if s is None:
+            ctx.log.warning("no planted feet to measure the camera's scale (%d frames); starting from 1 m per VO "
+                            "unit", used)
+            return {"scale": {"value": 1.0, "source": "default", "frames": used}}
+        ctx.log.info("camera scale %.4f m per VO unit from %d planted-foot frames", s, used)
+        return {"scale": {"value": s, "source": "planted feet", "frames": used}}
+
+
+def metric_cameras(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
+    out = np.array(world_from_cam, dtype=np.float64, copy=True)
+    out[:, :3, 3] *= scale
+    return out
+
+
+def gravity_frame(up: np.ndarray, first_camera: np.ndarray, height: float | None) -> np.ndarray:
+    """world_from_vo (4, 4): y along `up`, z along the first camera's view projected off `up`, the origin below
+    the first camera at `height` beneath it (or at the camera when height is None)."""
+    up = up / np.linalg.norm(up)
+    forward = first_camera[:3, 2] - (first_camera[:3, 2] @ up) * up
+    if np.linalg.norm(forward) < 1e-6:  # camera looking straight down or up: use its y axis instead
+        forward = -first_camera[:3, 1] - (-first_camera[:3, 1] @ up) * up
+    forward /= np.linalg.norm(forward)
+    R = np.stack([np.cross(up, forward), up, forward])  # rows: world axes in VO coordinates
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = np.array([0.0, height or 0.0, 0.0]) - R @ first_camera[:3, 3]
+    return out
+
+
+@register_node
+class GroundNode(Node):
+    """The ground and the gravity-aligned world frame (thesis 4.1.3, "Ground Estimation").
+
+    Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
+    are placed in the metric VO frame. The dominant ground is a robust plane fit to all of them; it defines the
+    world (y up, ground y = 0). Each person's plane per frame is then either that ground (planes: shared, SLAHMR's
+    single floor, the default) or the thesis's per-person planes (planes: per_person: m3c.ground's DBSCAN on
+    contact points, plane fits, association and filling over time, each frame pooling the contacts of `window`
+    frames around it; planes tilted more than max_tilt from the ground are replaced by it).
+
+    Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), up_source
+    ("ground" or "camera"), plane (normal (3,), offset) the dominant plane in the world (y = 0 when found),
+    tracks: per track normal (n, 3), offset (n,) in the world, observed (n,), valid (n,).
+    """
+
+    type_name = "ground"
+    level = "smpl"
+    inputs = ("tracks", "cameras", "scale")
+    outputs = ("ground",)
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        planes: Literal["shared", "per_person"] = "shared"  # one ground for all (SLAHMR), or the thesis's
+        contact_threshold: float = 0.5
+        window: int = 15  # frames each side whose contacts join a frame's (0 = per frame, as the thesis)
+        max_tilt: float = 10.0  # degrees: a person's plane tilted more from the dominant ground is not kept
+        eps: float = 0.15
+        min_samples: int = 10
+        robust: bool = True
+        inlier_threshold: float = 0.02
+        min_support: int = 20
+        max_iterations: int = 1000
+        confidence: float = 0.999
+        seed: int = 0
+        max_distance: float = 0.10
+        fill: Literal["hold", "linear"] = "hold"
+
+    def params(self) -> GroundParams:
+        c = asdict(self.config)
+        for key in ("planes", "contact_threshold", "window", "max_tilt"):
+            c.pop(key)
+        return GroundParams(**c)
+
+    def run(self, ctx, inputs):
+        model = ctx.body_model()
+        tracks = inputs["tracks"]["tracks"]
+        cameras = metric_cameras(inputs["cameras"]["world_from_cam"], inputs["scale"]["value"])
+        foot_ids = foot_vertex_ids(model.data.weights)
+        # Each foot vertex takes the contact probability of the contact joint that moves it most.
+        foot_joint = np.argmax(model.data.weights[foot_ids][:, list(CONTACT_JOINTS)], axis=1)
+        contact_tracks, all_points, raw = [], [], []
+        with ctx.progress("contact vertices", len(tracks)) as bar:
+            for track in tracks:
+                points = self._contact_points(model, track, cameras, foot_ids, foot_joint)
+                all_points.extend(points)
+                raw.append(points)
+                # One foot's sole in one frame hardly fixes a plane (a flexed foot tilts it): each frame also
+                # takes the contacts of the frames within `window`, steps at several places on the ground.
+                pooled = [np.concatenate(points[max(0, t - self.config.window):t + self.config.window + 1])
+                          for t in range(len(points))]
+                contact_tracks.append(ContactTrack(_track_frames(track), pooled, [np.ones(len(p), bool)
+                                                                                  for p in pooled]))
+                bar.update()
+        up_vo = cameras[0, :3, :3] @ CAMERA_UP
+        pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
+        dominant = None
+        if len(pooled) >= self.config.min_support:
+            try:
+                dominant = fit_plane(pooled, up=up_vo, robust=self.config.robust,
+                                     inlier_threshold=max(self.config.inlier_threshold, 0.05),
+                                     min_support=self.config.min_support, seed=self.config.seed)
+            except ValueError as err:
+                ctx.log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
+        if dominant is not None:
+            height = float(dominant.signed_distance(cameras[0, :3, 3]))
+            world_from_vo = gravity_frame(dominant.normal, cameras[0], height)
+            ctx.log.info("ground from %d contact points (rms %.3f m); first camera %.2f m above it", len(pooled),
+                         dominant.rms, height)
+        else:
+            world_from_vo = gravity_frame(up_vo, cameras[0], None)
+            ctx.log.warning("no ground found (no planted feet); world up taken from the first camera")
+        per_person = self.config.planes == "per_person" or dominant is None
+        planes = estimate_ground_planes(contact_tracks, up=up_vo, params=self.params()) \
+            if tracks and per_person else []
+        R, t = world_from_vo[:3, :3], world_from_vo[:3, 3]
+        out_tracks = []
+        rejected = 0
+        for plane in planes:
+            normal = plane.normal @ R.T
+            offset = plane.offset - normal @ t
+            valid = plane.valid.copy()
+            observed = plane.observed.copy()
+            if dominant is not None:
+                # A plane fitted to a few soles can tilt with the feet; planes parallel to the ground (steps,
+                # platforms) are kept, tilted ones give way to the dominant ground, as do frames without one.
+                with np.errstate(invalid="ignore"):
+                    tilted = valid & (normal[:, 1] < np.cos(np.radians(self.config.max_tilt)))
+                rejected += int(tilted.sum())
+                replace = ~valid | tilted
+                normal[replace] = [0.0, 1.0, 0.0]
+                offset[replace] = 0.0
+                observed &= ~tilted
+                valid[:] = True
+            out_tracks.append({"normal": normal, "offset": offset, "observed": observed, "valid": valid})
+        if rejected:
+            ctx.log.info("%d person-frame plane(s) tilted more than %.0f degrees from the ground were replaced by it",
+                         rejected, self.config.max_tilt)
+        if not per_person:  # everyone on the dominant ground (y = 0 in the world)
+            out_tracks = [{"normal": np.tile([0.0, 1.0, 0.0], (track["num_frames"], 1)),
+                           "offset": np.zeros(track["num_frames"]),
+                           "observed": np.array([len(p) > 0 for p in points], dtype=bool),
+                           "valid": np.ones(track["num_frames"], bool)}
+                          for track, points in zip(tracks, raw)]
+        return {"ground": {"world_from_vo": world_from_vo, "up_source": "ground" if dominant else "camera",
+                           "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
+                           "contact_points": int(len(pooled)), "tracks": out_tracks}}
+
+    def _contact_points(self, model, track, cameras, foot_ids, foot_joint) -> list[np.ndarray]:
+        n = track["num_frames"]
+        points = [np.zeros((0, 3)) for _ in range(n)]
+        if "contacts" not in track:
+            return points
+        in_contact = (track["contacts"] > self.config.contact_threshold) & track["visible"][:, None]
+        frames = np.flatnonzero(in_contact.any(axis=1))
+        poses = _poses(track)
+        for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
+            if len(chunk) == 0:
+                continue
+            verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
+            for k, i in enumerate(chunk):
+                selected = verts[k][in_contact[i][foot_joint]]
+                cam = cameras[track["first_frame"] + i]
+                points[i] = selected @ cam[:3, :3].T + cam[:3, 3]
+        return points
+
+
+@register_node
+class LiftNode(Node):
+    """Every track in the world frame (thesis 4.1.4, world lift).
+
+    method camera: each frame's camera-local body moved by its camera (world_from_vo, VO pose at the estimated
+    scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its checkpoint;
+    see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint is found.
+
+    Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
+    body_pose, betas, contacts?, ground_normal?, ground_offset?), world_from_cam (T, 4, 4) for the optimizer
+    (world rotation, translation in VO units: camera centre = scale * translation), initial_scale, static, method.
+    """
+
+    type_name = "lift"
+    level = "track"
+    inputs = ("video", "camera", "tracks", "cameras", "scale", "ground")
+    outputs = ("world",)
+    settings = ("body_model", "models_dir")
+
+    @dataclass
+    class Config:
+        method: Literal["auto", "camera", "wham"] = "auto"
+        checkpoint: str | None = None  # WHAM checkpoint file; None = $M3C_MODELS/wham/...
+
+    def _wham_checkpoint(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
+        from m3c.models.wham import WHAM_SOURCE
+
+        path = self.config.checkpoint
+        if path is None and ctx.models_dir() is not None:
+            path = ctx.models_dir() / WHAM_SOURCE.default_path
+        try:
+            return resolve_path(path, WHAM_SOURCE)
+        except CheckpointNotFoundError:
+            if self.config.method == "wham":
+                raise
+            return None
+
+    def key_config(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError
+        from m3c.pipeline.cache import file_digest
+
+        config = asdict(self.config)
+        if self.config.method != "camera":
+            try:
+                path = self._wham_checkpoint(ctx)
+            except CheckpointNotFoundError:  # method wham without its file: check() reports it
+                path = None
+            config["checkpoint_digest"] = file_digest(path) if path is not None else None
+        return config
+
+    def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError
+
+        if self.config.method == "wham":
+            try:
+                self._wham_checkpoint(ctx)
+            except CheckpointNotFoundError as err:
+                raise ComponentUnavailable(self.name, "WHAM's checkpoint", str(err)) from None
+
+    def load(self, ctx) -> None:
+        self._lifter = None
+        path = self._wham_checkpoint(ctx) if self.config.method != "camera" else None
+        if path is not None:
+            from m3c.models import load_wham
+
+            self._lifter = load_wham(path).to(ctx.device)
+            ctx.log.info("WHAM lift with %s on %s", path, ctx.device)
+
+    def unload(self) -> None:
+        self._lifter = None
+
+    def run(self, ctx, inputs):
+        model = ctx.body_model()
+        video, tracks, ground = inputs["video"], inputs["tracks"]["tracks"], inputs["ground"]
+        scale = float(inputs["scale"]["value"])
+        world_from_vo = ground["world_from_vo"]
+        vo = inputs["cameras"]["world_from_cam"]
+        metric = world_from_vo @ metric_cameras(vo, scale)  # world_from_cam, metres at the initial scale
+        optimizer_cameras = metric.copy()
+        optimizer_cameras[:, :3, 3] /= scale
+        lifter = getattr(self, "_lifter", None)
+        out = []
+        for k, track in enumerate(tracks):
+            frames = _track_frames(track)
+            j0 = rest_root_joint(model, track["betas"])
+            root, transl = transform_smpl(metric[frames], track["root_orient"], track["transl"], j0)
+            if lifter is not None:
+                from m3c.nodes.wham_lift import wham_trajectory
+
+                root, transl = wham_trajectory(lifter, model, track, metric, root, transl, video,
+                                               inputs["camera"]["intrinsics"])
+            world = {key: track[key] for key in ("track_id", "first_frame", "num_frames", "visible",
+                                                 "keypoints", "body_pose", "betas")}
+            world.update(root_orient=root, transl=transl)
+            if "contacts" in track:
+                world["contacts"] = track["contacts"]
+            if ground["tracks"] and ground["tracks"][k]["valid"].all():
+                world["ground_normal"] = ground["tracks"][k]["normal"]
+                world["ground_offset"] = ground["tracks"][k]["offset"]
+            out.append(world)
+        return {"world": {"tracks": out, "world_from_cam": optimizer_cameras, "initial_scale": scale,
+                          "static": bool(inputs["cameras"]["static"]),
+                          "method": "wham" if lifter is not None else "camera"}}

@@ -1,0 +1,139 @@
+"""`m3c run/info/graph/config` on bad inputs: clear errors, exit codes a script can act on, and no partial result
+files."""
+
+import numpy as np
+import pytest
+import yaml
+
+from m3c.cli import main
+from m3c.io.video import VideoWriter
+from m3c.nodes.load import save_outputs
+from m3c.pipeline import PipelineConfig
+
+RESULT_FILES = ("results.npz", "results.json", "overlay.mp4", "world.mp4", "camera_trajectory.png")
+
+
+@pytest.fixture
+def small_video(tmp_path):
+    path = tmp_path / "small.mp4"
+    with VideoWriter(path, 25.0, (64, 48)) as writer:
+        for i in range(6):
+            writer.write(np.full((48, 64, 3), 40 * i, np.uint8))
+    return path
+
+
+def run_cli(capsys, *argv):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_no_results(out):
+    assert not any((out / name).exists() for name in RESULT_FILES)
+
+
+def test_missing_video(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "run", tmp_path / "nope.mp4", "--out", tmp_path / "out")
+    assert code == 2 and "video file not found" in err and "nope.mp4" in err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"this is not a video" * 100])
+def test_unreadable_video(tmp_path, capsys, content):
+    video = tmp_path / "bad.mp4"
+    video.write_bytes(content)
+    code, _, err = run_cli(capsys, "run", video, "--out", tmp_path / "out")
+    assert code == 2
+    assert "cannot open" in err or "no decodable frames" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_video_with_zero_frames(tmp_path, capsys):
+    video = tmp_path / "empty.mp4"
+    with VideoWriter(video, 25.0, (64, 48)):
+        pass  # a valid container holding no frame
+    code, _, err = run_cli(capsys, "run", video, "--out", tmp_path / "out")
+    assert code == 2
+    assert "no decodable frames" in err or "cannot open" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_default_pipeline_names_every_missing_component(small_video, tmp_path, capsys):
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out")
+    assert code == 3
+    for node in ("detections", "masks", "keypoints", "body", "tracking", "contacts", "vo"):
+        assert f"node {node!r}" in err
+    assert "--static-camera" in err
+    assert not (tmp_path / "out").exists()  # nothing ran: no folder, no fake results
+    # A static camera removes the odometry from the list.
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--static-camera")
+    assert code == 3 and "node 'vo'" not in err and "node 'detections'" in err
+
+
+def frames_only_config(tmp_path):
+    path = tmp_path / "frames.yaml"
+    path.write_text("nodes:\n  frames: {}\n  camera: {inputs: {video: frames.video}}\n")
+    return path
+
+
+def test_frame_range_outside_the_video(small_video, tmp_path, capsys):
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                           frames_only_config(tmp_path), "--frames", "100:200")
+    assert code == 2 and "selects no frames" in err and "6 frames" in err
+    assert not (tmp_path / "out").exists()
+    code, out, _ = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                           frames_only_config(tmp_path), "--frames", "2:5", "--intrinsics", "50", "50", "32", "24")
+    assert code == 0 and "2 node(s) ran" in out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--intrinsics", "0", "50", "32", "24"], "fx, fy > 0"),
+    (["--set", "camera.nope=1"], "unknown setting"),
+    (["--set", "ghost.x=1"], "no node named 'ghost'"),
+    (["--frames", "5:2"], "bad frame range"),
+])
+def test_bad_options(small_video, tmp_path, capsys, argv, message):
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                           frames_only_config(tmp_path), *argv)
+    assert code == 2 and message in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_body_model_file(small_video, tmp_path, capsys):
+    # The default pipeline reads the body model: its file is checked before anything runs.
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--body-model",
+                           tmp_path / "SMPL_NEUTRAL.pkl")
+    assert code == 2 and "body model file not found" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_video_with_no_people(small_video, tmp_path, capsys):
+    empty = {"frame": np.zeros(0, np.int64), "box": np.zeros((0, 4), np.float32), "score": np.zeros(0, np.float32)}
+    folder = tmp_path / "perception"
+    save_outputs(folder / "detections", {"detections": empty})
+    save_outputs(folder / "keypoints", {"keypoints": {"keypoints": np.zeros((0, 17, 3), np.float32)}})
+    save_outputs(folder / "body", {"body": {"pose": np.zeros((0, 24, 3)), "betas": np.zeros((0, 10)),
+                                            "transl": np.zeros((0, 3))}})
+    save_outputs(folder / "tracking", {"tracking": {"track_id": np.zeros(0, np.int64)}})
+    config = PipelineConfig.default().to_mapping()
+    for name in ("detections", "keypoints", "body", "tracking"):
+        config["nodes"][name] = {"type": "load", "config": {"path": str(folder / name), "outputs": [name]}}
+    del config["nodes"]["contacts"], config["nodes"]["local_tracks"]["inputs"]["contacts"]
+    del config["nodes"]["masks"], config["nodes"]["patches"]["inputs"]["masks"]
+    del config["nodes"]["vo"]["inputs"]["masks"]
+    path = tmp_path / "no_people.yaml"
+    path.write_text(yaml.safe_dump(config))
+    out = tmp_path / "out"
+    code, _, err = run_cli(capsys, "run", small_video, "--out", out, "--config", path, "--static-camera")
+    assert code == 2 and "no person was found in the video" in err
+    assert_no_results(out)
+    assert not list((out / "cache").glob("*/.tmp-*"))
+
+
+def test_info_and_graph_and_config(tmp_path, capsys):
+    code, _, err = run_cli(capsys, "info", tmp_path)
+    assert code == 2 and "holds no M3C results" in err
+    code, out, _ = run_cli(capsys, "graph")
+    assert code == 0 and out.startswith("digraph m3c {") and '"optimize" -> "results"' in out
+    code, out, _ = run_cli(capsys, "config")
+    assert code == 0 and PipelineConfig.from_yaml(out).to_mapping() == PipelineConfig.default().to_mapping()

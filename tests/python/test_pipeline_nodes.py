@@ -1,0 +1,280 @@
+"""Node building blocks against hand-checked cases and independent computations: box processing, subject
+isolation, patch sampling, crop-to-full cameras (CLIFF), gap filling (linear, SO(3) slerp), local tracks,
+SMPL frame changes, the gravity-aligned world, the camera scale from planted feet."""
+
+import logging
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.nodes.patches import box_region, extract_patch, isolation_mask, process_boxes
+from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
+from m3c.nodes.tracks import (LocalTracksNode, crop_to_full_camera, full_to_crop_camera, interpolate_linear,
+                              interpolate_rotations)
+from m3c.nodes.world import estimate_vo_scale, gravity_frame
+from m3c.pipeline import InputError
+
+
+@pytest.mark.parametrize("box, size, square, crop", [
+    # Pad 5 -> (35, 25, 55, 55), 20 x 30 -> square side 30 around (45, 40); inside the frame.
+    ((40, 30, 50, 50), (100, 80), (30, 25, 60, 55), (30, 25, 60, 55)),
+    # Near the left edge: side 50 around (5, 30) -> x from -20, shifted to the frame's edge -0.5.
+    ((0, 10, 10, 50), (100, 80), (-0.5, 5, 49.5, 55), (-0.5, 5, 49.5, 55)),
+    # Larger than the frame in both directions (side 109): centred on the frame, then cropped to it.
+    ((0, 0, 99, 79), (100, 80), (-5, -15, 104, 94), (-0.5, -0.5, 99.5, 79.5)),
+    # Just fits the height (side 30 = H): shifted up by half a pixel onto [-0.5, 29.5].
+    ((10, 5, 30, 25), (200, 30), (5, -0.5, 35, 29.5), (5, -0.5, 35, 29.5)),
+])
+def test_process_boxes_by_hand(box, size, square, crop):
+    got_square, got_crop = process_boxes(np.array([box], float), *size, padding=5.0)
+    np.testing.assert_allclose(got_square[0], square, atol=1e-12)
+    np.testing.assert_allclose(got_crop[0], crop, atol=1e-12)
+
+
+def test_process_boxes_rejects_inverted_boxes():
+    with pytest.raises(ValueError, match="x1 >= x0"):
+        process_boxes(np.array([[10, 10, 5, 20]]), 100, 100)
+
+
+def test_masks_round_trip_and_regions(rng):
+    masks = [(rng.uniform(size=(7, 5)) > 0.5, 3, 4), (np.ones((2, 9), bool), 0, 0), (np.zeros((0, 0), bool), 1, 1)]
+    encoded = encode_masks(masks)
+    for n, (mask, x0, y0) in enumerate(masks):
+        got, gx, gy = decode_mask(encoded, n)
+        np.testing.assert_array_equal(got, mask)
+        assert (gx, gy) == (x0, y0)
+    # A region overlapping mask 0 partly: pixels (x, y) in [2, 6) x [6, 20).
+    region = mask_in_region(encoded, 0, (2, 6, 6, 20))
+    expected = np.zeros((14, 4), bool)
+    expected[0:5, 1:4] = masks[0][0][2:7, 0:3]
+    np.testing.assert_array_equal(region, expected)
+
+
+def test_isolation_whitens_others_except_the_focused_mask():
+    H, W = 30, 40
+    boxes = np.array([[5, 5, 20, 25], [15, 5, 35, 25]], float)  # focus 0, other 1; overlap x 15..20
+    focus_mask = np.zeros((21, 16), bool)  # over pixels x 5..20, y 5..25
+    focus_mask[:, :13] = True  # the focused person covers x 5..17
+    masks = encode_masks([(focus_mask, 5, 5), (np.ones((21, 21), bool), 15, 5)])
+    white = isolation_mask(H, W, 0, boxes, masks, np.array([0, 1]), whiten="boxes")
+    assert not white[10, 16]  # in the other's box but inside the focused person's mask: kept
+    assert white[10, 19]  # in both boxes, outside the focused mask: whitened
+    assert white[10, 30]  # only in the other's box
+    assert not white[10, 8] and not white[2, 30]  # the focused person; background outside every box
+    x0, y0, x1, y1 = box_region(boxes[1], W, H)
+    assert white.sum() == (x1 - x0) * (y1 - y0) - 3 * (y1 - y0)  # the other's box less the 3 kept columns
+    # Without masks the focused person's whole tight box is kept.
+    white = isolation_mask(H, W, 0, boxes, None, np.array([0, 1]))
+    assert not white[10, 19] and white[10, 21]
+
+
+def test_extract_patch_samples_the_square_linearly():
+    # A linear image samples exactly under bilinear interpolation.
+    ys, xs = np.mgrid[0:60, 0:80].astype(np.float32)
+    frame = np.repeat((xs + 100 * ys)[..., None], 3, axis=2)
+    square = np.array([10.0, 20.0, 42.0, 52.0])  # side 32 -> 16 px patch: 2 source pixels per patch pixel
+    patch = extract_patch(frame, square, 16)
+    i = np.arange(16)
+    # The square's edges are the patch's edges, so patch pixel i's centre is at x0 + (i + 0.5) * side / size.
+    x = square[0] + (i + 0.5) * 2
+    y = square[1] + (i + 0.5) * 2
+    np.testing.assert_allclose(patch[..., 0], x[None, :] + 100 * y[:, None], rtol=1e-5)
+    # Outside the frame is white.
+    outside = extract_patch(frame, np.array([-40.0, -40.0, 0.0, 0.0]), 8)
+    assert (outside[:3, :3] == 255).all()
+
+
+@pytest.mark.parametrize("intrinsics", [(1000.0, 1000.0, 480.0, 270.0), (900.0, 1100.0, 500.0, 260.0)])
+def test_crop_camera_to_full_image(rng, intrinsics):
+    square = np.array([[300.0, 100.0, 500.0, 300.0], [20.0, 50.0, 120.0, 150.0]])
+    crop_cam = np.array([[0.9, 0.05, 0.2], [1.1, -0.1, 0.0]])
+    transl = crop_to_full_camera(crop_cam, square, intrinsics)
+    # The body origin projects where the weak-perspective camera put it: box centre + b s (tx, ty) / 2.
+    fx, fy, cx, cy = intrinsics
+    side = square[:, 2] - square[:, 0]
+    centre = (square[:, :2] + square[:, 2:]) / 2
+    expected = centre + side[:, None] * crop_cam[:, :1] * crop_cam[:, 1:] / 2
+    projected = np.stack([fx * transl[:, 0] / transl[:, 2] + cx, fy * transl[:, 1] / transl[:, 2] + cy], 1)
+    np.testing.assert_allclose(projected, expected, rtol=1e-12)
+    # Depth: a body of height h metres appears h * s * b / 2 pixels tall in both models (mean focal).
+    np.testing.assert_allclose(transl[:, 2], (fx + fy) / (side * crop_cam[:, 0]))
+    np.testing.assert_allclose(full_to_crop_camera(transl, square, intrinsics), crop_cam, atol=1e-12)
+    # CLIFF's formula where fx = fy.
+    if fx == fy:
+        bs = side * crop_cam[:, 0]
+        np.testing.assert_allclose(transl[:, 0], crop_cam[:, 1] + 2 * (centre[:, 0] - cx) / bs)
+
+
+def test_slerp_follows_the_shorter_arc_at_constant_speed():
+    axis = np.array([1.0, 2.0, 2.0]) / 3.0
+    times = np.array([0.0, 4.0])
+    rotvecs = np.stack([0.2 * axis, 1.0 * axis])[:, None]  # (K, 1, 3)
+    out = interpolate_rotations(times, rotvecs, np.arange(5.0))
+    np.testing.assert_allclose(out[:, 0], np.outer([0.2, 0.4, 0.6, 0.8, 1.0], axis), atol=1e-12)
+    # 3.0 rad and -3.0 rad about z are 0.28 rad apart across pi: the midpoint is pi, not 0.
+    z = np.array([0.0, 0.0, 1.0])
+    mid = interpolate_rotations(times, np.stack([3.0 * z, -3.0 * z])[:, None], np.array([2.0]))[0, 0]
+    assert Rotation.from_rotvec(mid).magnitude() == pytest.approx(np.pi, abs=1e-9)
+    # Beyond the ends: held.
+    np.testing.assert_allclose(interpolate_rotations(times, rotvecs, np.array([-3.0, 9.0]))[:, 0],
+                               [0.2 * axis, 1.0 * axis], atol=1e-12)
+
+
+def test_interpolate_linear():
+    out = interpolate_linear(np.array([1.0, 3.0]), np.array([[0.0, 10.0], [2.0, 30.0]]), np.arange(5.0))
+    np.testing.assert_allclose(out, [[0, 10], [0, 10], [1, 20], [2, 30], [2, 30]])
+
+
+class FakeContext:
+    log = logging.getLogger("test")
+
+
+def test_local_tracks_gather_fill_and_drop(rng):
+    # Track 5 seen in frames 0, 1, 3 (twice in frame 1: the better score, row 1, wins over the outlier row 2);
+    # track 9 only in frame 2.
+    frame = np.array([0, 1, 1, 3, 2])
+    track_id = np.array([5, 5, 5, 5, 9])
+    score = np.array([0.9, 0.95, 0.8, 0.9, 0.9], np.float32)
+    n = len(frame)
+    keypoints = rng.uniform(10, 100, size=(n, 17, 3)).astype(np.float32)
+    keypoints[..., 2] = 0.8
+    pose = rng.normal(scale=0.3, size=(n, 24, 3))
+    betas = rng.normal(size=(n, 10))
+    transl = np.array([[0.0, 0, 4], [1.0, 0, 4], [9.0, 9, 9], [3.0, 0, 4], [0.0, 0, 5]])
+    square = np.tile([100.0, 100.0, 300.0, 300.0], (n, 1))
+    intrinsics = np.array([1000.0, 1000.0, 480.0, 270.0])
+    inputs = {
+        "video": {"num_frames": 4}, "camera": {"intrinsics": intrinsics},
+        "detections": {"frame": frame, "score": score, "box": square},
+        "boxes": {"square": square.astype(np.float32)},
+        "keypoints": {"keypoints": keypoints},
+        "body": {"pose": pose, "betas": betas, "crop_cam": full_to_crop_camera(transl, square, intrinsics)},
+        "tracking": {"track_id": track_id},
+        "contacts": {"joint_contacts": rng.uniform(size=(n, 4)).astype(np.float32)},
+    }
+    node = LocalTracksNode("local_tracks", LocalTracksNode.Config(min_visible_frames=2, gap_confidence=0.5))
+    out = node.run(FakeContext(), inputs)["tracks"]
+    assert [t["track_id"] for t in out["tracks"]] == [5]  # track 9 (one frame) dropped
+    track = out["tracks"][0]
+    assert track["first_frame"] == 0 and track["num_frames"] == 4
+    np.testing.assert_array_equal(track["visible"], [True, True, False, True])
+    np.testing.assert_array_equal(track["detection"], [0, 1, -1, 3])
+    np.testing.assert_allclose(track["transl"], [[0, 0, 4], [1, 0, 4], [2, 0, 4], [3, 0, 4]], atol=1e-9)
+    gap = (keypoints[1] + keypoints[3]) / 2
+    np.testing.assert_allclose(track["keypoints"][2, :, :2], gap[:, :2], rtol=1e-6)
+    np.testing.assert_allclose(track["keypoints"][2, :, 2], 0.5 * gap[:, 2], rtol=1e-6)
+    np.testing.assert_array_equal(track["keypoints"][1], keypoints[1])
+    # Rotations in the gap: the geodesic midpoint of frames 1 and 3.
+    for j in range(24):
+        a, b = Rotation.from_rotvec(pose[1, j]), Rotation.from_rotvec(pose[3, j])
+        mid = a * Rotation.from_rotvec((a.inv() * b).as_rotvec() / 2)
+        got = Rotation.from_rotvec(track["root_orient"][2] if j == 0 else track["body_pose"][2, j - 1])
+        assert (got.inv() * mid).magnitude() < 1e-9
+    np.testing.assert_allclose(track["betas"], betas[[0, 1, 3]].mean(axis=0))
+    with pytest.raises(InputError, match="no person was found"):
+        LocalTracksNode("local_tracks", LocalTracksNode.Config(min_visible_frames=10)).run(FakeContext(), inputs)
+
+
+def test_transform_smpl_moves_the_mesh_rigidly(synthetic_body_model, rng):
+    model = synthetic_body_model
+    n = 3
+    pose = rng.normal(scale=0.4, size=(n, model.num_joints, 3))
+    betas = rng.normal(size=model.num_betas)
+    transl = rng.normal(size=(n, 3))
+    target_from_source = np.tile(np.eye(4), (n, 1, 1))
+    target_from_source[:, :3, :3] = Rotation.random(n, random_state=1).as_matrix()
+    target_from_source[:, :3, 3] = rng.normal(size=(n, 3))
+    j0 = rest_root_joint(model, betas)
+    assert np.linalg.norm(j0) > 1e-3  # the synthetic model's root is off the origin: the test means something
+    root, new_transl = transform_smpl(target_from_source, pose[:, 0], transl, j0)
+    moved = model.forward(np.concatenate([root[:, None], pose[:, 1:]], 1), betas, new_transl).vertices
+    original = model.forward(pose, betas, transl).vertices
+    expected = np.einsum("nij,nvj->nvi", target_from_source[:, :3, :3], original) + target_from_source[:, None, :3, 3]
+    np.testing.assert_allclose(moved, expected, atol=1e-9)
+
+
+def test_gravity_frame_puts_the_ground_at_y0_below_the_first_camera():
+    up = np.array([0.1, -0.95, 0.2])
+    up /= np.linalg.norm(up)
+    camera = np.eye(4)
+    camera[:3, :3] = Rotation.from_rotvec([0.3, 0.2, 0.1]).as_matrix()
+    camera[:3, 3] = [1.0, -2.0, 0.5]
+    world_from_vo = gravity_frame(up, camera, height=1.7)
+    R = world_from_vo[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+    np.testing.assert_allclose(R @ up, [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(world_from_vo[:3, :3] @ camera[:3, 3] + world_from_vo[:3, 3], [0, 1.7, 0],
+                               atol=1e-12)
+    forward = R @ camera[:3, 2]
+    assert abs(forward[0]) < 1e-12 and forward[2] > 0  # the first camera looks along +z (tilted in y)
+
+
+def test_camera_scale_from_planted_feet():
+    from m3c.body import default_body_model
+    from m3c.eval.scenes import make_scene
+
+    model = default_body_model()
+    scene = make_scene(model, num_people=2, num_frames=40, seed=3, vo_scale=2.5)
+    cam_from_world = np.linalg.inv(scene.cameras_true.world_from_cam)
+    tracks = []
+    for truth in scene.truth:
+        root, transl = transform_smpl(cam_from_world, truth.root_orient, truth.transl,
+                                      rest_root_joint(model, truth.betas))
+        tracks.append({"first_frame": 0, "num_frames": truth.num_frames, "root_orient": root, "transl": transl,
+                       "body_pose": truth.body_pose, "betas": truth.betas, "contacts": truth.contacts,
+                       "visible": np.ones(truth.num_frames, bool)})
+    scale, used = estimate_vo_scale(model, tracks, scene.cameras_vo.world_from_cam)
+    assert used > 20
+    assert scale == pytest.approx(2.5, rel=0.01)
+    # A static camera (no baseline) gives no estimate.
+    static = np.tile(np.eye(4), (40, 1, 1))
+    assert estimate_vo_scale(model, tracks, static)[0] is None
+
+
+def test_patches_node_isolates_the_focused_person(tmp_path):
+    from m3c.io.video import VideoWriter
+    from m3c.nodes.load import save_outputs
+    from m3c.nodes.records import decode_image
+    from m3c.pipeline import PipelineConfig, run_pipeline
+    from m3c.pipeline.cache import Cache
+
+    # Person A (red, in front) and person B (blue) overlap; 3 identical frames.
+    frame = np.full((80, 120, 3), 90, np.uint8)
+    frame[15:76, 40:91] = (255, 0, 0)  # B: x 40..90, y 15..75 (BGR blue)
+    frame[20:71, 20:51] = (0, 0, 255)  # A: x 20..50, y 20..70 (BGR red), drawn over B
+    with VideoWriter(tmp_path / "v.mp4", 10.0, (120, 80)) as writer:
+        for _ in range(3):
+            writer.write(frame)
+    boxes = np.array([[20, 20, 50, 70], [40, 15, 90, 75]] * 3, np.float32)
+    save_outputs(tmp_path / "detections", {"detections": {
+        "frame": np.repeat(np.arange(3), 2), "box": boxes, "score": np.tile([0.9, 0.8], 3).astype(np.float32)}})
+    masks = encode_masks([(np.ones((51, 31), bool), 20, 20), (np.ones((61, 51), bool), 40, 15)] * 3)
+    save_outputs(tmp_path / "masks", {"masks": masks})
+    config = PipelineConfig.from_yaml(f"""
+settings: {{visualize: true}}
+nodes:
+  frames: {{}}
+  detections: {{type: load, config: {{path: {tmp_path / 'detections'}, outputs: [detections]}}}}
+  masks: {{type: load, config: {{path: {tmp_path / 'masks'}, outputs: [masks]}}}}
+  boxes: {{inputs: {{video: frames.video, detections: detections.detections}}}}
+  patches:
+    inputs: {{video: frames.video, detections: detections.detections, boxes: boxes.boxes, masks: masks.masks}}
+    config: {{size: 60, jpeg_quality: 100}}
+""")
+    out = tmp_path / "out"
+    report = run_pipeline(config, out, {"video": tmp_path / "v.mp4"}, show_progress=False)
+    key = dict((r.name, r.key) for r in report.records)
+    square = Cache(out / "cache").load("boxes", key["boxes"])["boxes"]["square"]
+    np.testing.assert_allclose(square[0], [5, 15, 65, 75])  # A padded to 15..55 x 15..75, squared to 60
+    patch = decode_image(Cache(out / "cache").load("patches", key["patches"])["patches"], 0).astype(int)
+    # One source pixel per patch pixel here: patch (i, j) shows frame (5 + i, 15 + j).
+    def at(x, y):
+        return patch[y - 15, x - 5]
+    assert np.abs(at(35, 45) - [0, 0, 255]).max() < 40  # A itself
+    assert np.abs(at(60, 40) - [255, 255, 255]).max() < 40  # B's pixels outside A's mask: white
+    assert np.abs(at(10, 20) - [90, 90, 90]).max() < 40  # background outside B's box: kept
+    assert (out / "viz" / "patches" / "patches.jpg").is_file()
+    assert list((out / "viz" / "boxes").glob("boxes_frame*.jpg"))
