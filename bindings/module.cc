@@ -8,6 +8,7 @@ void BindBody(py::module_& m);
 void BindMotion(py::module_& m);
 void BindGround(py::module_& m);
 void BindNN(py::module_& m);
+void BindFit(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -16,4 +17,5 @@ PYBIND11_MODULE(_core, m) {
   m3c::bindings::BindMotion(m);
   m3c::bindings::BindGround(m);
   m3c::bindings::BindNN(m);
+  m3c::bindings::BindFit(m);
 }
