@@ -19,7 +19,8 @@ using namespace m3c::fit;
 
 py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor& regressor,
                      const py::handle& keypoints_obj, const py::handle& intrinsics_obj,
-                     const py::handle& keypoints3d_obj, const py::handle& restart_obj, const FitOptions& options) {
+                     const py::handle& keypoints3d_obj, const py::handle& restart_obj, const py::handle& times_obj,
+                     const FitOptions& options) {
   const py::ssize_t K = regressor.num_keypoints();
   const auto keypoints = AsArray<double>(keypoints_obj, "keypoints");
   if (keypoints.ndim() != 3 || keypoints.shape(1) != K || keypoints.shape(2) != 3) {
@@ -47,6 +48,12 @@ py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor
     }
     restart.assign(flags.data(), flags.data() + N);
   }
+  std::vector<double> times;
+  if (!times_obj.is_none()) {
+    const auto t = AsArray<double>(times_obj, "times");
+    if (t.ndim() != 1 || t.shape(0) != N) ShapeError("times", "(N=" + std::to_string(N) + ",)", t);
+    times.assign(t.data(), t.data() + N);
+  }
   std::vector<FrameObservation> observations(N);
   for (py::ssize_t i = 0; i < N; ++i) {
     FrameObservation& o = observations[i];
@@ -59,7 +66,7 @@ py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor
   std::vector<FrameFitResult> results;
   {
     py::gil_scoped_release release;
-    results = fitter.FitSequence(observations, restart);
+    results = fitter.FitSequence(observations, restart, times);
   }
   const py::ssize_t J = model.num_joints(), B = model.num_betas();
   py::array_t<double> transl({N, py::ssize_t{3}}), root({N, py::ssize_t{3}}), body({N, J - 1, py::ssize_t{3}}),
@@ -110,6 +117,7 @@ void BindFit(py::module_& m) {
       .def_readwrite("shape_prior_weight", &FitOptions::shape_prior_weight)
       .def_readwrite("temporal_pose_weight", &FitOptions::temporal_pose_weight)
       .def_readwrite("temporal_betas_weight", &FitOptions::temporal_betas_weight)
+      .def_readwrite("temporal_transl_weight", &FitOptions::temporal_transl_weight)
       .def_readwrite("optimize_betas", &FitOptions::optimize_betas)
       .def_readwrite("min_depth", &FitOptions::min_depth)
       .def_readwrite("max_iterations", &FitOptions::max_iterations)
@@ -119,7 +127,7 @@ void BindFit(py::module_& m) {
       .def_readwrite("left_side", &FitOptions::left_side)
       .def_readwrite("right_side", &FitOptions::right_side);
   m.def("fit_body_sequence", &FitSequence, py::arg("model"), py::arg("regressor"), py::arg("keypoints"),
-        py::arg("intrinsics"), py::arg("keypoints3d"), py::arg("restart"), py::arg("options"),
+        py::arg("intrinsics"), py::arg("keypoints3d"), py::arg("restart"), py::arg("times"), py::arg("options"),
         R"doc(Fits the body to one track's frames in order, each warm-started from the previous one.
 
 keypoints: (N, K, 3) u, v in pixels and confidence (0 = missing); intrinsics: (4,) or (N, 4) fx, fy, cx, cy;

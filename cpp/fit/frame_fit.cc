@@ -48,7 +48,7 @@ BodyFitter::BodyFitter(const body::BodyModel* model, const body::KeypointRegress
   const FitOptions& o = options_;
   M3C_CHECK(o.robust_sigma_px > 0 && o.keypoints3d_sigma > 0) << "robust scales must be > 0";
   M3C_CHECK(o.keypoints3d_weight >= 0 && o.pose_prior_weight >= 0 && o.shape_prior_weight >= 0 &&
-            o.temporal_pose_weight >= 0 && o.temporal_betas_weight >= 0)
+            o.temporal_pose_weight >= 0 && o.temporal_betas_weight >= 0 && o.temporal_transl_weight >= 0)
       << "term weights must be >= 0";
   M3C_CHECK(o.min_depth > 0 && o.max_iterations >= 1 && o.min_keypoints >= 2)
       << "min_depth must be > 0, max_iterations >= 1 and min_keypoints >= 2";
@@ -136,7 +136,7 @@ BodyState BodyFitter::ColdState(const FrameObservation& obs, const Masked& m) co
   // Body pose from the 3D observations alone (no translation involved).
   if (m.keypoints3d.rows() > 0) {
     int iterations = 0;
-    Solve(obs, m, nullptr, true, false, &state, &iterations);
+    Solve(obs, m, nullptr, nullptr, true, false, &state, &iterations);
   }
 
   // Translation: linear least squares on the projection equations of the posed keypoints.
@@ -195,8 +195,9 @@ BodyState BodyFitter::Initialize(const FrameObservation& observation) const {
   return ColdState(observation, Mask(observation));
 }
 
-double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const BodyState* previous, bool free_pose,
-                         bool use_reprojection, BodyState* state, int* iterations) const {
+double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const BodyState* previous,
+                         const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection,
+                         BodyState* state, int* iterations) const {
   const int P = static_cast<int>(state->body.size()), B = static_cast<int>(state->betas.size());
   ceres::Problem problem;
   double* t = state->transl.data();
@@ -214,6 +215,11 @@ double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const Bod
                              nullptr, {r, b, beta});
   }
   if (problem.NumResidualBlocks() == 0) return 0.0;
+  if (use_reprojection && predicted_transl && options_.temporal_transl_weight > 0) {
+    problem.AddResidualBlock(
+        new WeightedPriorCost(*predicted_transl, Eigen::VectorXd::Constant(3, options_.temporal_transl_weight)),
+        nullptr, t);
+  }
   if (options_.pose_prior_weight > 0) {
     problem.AddResidualBlock(
         new WeightedPriorCost(Eigen::VectorXd::Zero(P), Eigen::VectorXd::Constant(P, options_.pose_prior_weight)),
@@ -281,7 +287,8 @@ void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitR
   result->reprojection_error_px = used > 0 ? sum / used : 0.0;
 }
 
-FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* previous) const {
+FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* previous,
+                               const Eigen::Vector3d* predicted_transl) const {
   Validate(obs);
   const int J = model_->num_joints(), B = model_->num_betas();
   if (previous) {
@@ -306,19 +313,19 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
   result.status = "ok";
   auto cold_fit = [&](int* iterations) {
     BodyState state = ColdState(obs, m);
-    Solve(obs, m, nullptr, false, true, &state, iterations);  // translation and orientation first
+    Solve(obs, m, nullptr, nullptr, false, true, &state, iterations);  // translation and orientation first
     return state;
   };
   if (previous) {
     BodyState warm = *previous;
-    result.cost = Solve(obs, m, previous, true, true, &warm, &result.iterations);
+    result.cost = Solve(obs, m, previous, predicted_transl, true, true, &warm, &result.iterations);
     result.state = warm;
     result.warm_started = true;
     Measure(obs, m, &result);
     if (result.reprojection_error_px > options_.reinit_error_px) {
       // Compare under the same objective (temporal priors included).
       BodyState cold = cold_fit(&result.iterations);
-      const double cold_cost = Solve(obs, m, previous, true, true, &cold, &result.iterations);
+      const double cold_cost = Solve(obs, m, previous, predicted_transl, true, true, &cold, &result.iterations);
       if (cold_cost < result.cost) {
         result.state = cold;
         result.cost = cold_cost;
@@ -327,7 +334,7 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
     }
   } else {
     result.state = cold_fit(&result.iterations);
-    result.cost = Solve(obs, m, nullptr, true, true, &result.state, &result.iterations);
+    result.cost = Solve(obs, m, nullptr, nullptr, true, true, &result.state, &result.iterations);
   }
   // A unique axis-angle (angle in [0, pi]) for the root; the body pose stays as solved.
   result.state.root = RotationToAxisAngle(AxisAngleToRotationMatrix(result.state.root));
@@ -336,16 +343,33 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
 }
 
 std::vector<FrameFitResult> BodyFitter::FitSequence(const std::vector<FrameObservation>& observations,
-                                                    const std::vector<char>& restart) const {
-  M3C_CHECK(restart.empty() || restart.size() == observations.size())
-      << "restart must be empty or have one flag per frame (" << observations.size() << "), got " << restart.size();
+                                                    const std::vector<char>& restart,
+                                                    const std::vector<double>& times) const {
+  const size_t n = observations.size();
+  M3C_CHECK(restart.empty() || restart.size() == n)
+      << "restart must be empty or have one flag per frame (" << n << "), got " << restart.size();
+  M3C_CHECK(times.empty() || times.size() == n) << "times must be empty or have one per frame (" << n << "), got "
+                                                << times.size();
+  for (size_t i = 1; i < times.size(); ++i) {
+    M3C_CHECK(std::isfinite(times[i]) && times[i] > times[i - 1]) << "times must be finite and increasing";
+  }
+  auto time_of = [&](size_t i) { return times.empty() ? static_cast<double>(i) : times[i]; };
   std::vector<FrameFitResult> results;
-  results.reserve(observations.size());
-  const BodyState* previous = nullptr;
-  for (size_t i = 0; i < observations.size(); ++i) {
-    if (!restart.empty() && restart[i]) previous = nullptr;
-    results.push_back(Fit(observations[i], previous));
-    if (results.back().status == "ok") previous = &results.back().state;
+  results.reserve(n);
+  int last = -1, before_last = -1;  // the last two good frames since the last restart
+  for (size_t i = 0; i < n; ++i) {
+    if (!restart.empty() && restart[i]) last = before_last = -1;
+    const BodyState* previous = last >= 0 ? &results[last].state : nullptr;
+    Eigen::Vector3d predicted;
+    const Eigen::Vector3d* prediction = nullptr;
+    if (previous && before_last >= 0) {  // a prediction needs a velocity: no prior on the first warm frame
+      const Eigen::Vector3d velocity = (previous->transl - results[before_last].state.transl) /
+                                       (time_of(last) - time_of(before_last));
+      predicted = previous->transl + velocity * (time_of(i) - time_of(last));
+      prediction = &predicted;
+    }
+    results.push_back(Fit(observations[i], previous, prediction));
+    if (results.back().status == "ok") before_last = last, last = static_cast<int>(i);
   }
   return results;
 }

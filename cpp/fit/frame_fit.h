@@ -31,6 +31,9 @@ struct FitOptions {
   double shape_prior_weight = 10.0;    // betas towards 0
   double temporal_pose_weight = 20.0;  // body pose towards the previous frame's, per rad^2
   double temporal_betas_weight = 100.0;  // betas towards the previous frame's
+  // Translation towards its constant-velocity prediction from the previous two fits, per m^2: monocular depth
+  // is weakly observed (body size against image size), and frame-to-frame depth jitter would read as motion.
+  double temporal_transl_weight = 3000.0;
   bool optimize_betas = true;
   double min_depth = 0.1;              // metres in front of the camera
   int max_iterations = 40;
@@ -70,13 +73,18 @@ class BodyFitter {
  public:
   BodyFitter(const body::BodyModel* model, const body::KeypointRegressor* regressor, FitOptions options);
 
-  // One frame; previous (may be nullptr) is the same person's fit in the previous frame.
-  FrameFitResult Fit(const FrameObservation& observation, const BodyState* previous) const;
+  // One frame; previous (may be nullptr) is the same person's fit in the previous frame, predicted_transl
+  // (may be nullptr) where its translation is expected now.
+  FrameFitResult Fit(const FrameObservation& observation, const BodyState* previous,
+                     const Eigen::Vector3d* predicted_transl = nullptr) const;
 
-  // A track's frames in order: frame i is warm-started from frame i-1's result unless restart[i] (restart may
-  // be empty: only frame 0 starts cold). Frames that cannot be fitted pass the last good state on.
+  // A track's frames in order: frame i is warm-started from the last good fit unless restart[i] (restart may
+  // be empty: only frame 0 starts cold), and its translation predicted at constant velocity from the last two
+  // good fits when there are two since the last restart. times (seconds or frame numbers, increasing; may be empty = 0, 1, 2, ...) space the frames.
+  // Frames that cannot be fitted pass the last good state on.
   std::vector<FrameFitResult> FitSequence(const std::vector<FrameObservation>& observations,
-                                          const std::vector<char>& restart) const;
+                                          const std::vector<char>& restart,
+                                          const std::vector<double>& times = {}) const;
 
   // The cold initialisation alone (exposed for tests and diagnostics).
   BodyState Initialize(const FrameObservation& observation) const;
@@ -92,8 +100,9 @@ class BodyFitter {
   Masked Mask(const FrameObservation& observation) const;
   BodyState ColdState(const FrameObservation& observation, const Masked& masked) const;
   // Adds the active terms to a Ceres problem over `state`'s memory and solves it. Returns the final cost.
-  double Solve(const FrameObservation& observation, const Masked& masked, const BodyState* previous, bool free_pose,
-               bool use_reprojection, BodyState* state, int* iterations) const;
+  double Solve(const FrameObservation& observation, const Masked& masked, const BodyState* previous,
+               const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection, BodyState* state,
+               int* iterations) const;
   void Measure(const FrameObservation& observation, const Masked& masked, FrameFitResult* result) const;
   void Validate(const FrameObservation& observation) const;
 
