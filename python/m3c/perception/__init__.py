@@ -13,7 +13,7 @@ from m3c.perception.contacts import KinematicContactConfig, contact_track, estim
 from m3c.perception.interfaces import (TASKS, BodyEstimator, ContactEstimator, DepthEstimator, Detector,
                                        GenderEstimator, PoseEstimator2D, Segmenter)
 from m3c.perception.pipeline import (EstimatorSpec, PerceptionConfig, PerceptionResult, PersonTrack,
-                                     run_perception)
+                                     load_result, run_perception, run_perception_frames)
 from m3c.perception.registry import available, create, register
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person
@@ -25,4 +25,4 @@ __all__ = ["TASKS", "BodyEstimator", "BodyFitConfig", "BodyFits", "ContactEstima
            "Tracker", "TrackerConfig", "appearance_descriptor", "available", "bhattacharyya_distance",
            "contact_track", "create", "crop", "default_intrinsics", "estimate_up", "fit_bodies", "iou",
            "iou_matrix", "isolate", "kinematic_contacts", "process_box", "read_frames", "register",
-           "rough_location", "run_perception", "video_info"]
+           "load_result", "rough_location", "run_perception", "run_perception_frames", "video_info"]

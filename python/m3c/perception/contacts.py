@@ -35,12 +35,12 @@ class KinematicContactConfig:
     speed_softness: float = 0.15
     window_seconds: float = 1.0
     speed_window_seconds: float = 0.1
-    root_window_seconds: float = 0.4
+    root_window_seconds: float | None = None  # see kinematic_contacts(root=...); None: plain foot speeds
     ground_quantile: float = 0.1
 
     def __post_init__(self):
         if min(self.height_softness, self.speed_softness, self.window_seconds, self.speed_window_seconds,
-               self.root_window_seconds) <= 0:
+               self.root_window_seconds or 1.0) <= 0:
             raise ValueError("softness and window lengths must be > 0")
         if not 0 <= self.ground_quantile <= 1:
             raise ValueError("ground_quantile must be in [0, 1]")
@@ -93,9 +93,11 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
     allowed), with up (3,) the up direction in the points' frame and rest_heights (P,) each point's height
     above the sole when standing (default 0).
 
-    root: (n, 3) the body's root positions, or None. With it, a foot's velocity is its velocity relative to the
-    root (the pose: well observed) over speed_window_seconds plus the root's own over root_window_seconds: a
-    monocular fit's depth jitters, and that jitter moves the whole body at once."""
+    root: (n, 3) the body's root positions, or None. With it (and config.root_window_seconds set), a foot's
+    velocity is its velocity relative to the root over speed_window_seconds plus the root's own over the longer
+    root_window_seconds, which averages out a monocular fit's depth jitter (it moves the whole body at once) but
+    also real changes of the body's speed within a stride: on the synthetic walkers it lowers the agreement with
+    the true contacts, so it is off by default."""
     config = config or KinematicContactConfig()
     points = np.asarray(points, dtype=np.float64)
     times = np.asarray(times, dtype=np.float64)
@@ -118,7 +120,7 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
         ground[t] = np.quantile(height[window].ravel(), config.ground_quantile)
     prob = _sigmoid((config.height_threshold - (height - ground[:, None])) / config.height_softness)
     if ground_static and n >= 2:
-        if root is None:
+        if root is None or config.root_window_seconds is None:
             velocity = local_velocities(points, times, config.speed_window_seconds)
         else:
             root = np.asarray(root, dtype=np.float64)
@@ -154,9 +156,19 @@ class KinematicContacts(ContactEstimator):
                                   rest_heights, root=joints[:, PELVIS])
 
 
-def contact_track(model: BodyModel, frame_ids, pose, betas, transl, contacts, threshold: float = 0.5) -> ContactTrack:
-    """The ground stage's input for one track: the foot vertices (skinning weight on ankles and feet >= 0.5)
-    whose contact joint (the CONTACT_JOINTS entry they are most weighted on) has probability > threshold.
+def sole_vertex_ids(model: BodyModel, sole_height: float = 0.02) -> np.ndarray:
+    """Foot vertices (see m3c.ground.foot_vertex_ids) within sole_height metres of the lowest one in the rest
+    pose (y-up): the soles, the part of a planted foot that touches the ground."""
+    feet = foot_vertex_ids(np.asarray(model.data.weights))
+    rest = model.forward(np.zeros((1, model.num_joints, 3)), np.zeros(model.num_betas)).vertices[0]
+    heights = rest[feet, 1]
+    return feet[heights <= heights.min() + sole_height]
+
+
+def contact_track(model: BodyModel, frame_ids, pose, betas, transl, contacts, threshold: float = 0.5,
+                  sole_height: float = 0.02) -> ContactTrack:
+    """The ground stage's input for one track: the sole vertices (sole_vertex_ids) whose contact joint (the
+    CONTACT_JOINTS entry they are most weighted on) has probability > threshold.
 
     pose (n, 24, 3), betas (B,) or (n, B), transl (n, 3), contacts (n, 4); all in one frame (see
     m3c.ground.estimate_ground_planes on moving cameras)."""
@@ -164,9 +176,9 @@ def contact_track(model: BodyModel, frame_ids, pose, betas, transl, contacts, th
     n = len(pose)
     if contacts.shape != (n, len(CONTACT_JOINTS)):
         raise ValueError(f"contacts must have shape ({n}, {len(CONTACT_JOINTS)}), got {contacts.shape}")
+    soles = sole_vertex_ids(model, sole_height)
     weights = np.asarray(model.data.weights)
-    feet = foot_vertex_ids(weights)
-    owner = np.argmax(weights[np.ix_(feet, list(CONTACT_JOINTS))], axis=1)
-    vertices = model.keypoints(model.vertex_selection(feet), pose, betas, transl)
-    prob = contacts[:, owner]  # (n, F)
-    return ContactTrack.from_vertices(frame_ids, vertices, prob, np.arange(len(feet)), threshold)
+    owner = np.argmax(weights[np.ix_(soles, list(CONTACT_JOINTS))], axis=1)
+    vertices = model.keypoints(model.vertex_selection(soles), pose, betas, transl)
+    prob = contacts[:, owner]  # (n, S)
+    return ContactTrack.from_vertices(frame_ids, vertices, prob, np.arange(len(soles)), threshold)

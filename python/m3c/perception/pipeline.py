@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -223,11 +223,23 @@ def _frame_mask(people: list[Person], size: tuple[int, int]) -> np.ndarray:
 
 def run_perception(video: str | Path, config: PerceptionConfig | None = None, max_frames: int | None = None,
                    progress: Callable[[int], None] | None = None) -> PerceptionResult:
-    """Runs every perception estimator of `config` over a video file."""
-    config = config or PerceptionConfig()
+    """Runs every perception estimator of `config` over a video file (its frame rate read from the file)."""
     info = video_info(video)
+    return run_perception_frames((image for _, image in read_frames(video, max_frames)), info.fps,
+                                 (info.height, info.width), config, progress, str(video))
+
+
+def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: tuple[int, int],
+                          config: PerceptionConfig | None = None, progress: Callable[[int], None] | None = None,
+                          source: str = "frames") -> PerceptionResult:
+    """Runs every perception estimator of `config` over RGB frames (H, W, 3) uint8 of size image_size
+    (height, width) at fps frames per second."""
+    config = config or PerceptionConfig()
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    height, width = (int(v) for v in image_size)
     intrinsics = (np.asarray(config.intrinsics, dtype=np.float64) if config.intrinsics is not None
-                  else default_intrinsics(info.width, info.height))
+                  else default_intrinsics(width, height))
     if intrinsics.shape != (4,) or not np.isfinite(intrinsics).all() or (intrinsics[:2] <= 0).any():
         raise ValueError(f"intrinsics must be fx, fy, cx, cy with positive focal lengths, got {config.intrinsics}")
     shared: dict = {}
@@ -240,8 +252,10 @@ def run_perception(video: str | Path, config: PerceptionConfig | None = None, ma
     frame_masks, people_per_frame = [], []
     num_frames = 0
     try:
-        for index, image in read_frames(video, max_frames):
+        for index, image in enumerate(frames):
             ctx = FrameContext(image, index)
+            if ctx.size != (height, width):
+                raise ValueError(f"frame {index} is {ctx.size[0]} x {ctx.size[1]}, expected {height} x {width}")
             t0 = time.perf_counter()
             # People where their tracks predict them: found on their own (isolated) patches.
             proposals = [p for p in (_proposal(box, config.proposal_margin, ctx.size)
@@ -282,12 +296,11 @@ def run_perception(video: str | Path, config: PerceptionConfig | None = None, ma
         tracks = []
         confirmed = tracker.confirmed_ids()
         for track_id in sorted(i for i in records if i in confirmed):
-            tracks.append(_finish_track(track_id, records[track_id], est, names, intrinsics, info.fps, config,
-                                        seconds))
+            tracks.append(_finish_track(track_id, records[track_id], est, names, intrinsics, fps, config, seconds))
     finally:
         for e in est.values():
             e.close()
-    return PerceptionResult(str(video), info.fps, (info.height, info.width), intrinsics, num_frames, tracks, names,
+    return PerceptionResult(source, float(fps), (height, width), intrinsics, num_frames, tracks, names,
                             seconds, np.stack(frame_masks) if frame_masks else None,
                             np.array(people_per_frame, dtype=np.int64))
 
@@ -335,3 +348,31 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
     estimators.update(body=names["body"], contacts=names["contacts"], gender=names["gender"])
     return PersonTrack(track_id, frame_ids, np.stack([p.box for p in people]), np.array([p.score for p in people]),
                        keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators)
+
+
+def load_result(path: str | Path) -> PerceptionResult:
+    """Reads what PerceptionResult.save wrote (OUT.npz and OUT.json)."""
+    path = Path(path)
+    npz_path, json_path = path.with_suffix(".npz"), path.with_suffix(".json")
+    for p in (npz_path, json_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"{p} not found (PerceptionResult.save writes both OUT.npz and OUT.json)")
+    summary = json.loads(json_path.read_text())
+    with np.load(npz_path) as data:
+        arrays = {k: data[k] for k in data.files}
+    tracks = []
+    for k, info in enumerate(summary["tracks"]):
+        p = f"track{k}/"
+        bodies = BodyFits(arrays[p + "transl"].astype(np.float64), arrays[p + "root_orient"].astype(np.float64),
+                          arrays[p + "body_pose"].astype(np.float64), arrays[p + "betas"].astype(np.float64),
+                          arrays[p + "reprojection_error_px"].astype(np.float64),
+                          arrays[p + "keypoint_error_px"].astype(np.float64), arrays[p + "num_keypoints"],
+                          arrays[p + "warm_started"], [str(s) for s in arrays[p + "fit_status"]])
+        tracks.append(PersonTrack(int(arrays[p + "track_id"]), arrays[p + "frame_ids"], arrays[p + "boxes"],
+                                  arrays[p + "scores"], arrays[p + "keypoints"].astype(np.float64),
+                                  arrays[p + "keypoints3d"].astype(np.float64), bodies,
+                                  arrays[p + "contacts"].astype(np.float64), str(arrays[p + "gender"]),
+                                  dict(info["estimators"])))
+    return PerceptionResult(summary["video"], float(arrays["fps"]), tuple(int(v) for v in arrays["image_size"]),
+                            arrays["intrinsics"], int(arrays["num_frames"]), tracks, dict(summary["estimators"]),
+                            dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"))

@@ -4,13 +4,13 @@ Each track predicts its box with a constant-velocity Kalman filter (centre, widt
 noise proportional to the box height as in DeepSORT). Detections are assigned by the Hungarian method
 (scipy.optimize.linear_sum_assignment) on a cost that averages the available cues, each in [0, 1]:
   IoU        1 - IoU(predicted box, detection box)
-  2D pose    1 - mean_k exp(-d_k^2 / (2 kappa^2)), d_k the keypoint distance over the box height (OKS-like),
-             the track's last keypoints moved with its predicted box
+  2D pose    1 - mean_k exp(-d_k^2 / (2 kappa^2)), d_k the distance of keypoint k relative to its box's centre
+             and over its height (OKS-like; the pose's shape, as position is the other cues' part)
   3D         1 - exp(-|x - x_pred|^2 / (2 sigma^2)), camera-frame person locations (metres)
   appearance Bhattacharyya distance of colour histograms inside the masks (track: running average)
 Matching is a cascade: tracks seen in the previous frame first, then tracks lost for up to max_age frames
-(re-identification after an occlusion), where the stale IoU is left out and the gate on the centre distance
-widens with the time lost. Unmatched detections start tentative tracks, confirmed after min_hits detections;
+(re-identification after an occlusion), where the stale IoU gives way to the distance from the predicted box
+(1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost. Unmatched detections start tentative tracks, confirmed after min_hits detections;
 a tentative track that misses a frame is dropped.
 """
 
@@ -33,6 +33,7 @@ class TrackerConfig:
     pose_weight: float = 1.0
     location_weight: float = 1.0
     appearance_weight: float = 1.0
+    reid_motion_weight: float = 0.5  # re-identification: distance from the predicted box, instead of IoU
     max_cost: float = 0.6        # a detection joins a track seen in the previous frame below this cost
     reid_max_cost: float = 0.45  # ... or a lost track below this one
     max_age: int = 30            # frames a lost track waits to be re-identified
@@ -44,7 +45,8 @@ class TrackerConfig:
     appearance_momentum: float = 0.8  # weight of the old descriptor in the running average
 
     def __post_init__(self):
-        weights = (self.iou_weight, self.pose_weight, self.location_weight, self.appearance_weight)
+        weights = (self.iou_weight, self.pose_weight, self.location_weight, self.appearance_weight,
+                   self.reid_motion_weight)
         if min(weights) < 0 or sum(weights) <= 0:
             raise ValueError("cue weights must be >= 0 with at least one > 0")
         if self.max_age < 1 or self.min_hits < 1:
@@ -109,6 +111,15 @@ class BoxKalmanFilter:
         return np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2])
 
 
+def _normalise_keypoints(keypoints, box) -> np.ndarray:
+    """(K, 3) keypoints as (u - cx) / h, (v - cy) / h, confidence for the box's centre and height."""
+    cx, cy, _, h = _box_to_cxcywh(box)
+    k = np.asarray(keypoints, dtype=np.float64).copy()
+    k[:, 0] = (k[:, 0] - cx) / h
+    k[:, 1] = (k[:, 1] - cy) / h
+    return k
+
+
 def _box_to_cxcywh(box) -> tuple[float, float, float, float]:
     b = as_box(box)
     return 0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]), max(b[2] - b[0], 1.0), max(b[3] - b[1], 1.0)
@@ -118,21 +129,12 @@ def _box_to_cxcywh(box) -> tuple[float, float, float, float]:
 class _Track:
     track_id: int
     kalman: BoxKalmanFilter
-    keypoints_in_box: np.ndarray | None  # (17, 3): (u - cx) / h, (v - cy) / h, confidence
+    keypoints_in_box: np.ndarray | None  # (K, 3): (u - cx) / h, (v - cy) / h, confidence
     location: np.ndarray | None
     location_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     appearance: np.ndarray | None = None
     hits: int = 1
     time_since_update: int = 0
-
-    def predicted_keypoints(self) -> np.ndarray | None:
-        if self.keypoints_in_box is None:
-            return None
-        cx, cy, _, h = self.kalman.mean[:4]
-        out = self.keypoints_in_box.copy()
-        out[:, 0] = out[:, 0] * h + cx
-        out[:, 1] = out[:, 1] * h + cy
-        return out
 
     def predicted_location(self) -> np.ndarray | None:
         if self.location is None:
@@ -152,17 +154,18 @@ class Tracker:
 
     # Costs ------------------------------------------------------------------------------------------------
     def _pose_cost(self, track: _Track, obs: Observation) -> float | None:
-        predicted = track.predicted_keypoints()
-        if predicted is None or obs.keypoints is None:
+        """OKS-like dissimilarity of the two poses in box-normalised coordinates (keypoints relative to the box
+        centre, over its height): the pose's shape, while the boxes, locations and gates cover where it is."""
+        if track.keypoints_in_box is None or obs.keypoints is None:
             return None
         c = self.config.min_keypoint_confidence
-        k = min(len(predicted), len(obs.keypoints))
-        predicted, observed = predicted[:k], np.asarray(obs.keypoints)[:k]
-        both = (predicted[:, 2] >= c) & (observed[:, 2] >= c)
+        observed = _normalise_keypoints(obs.keypoints, obs.box)
+        k = min(len(observed), len(track.keypoints_in_box))
+        ours, theirs = track.keypoints_in_box[:k], observed[:k]
+        both = (ours[:, 2] >= c) & (theirs[:, 2] >= c)
         if both.sum() < 4:
             return None
-        scale = max(obs.box[3] - obs.box[1], 1.0) * self.config.pose_kappa
-        d2 = np.sum((predicted[both, :2] - observed[both, :2]) ** 2, axis=1) / scale ** 2
+        d2 = np.sum((ours[both, :2] - theirs[both, :2]) ** 2, axis=1) / self.config.pose_kappa ** 2
         return float(1.0 - np.mean(np.exp(-0.5 * d2)))
 
     def _cost_matrix(self, tracks: list[_Track], observations: list[Observation], use_iou: bool) -> np.ndarray:
@@ -183,6 +186,10 @@ class Tracker:
                 terms = []
                 if use_iou and cfg.iou_weight > 0:
                     terms.append((cfg.iou_weight, 1.0 - ious[i, j]))
+                elif not use_iou and cfg.reid_motion_weight > 0:
+                    # Where the prediction says the person went, at the gate's (growing) scale.
+                    d2 = float(np.sum((0.5 * (obs.box[:2] + obs.box[2:]) - centre) ** 2))
+                    terms.append((cfg.reid_motion_weight, 1.0 - np.exp(-0.5 * d2 / gate ** 2)))
                 pose = self._pose_cost(track, obs) if cfg.pose_weight > 0 else None
                 if pose is not None:
                     terms.append((cfg.pose_weight, pose))
@@ -207,12 +214,8 @@ class Tracker:
     # Updates ----------------------------------------------------------------------------------------------
     def _absorb(self, track: _Track, obs: Observation) -> None:
         track.kalman.update(obs.box)
-        cx, cy, _, h = _box_to_cxcywh(obs.box)
         if obs.keypoints is not None:
-            k = np.asarray(obs.keypoints, dtype=np.float64).copy()
-            k[:, 0] = (k[:, 0] - cx) / h
-            k[:, 1] = (k[:, 1] - cy) / h
-            track.keypoints_in_box = k
+            track.keypoints_in_box = _normalise_keypoints(obs.keypoints, obs.box)
         if obs.location is not None:
             location = np.asarray(obs.location, dtype=np.float64)
             if track.location is not None:
