@@ -11,7 +11,7 @@ from m3c.eval.scenes import make_scene
 from m3c.motion import track_joints
 from m3c.perception import (PerceptionConfig, Person, iou, load_result, register, run_perception_frames)
 from m3c.perception.body import keypoint_regressor
-from m3c.perception.interfaces import Detector, PoseEstimator2D, Segmenter
+from m3c.perception.interfaces import DepthEstimator, Detector, PoseEstimator2D, Segmenter
 
 COLOURS = [((200, 40, 40), (40, 40, 160)), ((40, 170, 60), (220, 210, 50))]
 
@@ -68,6 +68,14 @@ class ScenePose(PoseEstimator2D):
         return out
 
 
+@register("depth", "test_rows")
+class RowDepth(DepthEstimator):
+    """The row index as depth: what a configured depth estimator returns is kept (4x downsampled)."""
+
+    def estimate(self, ctx):
+        return np.tile(np.arange(ctx.size[0], dtype=np.float32)[:, None], (1, ctx.size[1]))
+
+
 @pytest.fixture(scope="module")
 def scene_run():
     model = default_body_model()
@@ -103,6 +111,7 @@ def scene_run():
     config = PerceptionConfig.from_dict({"detector": {"name": "test_scene_truth", "options": {"frames": frames}},
                                          "segmenter": "test_box_mask",
                                          "pose2d": {"name": "test_scene_truth", "options": {"frames": frames}},
+                                         "depth": "test_rows",
                                          "intrinsics": list(K), "detect_every": 3})
     result = run_perception_frames(iter(images), scene.fps, (H, W), config, source="synthetic")
     return model, scene, result, owner
@@ -138,8 +147,10 @@ def test_bodies_contacts_and_provenance(scene_run):
         assert track.estimators["segmenter"] == "test_box_mask" and track.estimators["body"] == "fit"
     assert result.estimators == {"detector": "test_scene_truth", "segmenter": "test_box_mask",
                                  "pose2d": "test_scene_truth", "body": "fit", "contacts": "kinematic",
-                                 "depth": "none", "gender": "neutral"}
+                                 "depth": "test_rows", "gender": "neutral"}
     assert result.frame_masks.shape == (50, 540 // 4, 960 // 4 // 8)
+    assert result.depth.shape == (50, 135, 240)
+    np.testing.assert_array_equal(result.depth[7, :, 0], np.arange(2, 540, 4))
 
 
 def test_save_and_load(scene_run, tmp_path):
@@ -154,3 +165,4 @@ def test_save_and_load(scene_run, tmp_path):
         np.testing.assert_allclose(a.bodies.transl, b.bodies.transl, rtol=1e-6)  # stored as float32
         assert a.bodies.status == b.bodies.status and a.estimators == b.estimators
     np.testing.assert_array_equal(loaded.frame_masks, result.frame_masks)
+    np.testing.assert_array_equal(loaded.depth, result.depth)

@@ -70,3 +70,14 @@ def test_config_from_dict_yaml_round_trip(tmp_path):
         PerceptionConfig.from_dict({"detectr": "hog"})
     with pytest.raises(ValueError, match="give an estimator name"):
         PerceptionConfig.from_dict({"detector": {"model": "x"}})
+
+
+def test_setup_script_installs_the_perception_extras_pin():
+    import re
+    from pathlib import Path
+
+    tomllib = pytest.importorskip("tomllib", reason="tomllib needs Python >= 3.11")
+    root = Path(__file__).resolve().parents[2]
+    extra = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]["perception"]
+    pins = re.findall(r'pip install --quiet "(mediapipe==[^"]+)"', (root / "scripts" / "setup.sh").read_text())
+    assert pins == extra

@@ -140,6 +140,7 @@ class PerceptionResult:
     seconds: dict  # stage -> seconds
     frame_masks: np.ndarray | None = None  # (T, H/4, ceil(W/4 / 8)) packed bits: any person's mask, 4x downsampled
     people_per_frame: np.ndarray | None = None  # (T,) people found per frame (before track filtering)
+    depth: np.ndarray | None = None  # (T, H/4, W/4) float32 relative depth, 4x downsampled; None without estimator
 
     def save(self, path: str | Path) -> None:
         """OUT.npz (arrays, track k's under "track{k}/...") and OUT.json (a readable summary), both atomic."""
@@ -150,6 +151,8 @@ class PerceptionResult:
             arrays["frame_masks"] = self.frame_masks
         if self.people_per_frame is not None:
             arrays["people_per_frame"] = self.people_per_frame
+        if self.depth is not None:
+            arrays["depth"] = self.depth
         for k, t in enumerate(self.tracks):
             p = f"track{k}/"
             b = t.bodies
@@ -249,7 +252,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,
                "contacts": 0.0}
     records: dict[int, list[tuple[int, Person]]] = {}
-    frame_masks, people_per_frame = [], []
+    frame_masks, people_per_frame, depth_maps = [], [], []
     num_frames = 0
     try:
         for index, image in enumerate(frames):
@@ -274,7 +277,13 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 people = tracked
             people = _dedupe(people, config.duplicate_iou)
             t3 = time.perf_counter()
-            est["depth"].estimate(ctx)
+            depth = est["depth"].estimate(ctx)
+            if depth is not None:
+                depth = np.asarray(depth, dtype=np.float32)
+                if depth.shape != ctx.size:
+                    raise ValueError(f"the depth estimator {names['depth']!r} returned shape {depth.shape}, "
+                                     f"expected the frame's {ctx.size}")
+                depth_maps.append(depth[MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE, MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE])
             t4 = time.perf_counter()
             observations = [Observation(p.box, p.keypoints, rough_location(p.keypoints, p.keypoints3d, intrinsics),
                                         appearance_descriptor(image, p.box, p.mask, p.mask_box)) for p in people]
@@ -297,12 +306,16 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
         confirmed = tracker.confirmed_ids()
         for track_id in sorted(i for i in records if i in confirmed):
             tracks.append(_finish_track(track_id, records[track_id], est, names, intrinsics, fps, config, seconds))
+        if 0 < len(depth_maps) < num_frames:
+            raise ValueError(f"the depth estimator {names['depth']!r} gave maps for {len(depth_maps)} of "
+                             f"{num_frames} frames; it must give one for every frame or none")
     finally:
         for e in est.values():
             e.close()
     return PerceptionResult(source, float(fps), (height, width), intrinsics, num_frames, tracks, names,
                             seconds, np.stack(frame_masks) if frame_masks else None,
-                            np.array(people_per_frame, dtype=np.int64))
+                            np.array(people_per_frame, dtype=np.int64),
+                            np.stack(depth_maps) if depth_maps else None)
 
 
 def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
@@ -375,4 +388,5 @@ def load_result(path: str | Path) -> PerceptionResult:
                                   dict(info["estimators"])))
     return PerceptionResult(summary["video"], float(arrays["fps"]), tuple(int(v) for v in arrays["image_size"]),
                             arrays["intrinsics"], int(arrays["num_frames"]), tracks, dict(summary["estimators"]),
-                            dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"))
+                            dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"),
+                            arrays.get("depth"))
