@@ -255,7 +255,8 @@ class MediaPipeDetector(Detector):
                     break
                 sources = {"detector": NAME, "segmenter": NAME, "pose2d": NAME}
                 person = _person_from_run(run, tile, ctx.size, sources, 0.5)
-                if person is None or person.score < self.min_score or person.box[3] - person.box[1] < self.min_box_height:
+                too_small = person is not None and person.box[3] - person.box[1] < self.min_box_height
+                if person is None or person.score < self.min_score or too_small:
                     break  # nobody more in this tile, or too unsure
                 # Whatever is found is whitened, so the next search moves on even if this one is rejected.
                 self._whiten(work, person, ctx.size)

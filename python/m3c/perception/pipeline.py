@@ -159,7 +159,8 @@ class PerceptionResult:
             arrays.update({p + "track_id": np.int64(t.track_id), p + "frame_ids": t.frame_ids, p + "boxes": t.boxes,
                            p + "scores": t.scores, p + "keypoints": t.keypoints.astype(np.float32),
                            p + "keypoints3d": t.keypoints3d.astype(np.float32),
-                           p + "transl": b.transl.astype(np.float32), p + "root_orient": b.root_orient.astype(np.float32),
+                           p + "transl": b.transl.astype(np.float32),
+                           p + "root_orient": b.root_orient.astype(np.float32),
                            p + "body_pose": b.body_pose.astype(np.float32), p + "betas": b.betas.astype(np.float32),
                            p + "reprojection_error_px": b.reprojection_error_px.astype(np.float32),
                            p + "keypoint_error_px": b.keypoint_error_px.astype(np.float32),
@@ -283,7 +284,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 if depth.shape != ctx.size:
                     raise ValueError(f"the depth estimator {names['depth']!r} returned shape {depth.shape}, "
                                      f"expected the frame's {ctx.size}")
-                depth_maps.append(depth[MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE, MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE])
+                step = MASK_DOWNSAMPLE
+                depth_maps.append(depth[step // 2::step, step // 2::step])
             t4 = time.perf_counter()
             observations = [Observation(p.box, p.keypoints, rough_location(p.keypoints, p.keypoints3d, intrinsics),
                                         appearance_descriptor(image, p.box, p.mask, p.mask_box)) for p in people]

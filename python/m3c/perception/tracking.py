@@ -10,8 +10,9 @@ noise proportional to the box height as in DeepSORT). Detections are assigned by
   appearance Bhattacharyya distance of colour histograms inside the masks (track: running average)
 Matching is a cascade: tracks seen in the previous frame first, then tracks lost for up to max_age frames
 (re-identification after an occlusion), where the stale IoU gives way to the distance from the predicted box
-(1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost. Unmatched detections start tentative tracks, confirmed after min_hits detections;
-a tentative track that misses a frame is dropped.
+(1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost.
+Unmatched detections start tentative tracks, confirmed after min_hits detections; a tentative track that
+misses a frame is dropped.
 """
 
 from __future__ import annotations
@@ -224,7 +225,8 @@ class Tracker:
             track.location = location
         if obs.appearance is not None:
             m = self.config.appearance_momentum
-            track.appearance = obs.appearance if track.appearance is None else m * track.appearance + (1 - m) * obs.appearance
+            old = track.appearance
+            track.appearance = obs.appearance if old is None else m * old + (1 - m) * obs.appearance
         track.hits += 1
         track.time_since_update = 0
         self._hits[track.track_id] = track.hits
