@@ -9,6 +9,7 @@ void BindMotion(py::module_& m);
 void BindGround(py::module_& m);
 void BindNN(py::module_& m);
 void BindVO(py::module_& m);
+void BindFit(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -18,4 +19,5 @@ PYBIND11_MODULE(_core, m) {
   m3c::bindings::BindGround(m);
   m3c::bindings::BindNN(m);
   m3c::bindings::BindVO(m);
+  m3c::bindings::BindFit(m);
 }

@@ -27,4 +27,11 @@ PY=${PYTHON:-python3}
 # The CPU build of torch 2.13.0; the package's own range (torch>=2.1) is then satisfied and pulls nothing.
 "$PY" -m pip install --quiet "torch==2.13.0"
 "$PY" -m pip install --quiet ".[test]"
+# The optional perception backend (the m3c[perception] extra, same pin): MediaPipe's BlazePose with its models
+# inside the wheel. Installed on its own so that a platform without a wheel still gets a working M3C: only the
+# MediaPipe tests then skip. M3C_NO_PERCEPTION=1 leaves it out.
+if [ "${M3C_NO_PERCEPTION:-0}" != "1" ]; then
+  "$PY" -m pip install --quiet "mediapipe==0.10.14" ||
+    echo "setup: mediapipe==0.10.14 not installed; the MediaPipe perception tests will skip" >&2
+fi
 "$PY" -c "import m3c._core; print('setup: m3c', __import__('m3c').__version__, 'installed')"

@@ -67,6 +67,7 @@ def _vo(args) -> int:
         except ImportError:
             pass
     print(f"wrote {out / 'camera_trajectory.npz'} (install the 'viz' extra, matplotlib, for the plot)")
+    return 0
 def _frame_range(text: str) -> tuple[int, int | None, int]:
     """START:STOP[:STEP] (STOP exclusive, may be empty for the end)."""
     parts = text.split(":")
@@ -161,6 +162,31 @@ def _config(args) -> int:
     return 0
 
 
+def _perceive(args) -> int:
+    from m3c.perception import PerceptionConfig, run_perception
+
+    config = PerceptionConfig.from_yaml(args.config) if args.config else PerceptionConfig()
+    if args.static_camera:
+        config.static_camera = True
+    if args.intrinsics:
+        config.intrinsics = tuple(args.intrinsics)
+    for task in ("detector", "pose2d", "body"):
+        name = getattr(args, task)
+        if name:
+            config.estimators[task].name, config.estimators[task].options = name, {}
+    result = run_perception(args.video, config, max_frames=args.max_frames)
+    result.save(args.out)
+    out = Path(args.out)
+    print(f"{args.video}: {result.num_frames} frames at {result.fps:.2f} fps, {len(result.tracks)} tracks -> "
+          f"{out.with_suffix('.npz')}, {out.with_suffix('.json')}")
+    for track in result.tracks:
+        errors = track.bodies.reprojection_error_px[track.bodies.valid]
+        median = f"{np.median(errors):.2f} px" if len(errors) else "n/a"
+        print(f"  track {track.track_id}: frames {track.frame_ids[0]}..{track.frame_ids[-1]} "
+              f"({len(track.frame_ids)} seen), body fits {int(track.bodies.valid.sum())}, median reprojection {median}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="m3c", description="M3C: world-grounded human motion capture.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -214,6 +240,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     config = sub.add_parser("config", help="print the default pipeline config (YAML) to start your own from")
     config.set_defaults(func=_config)
+    perceive = sub.add_parser("perceive", help="people, keypoints, masks, camera-local bodies, tracks and contacts "
+                                               "from a video (offline, CPU)")
+    perceive.add_argument("video")
+    perceive.add_argument("out", help="output path; OUT.npz and OUT.json are written")
+    perceive.add_argument("--config", help="perception settings (YAML: estimators by task, tracker, ...)")
+    perceive.add_argument("--max-frames", type=int, default=None)
+    perceive.add_argument("--static-camera", action="store_true", help="the camera does not move")
+    perceive.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                          help="pixels (default: focal length = image diagonal, principal point at the centre)")
+    perceive.add_argument("--detector", help="detector estimator name (see m3c.perception.available)")
+    perceive.add_argument("--pose2d", help="2D pose estimator name")
+    perceive.add_argument("--body", help="camera-local body estimator name")
+    perceive.set_defaults(func=_perceive)
     return parser
 
 
@@ -240,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(args, "out", None) and Path(args.out).is_dir():
             print(f"m3c: nothing was computed that depends on them; the cache in {args.out} is kept", file=sys.stderr)
         return EXIT_UNAVAILABLE
-    except ComponentUnavailable as err:
+    except (ComponentUnavailable, ImportError) as err:  # ImportError: an optional backend is not installed
         print(f"m3c: error: {err}", file=sys.stderr)
         return EXIT_UNAVAILABLE
     except (PipelineError, FileNotFoundError, ValueError) as err:

@@ -1,0 +1,114 @@
+// Camera-local body fit, one frame at a time (the offline stand-in for HMR 2.0, thesis 4.1.2): the body model's
+// pose, shape and camera-frame translation fitted to 2D keypoints with a robust reprojection term and, when a
+// monocular 3D pose is available (MediaPipe's metric landmarks), a weak root-relative 3D term, with Gaussian
+// pose and shape priors. Frames of one track are warm-started from the previous frame's fit, with temporal
+// priors towards it; a warm start that ends far from the keypoints is retried from a cold initialisation and
+// the lower objective wins.
+//
+// Cold initialisation: the root orientation from the 3D torso (Kabsch) or, without 3D, from which side of the
+// image the person's left shoulder and hip appear on (facing the camera or away from it); the body pose from a
+// 3D-only solve when 3D is given; the translation from the linear least-squares solution of the projection
+// equations (u - cx)(z_k + t_z) = fx (x_k + t_x) (and likewise for v) of the posed keypoints.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "body/body_model.h"
+#include "fit/costs.h"
+
+namespace m3c::fit {
+
+struct FitOptions {
+  double robust_sigma_px = 30.0;       // Geman-McClure scale of the reprojection term, pixels
+  double min_confidence = 0.3;         // 2D/3D keypoints below it are ignored
+  int min_keypoints = 6;               // fewer confident 2D keypoints: the frame is not fitted
+  double keypoints3d_weight = 400.0;   // weak 3D term, per m^2 (5 cm error ~ 1 px of reprojection)
+  double keypoints3d_sigma = 0.15;     // its Geman-McClure scale, metres
+  double pose_prior_weight = 5.0;      // body pose towards 0, per rad^2
+  double shape_prior_weight = 10.0;    // betas towards 0
+  double temporal_pose_weight = 20.0;  // body pose towards the previous frame's, per rad^2
+  double temporal_betas_weight = 100.0;  // betas towards the previous frame's
+  // Translation towards its constant-velocity prediction from the previous two fits, per m^2: monocular depth
+  // is weakly observed (body size against image size), and frame-to-frame depth jitter would read as motion.
+  double temporal_transl_weight = 3000.0;
+  bool optimize_betas = true;
+  double min_depth = 0.1;              // metres in front of the camera
+  int max_iterations = 40;
+  double reinit_error_px = 20.0;       // a warm start ending above this mean error is retried cold
+  // Keypoint roles, as indices into the regressor's keypoints (COCO-17 defaults).
+  std::vector<int> torso = {5, 6, 11, 12};       // orientation from 3D (Kabsch)
+  std::vector<int> reference_3d = {11, 12};      // origin of the relative 3D observations (hip centre)
+  std::vector<int> left_side = {5, 11};          // person's left shoulder and hip ...
+  std::vector<int> right_side = {6, 12};         // ... and right ones: facing direction from 2D
+};
+
+struct FrameObservation {
+  Observations3 keypoints;    // (K, 3): u, v (pixels), confidence; confidence 0 = missing
+  Observations4 keypoints3d;  // (K, 4): x, y, z (metres, camera axes, any origin), confidence; or empty
+  Intrinsics intrinsics;
+};
+
+struct BodyState {
+  Eigen::Vector3d transl = Eigen::Vector3d::Zero();  // camera frame, metres
+  Eigen::Vector3d root = Eigen::Vector3d::Zero();    // axis-angle, body to camera
+  Eigen::VectorXd body;                              // 3(J-1) axis-angle
+  Eigen::VectorXd betas;                             // B
+};
+
+struct FrameFitResult {
+  BodyState state;
+  std::string status;              // "ok", "too_few_keypoints" (state = the warm start or the initialisation)
+  double reprojection_error_px = 0.0;  // mean over keypoints with confidence >= min_confidence
+  Eigen::VectorXd keypoint_error_px;   // (K) pixel distance per keypoint, -1 where the point is behind the camera
+  int num_keypoints = 0;               // keypoints used (confidence >= min_confidence)
+  int iterations = 0;
+  double cost = 0.0;                   // final objective
+  bool warm_started = false;           // the kept solution started from the previous frame
+};
+
+class BodyFitter {
+ public:
+  BodyFitter(const body::BodyModel* model, const body::KeypointRegressor* regressor, FitOptions options);
+
+  // One frame; previous (may be nullptr) is the same person's fit in the previous frame, predicted_transl
+  // (may be nullptr) where its translation is expected now.
+  FrameFitResult Fit(const FrameObservation& observation, const BodyState* previous,
+                     const Eigen::Vector3d* predicted_transl = nullptr) const;
+
+  // A track's frames in order: frame i is warm-started from the last good fit unless restart[i] (restart may
+  // be empty: only frame 0 starts cold), and its translation predicted at constant velocity from the last two
+  // good fits when there are two since the last restart. times (seconds or frame numbers, increasing; may be empty = 0, 1, 2, ...) space the frames.
+  // Frames that cannot be fitted pass the last good state on.
+  std::vector<FrameFitResult> FitSequence(const std::vector<FrameObservation>& observations,
+                                          const std::vector<char>& restart,
+                                          const std::vector<double>& times = {}) const;
+
+  // The cold initialisation alone (exposed for tests and diagnostics).
+  BodyState Initialize(const FrameObservation& observation) const;
+
+  const FitOptions& options() const { return options_; }
+
+ private:
+  struct Masked {
+    Observations3 keypoints;
+    Observations4 keypoints3d;  // empty when unusable
+    int num_keypoints = 0;
+  };
+  Masked Mask(const FrameObservation& observation) const;
+  BodyState ColdState(const FrameObservation& observation, const Masked& masked) const;
+  // Adds the active terms to a Ceres problem over `state`'s memory and solves it. Returns the final cost.
+  double Solve(const FrameObservation& observation, const Masked& masked, const BodyState* previous,
+               const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection, BodyState* state,
+               int* iterations) const;
+  void Measure(const FrameObservation& observation, const Masked& masked, FrameFitResult* result) const;
+  void Validate(const FrameObservation& observation) const;
+
+  const body::BodyModel* model_;
+  const body::KeypointRegressor* regressor_;
+  FitOptions options_;
+};
+
+}  // namespace m3c::fit

@@ -1,0 +1,80 @@
+"""Appearance descriptors for tracking: colour histograms inside a person's mask (PHALP's texture cue, offline).
+
+The descriptor is a hue-saturation histogram of the coloured pixels plus a brightness histogram of the grey
+ones, for the upper and the lower half of the person separately (shirts and trousers differ), normalised so the
+whole descriptor sums to 1. Distances are Bhattacharyya distances in [0, 1].
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from m3c.perception.boxes import as_box
+
+HUE_BINS, SAT_BINS, GREY_BINS = 16, 4, 8
+DESCRIPTOR_SIZE = 2 * (HUE_BINS * SAT_BINS + GREY_BINS)
+
+
+def rgb_to_hsv(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) uint8 or float RGB in [0, 255] -> (..., 3) hue in [0, 1), saturation and value in [0, 1]."""
+    x = np.asarray(rgb, dtype=np.float64) / 255.0
+    r, g, b = x[..., 0], x[..., 1], x[..., 2]
+    v = x.max(axis=-1)
+    c = v - x.min(axis=-1)
+    s = np.divide(c, v, out=np.zeros_like(v), where=v > 0)
+    safe = np.where(c > 0, c, 1.0)
+    h = np.where(v == r, ((g - b) / safe) % 6.0, np.where(v == g, (b - r) / safe + 2.0, (r - g) / safe + 4.0))
+    h = np.where(c > 0, h / 6.0, 0.0) % 1.0
+    return np.stack([h, s, v], axis=-1)
+
+
+def _half_histogram(pixels: np.ndarray, min_saturation: float, min_value: float) -> np.ndarray:
+    hsv = rgb_to_hsv(pixels)
+    coloured = (hsv[:, 1] >= min_saturation) & (hsv[:, 2] >= min_value)
+    h = np.minimum((hsv[coloured, 0] * HUE_BINS).astype(int), HUE_BINS - 1)
+    s = np.minimum((hsv[coloured, 1] * SAT_BINS).astype(int), SAT_BINS - 1)
+    colour = np.bincount(h * SAT_BINS + s, minlength=HUE_BINS * SAT_BINS).astype(np.float64)
+    grey = np.bincount(np.minimum((hsv[~coloured, 2] * GREY_BINS).astype(int), GREY_BINS - 1),
+                       minlength=GREY_BINS).astype(np.float64)
+    hist = np.concatenate([colour, grey])
+    total = hist.sum()
+    return hist / total if total > 0 else hist
+
+
+def appearance_descriptor(image: np.ndarray, box, mask: np.ndarray | None = None, mask_box=None,
+                          min_saturation: float = 0.25, min_value: float = 0.15,
+                          max_pixels: int = 4096) -> np.ndarray | None:
+    """(DESCRIPTOR_SIZE,) descriptor of the person in `box` of an RGB image (H, W, 3), using only the pixels of
+    `mask` ((h, w) bool inside the integer mask_box) when given, on a regular grid of about max_pixels
+    samples (a histogram needs no more). None when no pixel is usable."""
+    b = as_box(box)
+    height, width = image.shape[:2]
+    x0, y0 = int(np.clip(np.floor(b[0]), 0, width)), int(np.clip(np.floor(b[1]), 0, height))
+    x1, y1 = int(np.clip(np.ceil(b[2]), 0, width)), int(np.clip(np.ceil(b[3]), 0, height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    region = image[y0:y1, x0:x1]
+    keep = np.ones(region.shape[:2], dtype=bool)
+    if mask is not None:
+        mb = as_box(mask_box).astype(int)
+        keep[:] = False
+        ix0, iy0, ix1, iy1 = max(x0, mb[0]), max(y0, mb[1]), min(x1, mb[2]), min(y1, mb[3])
+        if ix1 > ix0 and iy1 > iy0:
+            keep[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] = mask[iy0 - mb[1]:iy1 - mb[1], ix0 - mb[0]:ix1 - mb[0]]
+    step = max(1, int(np.sqrt(region.shape[0] * region.shape[1] / max_pixels)))
+    region, keep = region[::step, ::step], keep[::step, ::step]
+    if keep.sum() < 8:
+        return None
+    middle = region.shape[0] // 2
+    halves = []
+    for part, part_keep in ((region[:middle], keep[:middle]), (region[middle:], keep[middle:])):
+        halves.append(_half_histogram(part[part_keep].reshape(-1, 3), min_saturation, min_value))
+    descriptor = np.concatenate(halves)
+    total = descriptor.sum()
+    return descriptor / total if total > 0 else None
+
+
+def bhattacharyya_distance(p: np.ndarray, q: np.ndarray) -> float:
+    """sqrt(1 - sum_i sqrt(p_i q_i)) for two histograms that each sum to 1; 0 = identical, 1 = disjoint."""
+    bc = float(np.sum(np.sqrt(np.clip(p, 0, None) * np.clip(q, 0, None))))
+    return float(np.sqrt(max(0.0, 1.0 - bc)))

@@ -1,0 +1,184 @@
+"""Contacts without BSTRO: per-joint contact probabilities from kinematics, feeding the ground stage.
+
+A foot point touches the ground when it is near the local ground and (in a frame where the ground does not
+move: the world, or a static camera) nearly still:
+  p = sigmoid((h0 - h) / h_soft) * sigmoid((v0 - v) / v_soft),
+with h the point's height above the local ground and v its speed. Heights are measured along `up` and
+corrected by each point's height above the sole when standing (rest_heights: an ankle sits higher than a toe
+base); the local ground is the ground_quantile of the corrected heights of all foot points within
++- window_seconds. Speeds are the slopes of least-squares lines through the positions within
++- speed_window_seconds, so per-frame jitter of a monocular fit does not read as motion. In a moving camera's
+frame the speed factor is left out (ground_static=False): heights alone decide.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from m3c.body import BodyModel
+from m3c.ground import ContactTrack, foot_vertex_ids
+from m3c.motion import CONTACT_JOINTS
+from m3c.perception.interfaces import ContactEstimator
+from m3c.perception.registry import register
+
+NAME = "kinematic"
+NECK, PELVIS = 12, 0
+
+
+@dataclass
+class KinematicContactConfig:
+    height_threshold: float = 0.05   # metres above the local ground where the height factor is 0.5
+    height_softness: float = 0.015
+    speed_threshold: float = 0.5     # m/s where the speed factor is 0.5 (monocular fits jitter)
+    speed_softness: float = 0.15
+    window_seconds: float = 1.0
+    speed_window_seconds: float = 0.1
+    root_window_seconds: float | None = None  # see kinematic_contacts(root=...); None: plain foot speeds
+    ground_quantile: float = 0.1
+
+    def __post_init__(self):
+        if min(self.height_softness, self.speed_softness, self.window_seconds, self.speed_window_seconds,
+               self.root_window_seconds or 1.0) <= 0:
+            raise ValueError("softness and window lengths must be > 0")
+        if not 0 <= self.ground_quantile <= 1:
+            raise ValueError("ground_quantile must be in [0, 1]")
+
+
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return 0.5 * (1.0 + np.tanh(0.5 * x))
+
+
+def estimate_up(joints: np.ndarray) -> np.ndarray:
+    """The up direction (3,) as the mean pelvis-to-neck direction of SMPL joints (n, 24, 3): people are mostly
+    upright, and this works in any frame (camera or world)."""
+    spine = joints[:, NECK] - joints[:, PELVIS]
+    spine = spine / np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-9)
+    up = spine.mean(axis=0)
+    norm = np.linalg.norm(up)
+    if norm < 1e-6:
+        raise ValueError("cannot tell up from the joints (the spine directions cancel out); pass `up`")
+    return up / norm
+
+
+def contact_rest_heights(model: BodyModel, betas=None) -> np.ndarray:
+    """Heights (4,) of CONTACT_JOINTS above the sole (the lowest vertex) when standing in the rest pose; the
+    model's rest pose is y-up."""
+    betas = np.zeros(model.num_betas) if betas is None else np.asarray(betas, dtype=np.float64)
+    out = model.forward(np.zeros((1, model.num_joints, 3)), betas)
+    return out.joints[0, list(CONTACT_JOINTS), 1] - out.vertices[0, :, 1].min()
+
+
+def local_velocities(points: np.ndarray, times: np.ndarray, half_window: float) -> np.ndarray:
+    """Velocities (n, P, 3) of points (n, P, 3): the slope of a least-squares line through each point's
+    positions at the times within +- half_window (at least the two nearest neighbours)."""
+    n = len(points)
+    velocities = np.zeros(points.shape)
+    for t in range(n):
+        near = np.flatnonzero(np.abs(times - times[t]) <= half_window)
+        if len(near) < 2:
+            near = np.arange(max(t - 1, 0), min(t + 2, n))
+        dt = times[near] - times[near].mean()
+        denom = float(np.sum(dt ** 2))
+        if denom > 0:
+            velocities[t] = np.tensordot(dt, points[near] - points[near].mean(axis=0), axes=(0, 0)) / denom
+    return velocities
+
+
+def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static: bool = True,
+                       config: KinematicContactConfig | None = None, rest_heights=None,
+                       root: np.ndarray | None = None) -> np.ndarray:
+    """Contact probabilities (n, P) of foot points (n, P, 3) metres at times (n,) seconds (increasing; gaps
+    allowed), with up (3,) the up direction in the points' frame and rest_heights (P,) each point's height
+    above the sole when standing (default 0).
+
+    root: (n, 3) the body's root positions, or None. With it (and config.root_window_seconds set), a foot's
+    velocity is its velocity relative to the root over speed_window_seconds plus the root's own over the longer
+    root_window_seconds, which averages out a monocular fit's depth jitter (it moves the whole body at once) but
+    also real changes of the body's speed within a stride: on the synthetic walkers it lowers the agreement with
+    the true contacts, so it is off by default."""
+    config = config or KinematicContactConfig()
+    points = np.asarray(points, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    if points.ndim != 3 or points.shape[2] != 3:
+        raise ValueError(f"points must have shape (n, P, 3), got {points.shape}")
+    n, P = points.shape[:2]
+    if times.shape != (n,) or (n > 1 and np.any(np.diff(times) <= 0)):
+        raise ValueError(f"times must be ({n},) and strictly increasing")
+    if not np.isfinite(points).all():
+        raise ValueError("points contain NaN/inf; drop those frames")
+    rest = np.zeros(P) if rest_heights is None else np.asarray(rest_heights, dtype=np.float64)
+    if rest.shape != (P,):
+        raise ValueError(f"rest_heights must have shape ({P},), got {rest.shape}")
+    up = np.asarray(up, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    height = points @ up - rest
+    ground = np.empty(n)
+    for t in range(n):
+        window = np.abs(times - times[t]) <= config.window_seconds
+        ground[t] = np.quantile(height[window].ravel(), config.ground_quantile)
+    prob = _sigmoid((config.height_threshold - (height - ground[:, None])) / config.height_softness)
+    if ground_static and n >= 2:
+        if root is None or config.root_window_seconds is None:
+            velocity = local_velocities(points, times, config.speed_window_seconds)
+        else:
+            root = np.asarray(root, dtype=np.float64)
+            if root.shape != (n, 3):
+                raise ValueError(f"root must have shape ({n}, 3), got {root.shape}")
+            velocity = (local_velocities(points - root[:, None], times, config.speed_window_seconds) +
+                        local_velocities(root[:, None], times, config.root_window_seconds))
+        speed = np.linalg.norm(velocity, axis=2)
+        prob = prob * _sigmoid((config.speed_threshold - speed) / config.speed_softness)
+    return prob
+
+
+@register("contacts", NAME)
+class KinematicContacts(ContactEstimator):
+    """Contact probabilities of m3c.motion.CONTACT_JOINTS (ankles, feet) from a track's joints."""
+
+    def __init__(self, **options):
+        self.config = KinematicContactConfig(**options)
+
+    def estimate(self, joints: np.ndarray, fps: float, up=None, ground_static: bool = True,
+                 frame_ids: np.ndarray | None = None, rest_heights=None) -> np.ndarray:
+        """joints: (n, 24, 3) metres; frames at frame_ids / fps (default consecutive). up: None = from the
+        spine. rest_heights: (4,) see contact_rest_heights (default 0). Returns (n, 4) probabilities for
+        CONTACT_JOINTS."""
+        joints = np.asarray(joints, dtype=np.float64)
+        if joints.ndim != 3 or joints.shape[1:] != (24, 3):
+            raise ValueError(f"joints must have shape (n, 24, 3), got {joints.shape}")
+        if fps <= 0:
+            raise ValueError(f"fps must be > 0, got {fps}")
+        frame_ids = np.arange(len(joints)) if frame_ids is None else np.asarray(frame_ids)
+        up = estimate_up(joints) if up is None else up
+        return kinematic_contacts(joints[:, list(CONTACT_JOINTS)], frame_ids / fps, up, ground_static, self.config,
+                                  rest_heights, root=joints[:, PELVIS])
+
+
+def sole_vertex_ids(model: BodyModel, sole_height: float = 0.02) -> np.ndarray:
+    """Foot vertices (see m3c.ground.foot_vertex_ids) within sole_height metres of the lowest one in the rest
+    pose (y-up): the soles, the part of a planted foot that touches the ground."""
+    feet = foot_vertex_ids(np.asarray(model.data.weights))
+    rest = model.forward(np.zeros((1, model.num_joints, 3)), np.zeros(model.num_betas)).vertices[0]
+    heights = rest[feet, 1]
+    return feet[heights <= heights.min() + sole_height]
+
+
+def contact_track(model: BodyModel, frame_ids, pose, betas, transl, contacts, threshold: float = 0.5,
+                  sole_height: float = 0.02) -> ContactTrack:
+    """The ground stage's input for one track: the sole vertices (sole_vertex_ids) whose contact joint (the
+    CONTACT_JOINTS entry they are most weighted on) has probability > threshold.
+
+    pose (n, 24, 3), betas (B,) or (n, B), transl (n, 3), contacts (n, 4); all in one frame (see
+    m3c.ground.estimate_ground_planes on moving cameras)."""
+    contacts = np.asarray(contacts, dtype=np.float64)
+    n = len(pose)
+    if contacts.shape != (n, len(CONTACT_JOINTS)):
+        raise ValueError(f"contacts must have shape ({n}, {len(CONTACT_JOINTS)}), got {contacts.shape}")
+    soles = sole_vertex_ids(model, sole_height)
+    weights = np.asarray(model.data.weights)
+    owner = np.argmax(weights[np.ix_(soles, list(CONTACT_JOINTS))], axis=1)
+    vertices = model.keypoints(model.vertex_selection(soles), pose, betas, transl)
+    prob = contacts[:, owner]  # (n, S)
+    return ContactTrack.from_vertices(frame_ids, vertices, prob, np.arange(len(soles)), threshold)

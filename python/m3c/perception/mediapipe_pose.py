@@ -1,0 +1,345 @@
+"""MediaPipe's legacy pose solution (mp.solutions.pose, BlazePose) as the offline detector, segmenter and 2D
+pose estimator. Its models (pose_detection.tflite, pose_landmark_full.tflite) ship inside the
+mediapipe==0.10.14 wheel (the optional extra m3c[perception]); nothing is downloaded at run time.
+
+BlazePose finds one person per run. Several people come from detect-whiten-redetect: each found person's
+segmentation (dilated) is whitened and the frame is searched again, until nobody more is found. Keypoints are
+then taken on the thesis's patches (5 px padding, square, shifted inside the frame) with the other people's
+tight boxes whitened except the focused person's mask, whenever a patch overlaps another person ("auto"),
+always, or never.
+
+The 33 BlazePose landmarks map to COCO-17 (the same anatomical names, "left" = the person's left) followed by
+the heels and foot tips (types.FOOT_KEYPOINT_NAMES), with their visibility as confidence; the metric world
+landmarks (metres, origin at the hip centre, image axes) become the root-relative 3D keypoints used by the body
+fit.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from m3c.perception._cv import import_cv2
+from m3c.perception.boxes import crop, iou, isolate, process_box
+from m3c.perception.interfaces import Detector, PoseEstimator2D, Segmenter
+from m3c.perception.registry import register
+from m3c.perception.types import FrameContext, Person
+
+NAME = "mediapipe"
+# BlazePose landmark index of each COCO-17 keypoint (COCO order in m3c.body.joint_names.COCO17_NAMES).
+MP_TO_COCO17 = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
+# ... and of the foot points: heels, then foot index (the tip of the foot, at the big toe).
+MP_TO_FEET = (29, 30, 31, 32)
+NUM_LANDMARKS = 33
+
+
+def import_mediapipe():
+    try:
+        import mediapipe
+    except ImportError as err:
+        raise ImportError("the MediaPipe estimators need the optional package mediapipe==0.10.14, whose pose models "
+                          "ship inside the wheel: pip install 'm3c[perception]' (or pip install "
+                          "mediapipe==0.10.14)") from err
+    return mediapipe
+
+
+def mediapipe_available() -> bool:
+    try:
+        import_mediapipe()
+        import_cv2()
+    except ImportError:
+        return False
+    return True
+
+
+def landmarks_to_keypoints(landmarks: np.ndarray, world: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """BlazePose landmarks (33, 4) u, v, z, visibility (pixels) and world landmarks (33, 3) metres -> keypoints
+    (21, 3) u, v, confidence (COCO-17 then the four foot points) and 3D keypoints (21, 4) x, y, z, confidence
+    (None without world landmarks)."""
+    landmarks = np.asarray(landmarks, dtype=np.float64)
+    if landmarks.shape != (NUM_LANDMARKS, 4):
+        raise ValueError(f"landmarks must have shape (33, 4), got {landmarks.shape}")
+    idx = list(MP_TO_COCO17 + MP_TO_FEET)
+    conf = np.clip(landmarks[idx, 3], 0.0, 1.0)
+    keypoints = np.column_stack([landmarks[idx, 0], landmarks[idx, 1], conf])
+    if world is None:
+        return keypoints, None
+    world = np.asarray(world, dtype=np.float64)
+    if world.shape != (NUM_LANDMARKS, 3):
+        raise ValueError(f"world landmarks must have shape (33, 3), got {world.shape}")
+    return keypoints, np.column_stack([world[idx], conf])
+
+
+def tight_box(keypoints: np.ndarray, mask: np.ndarray | None, mask_box, frame_size: tuple[int, int],
+              min_confidence: float = 0.5) -> np.ndarray | None:
+    """The person's tight box: the bounding box of the segmentation and of the confident keypoints, inside the
+    frame. None when there is neither."""
+    height, width = frame_size
+    xs, ys = [], []
+    if mask is not None and mask.any():
+        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        xs += [mask_box[0] + cols[0], mask_box[0] + cols[-1] + 1]
+        ys += [mask_box[1] + rows[0], mask_box[1] + rows[-1] + 1]
+    good = keypoints[:, 2] >= min_confidence
+    if good.any():
+        xs += [keypoints[good, 0].min(), keypoints[good, 0].max()]
+        ys += [keypoints[good, 1].min(), keypoints[good, 1].max()]
+    if not xs:
+        return None
+    box = np.array([min(xs), min(ys), max(xs), max(ys)], dtype=np.float64)
+    box[[0, 2]] = np.clip(box[[0, 2]], 0, width)
+    box[[1, 3]] = np.clip(box[[1, 3]], 0, height)
+    return box
+
+
+class MediaPipeEngine:
+    """One BlazePose graph in static-image mode (every run detects, then finds landmarks and the mask)."""
+
+    def __init__(self, min_detection_confidence: float = 0.5, mask_threshold: float = 0.5,
+                 model_complexity: int = 1):
+        if model_complexity != 1:
+            raise ValueError(f"model_complexity={model_complexity}: only 1 (pose_landmark_full) ships inside the "
+                             "mediapipe wheel; MediaPipe would download the others at run time, which M3C never does")
+        if not 0.0 < min_detection_confidence < 1.0 or not 0.0 < mask_threshold < 1.0:
+            raise ValueError("min_detection_confidence and mask_threshold must be in (0, 1)")
+        mp = import_mediapipe()
+        self.mask_threshold = mask_threshold
+        with _quiet():
+            self._pose = mp.solutions.pose.Pose(static_image_mode=True, model_complexity=1, smooth_landmarks=False,
+                                                enable_segmentation=True,
+                                                min_detection_confidence=min_detection_confidence)
+        self.runs = 0
+
+    def run(self, image: np.ndarray, origin=(0, 0)):
+        """BlazePose on an RGB image (a frame or a patch whose top-left frame pixel is origin). Returns
+        (landmarks (33, 4) u, v, z, visibility in frame pixels, world (33, 3), mask (h, w) bool) or None."""
+        image = np.ascontiguousarray(image)
+        with _quiet():
+            result = self._pose.process(image)
+        self.runs += 1
+        if result.pose_landmarks is None:
+            return None
+        h, w = image.shape[:2]
+        lm = np.array([[p.x, p.y, p.z, p.visibility] for p in result.pose_landmarks.landmark], dtype=np.float64)
+        lm[:, 0] = lm[:, 0] * w + origin[0]
+        lm[:, 1] = lm[:, 1] * h + origin[1]
+        world = None
+        if result.pose_world_landmarks is not None:
+            world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float64)
+        mask = None
+        if result.segmentation_mask is not None:
+            mask = np.asarray(result.segmentation_mask) > self.mask_threshold
+        return lm, world, mask
+
+    def close(self) -> None:
+        self._pose.close()
+
+
+class _quiet(warnings.catch_warnings):
+    """protobuf (pulled in by mediapipe) warns on every graph run about an API mediapipe still calls."""
+
+    def __enter__(self):
+        super().__enter__()
+        warnings.filterwarnings("ignore", message=r"SymbolDatabase\.GetPrototype\(\) is deprecated")
+        return self
+
+
+def shared_engine(shared: dict | None, **options) -> MediaPipeEngine:
+    """One engine per option set in the pipeline's shared dict (or a private one without it)."""
+    if shared is None:
+        return MediaPipeEngine(**options)
+    engines = shared.setdefault(NAME, {})
+    key = tuple(sorted(options.items()))
+    if key not in engines:
+        engines[key] = MediaPipeEngine(**options)
+    return engines[key]
+
+
+def _person_from_run(run, run_box, frame_size, sources: dict, min_confidence: float) -> Person | None:
+    landmarks, world, mask = run
+    keypoints, keypoints3d = landmarks_to_keypoints(landmarks, world)
+    box = tight_box(keypoints, mask, run_box, frame_size, min_confidence)
+    if box is None:
+        return None
+    score = float(np.mean(keypoints[:, 2]))
+    return Person(box, score, keypoints, keypoints3d, mask, None if mask is None else run_box, dict(sources))
+
+
+def _patch_person(ctx: FrameContext, engine: MediaPipeEngine, person: Person, others: list[Person], padding: float,
+                  min_confidence: float) -> Person | None:
+    """BlazePose on the person's isolated patch (cached per frame, so the segmenter and the pose estimator
+    share it)."""
+    patch_box = process_box(person.box, ctx.size, padding)
+    other_boxes = np.array([o.box for o in others]).reshape(-1, 4)
+    key = (NAME, "patch", tuple(patch_box), tuple(map(tuple, np.round(other_boxes, 2))))
+    if key not in ctx.cache:
+        patch = crop(ctx.image, patch_box)
+        if len(others):
+            patch = isolate(patch, patch_box, other_boxes, person.mask_in(patch_box))
+        run = engine.run(patch, origin=(patch_box[0], patch_box[1])) if patch.size else None
+        found = None
+        if run is not None:
+            sources = {"segmenter": NAME, "pose2d": NAME}
+            found = _person_from_run(run, patch_box.astype(np.int64), ctx.size, sources, min_confidence)
+            # BlazePose returns the most prominent person in the patch: it must be the one asked for.
+            if found is not None and iou(found.box, person.box) < 0.2:
+                found = None
+        ctx.cache[key] = found
+    return ctx.cache[key]
+
+
+def square_tiles(frame_size: tuple[int, int], overlap: float = 0.5) -> list[np.ndarray]:
+    """Square tiles (side = the frame's shorter side) covering the frame, neighbours overlapping by at least
+    `overlap` of the side: BlazePose's detector sees a 224 x 224 image, so a person is found at a larger scale
+    in a tile than in a wide frame."""
+    height, width = frame_size
+    side = min(height, width)
+    length = max(height, width)
+    count = 1 if length == side else int(np.ceil((length - side) / (side * (1.0 - overlap)))) + 1
+    starts = np.round(np.linspace(0, length - side, count)).astype(int)
+    if width >= height:
+        return [np.array([s, 0, s + side, side]) for s in starts]
+    return [np.array([0, s, side, s + side]) for s in starts]
+
+
+def _contains(a: np.ndarray, b: np.ndarray, fraction: float) -> bool:
+    """Whether the intersection of boxes a and b covers `fraction` of the smaller one."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return False
+    smaller = min((a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1]))
+    return smaller > 0 and w * h >= fraction * smaller
+
+
+@register("detector", NAME)
+class MediaPipeDetector(Detector):
+    """Detect-whiten-redetect with BlazePose on square tiles of the frame (see square_tiles); fills boxes,
+    scores, masks and keypoints. Known people are whitened before the search."""
+
+    def __init__(self, max_people: int = 6, min_score: float = 0.5, min_box_height: float = 32.0,
+                 whiten_dilation: float = 0.05, tile_overlap: float = 0.5, min_detection_confidence: float = 0.5,
+                 shared: dict | None = None):
+        if max_people < 1:
+            raise ValueError(f"max_people must be >= 1, got {max_people}")
+        if not 0.0 <= tile_overlap < 1.0:
+            raise ValueError(f"tile_overlap must be in [0, 1), got {tile_overlap}")
+        self.max_people, self.min_score, self.min_box_height = max_people, min_score, min_box_height
+        self.whiten_dilation, self.tile_overlap = whiten_dilation, tile_overlap
+        self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
+
+    def _whiten(self, work: np.ndarray, person: Person, frame_size: tuple[int, int]) -> None:
+        """Whitens a found person: its dilated mask, or its box when the mask is missing or much smaller."""
+        cv2 = import_cv2()
+        region = person.full_mask(frame_size)
+        if region.sum() < 0.1 * (person.box[2] - person.box[0]) * (person.box[3] - person.box[1]):
+            x0, y0, x1, y1 = (int(v) for v in np.round(person.box))
+            region[y0:y1, x0:x1] = True
+        radius = max(1, int(round(self.whiten_dilation * (person.box[3] - person.box[1]))))
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+        work[cv2.dilate(region.astype(np.uint8), kernel) > 0] = 255
+
+    def detect(self, ctx: FrameContext, known: list[Person] | None = None) -> list[Person]:
+        work = ctx.image.copy()
+        known = list(known or [])
+        for person in known:
+            self._whiten(work, person, ctx.size)
+        people: list[Person] = []
+        for tile in square_tiles(ctx.size, self.tile_overlap):
+            for _ in range(self.max_people + 2):  # each run whitens what it found, so this ends; a cap anyway
+                if len(people) >= self.max_people:
+                    break
+                run = self.engine.run(crop(work, tile), origin=(tile[0], tile[1]))
+                if run is None:
+                    break
+                sources = {"detector": NAME, "segmenter": NAME, "pose2d": NAME}
+                person = _person_from_run(run, tile, ctx.size, sources, 0.5)
+                too_small = person is not None and person.box[3] - person.box[1] < self.min_box_height
+                if person is None or person.score < self.min_score or too_small:
+                    break  # nobody more in this tile, or too unsure
+                # Whatever is found is whitened, so the next search moves on even if this one is rejected.
+                self._whiten(work, person, ctx.size)
+                duplicate = [i for i, p in enumerate(people) if _contains(person.box, p.box, 0.7)]
+                if any(_contains(person.box, k.box, 0.7) for k in known):
+                    continue  # what the whitening left of a known person
+                if duplicate:
+                    # The same person seen again (e.g. a partial first view): keep the more confident view.
+                    i = duplicate[0]
+                    if person.score > people[i].score:
+                        people[i] = person
+                    continue
+                people.append(person)
+        return people
+
+    def close(self) -> None:
+        self.engine.close()
+
+
+@register("segmenter", NAME)
+class MediaPipeSegmenter(Segmenter):
+    """BlazePose's segmentation on each person's isolated patch; people whose mask already came from the same
+    engine (the MediaPipe detector) keep it."""
+
+    def __init__(self, padding: float = 5.0, min_detection_confidence: float = 0.5, shared: dict | None = None):
+        self.padding = padding
+        self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
+
+    def segment(self, ctx: FrameContext, people: list[Person]) -> list[Person]:
+        out = []
+        for i, person in enumerate(people):
+            if person.mask is not None and person.sources.get("segmenter") == NAME:
+                out.append(person)
+                continue
+            found = _patch_person(ctx, self.engine, person, people[:i] + people[i + 1:], self.padding, 0.5)
+            updated = Person(person.box, person.score, person.keypoints, person.keypoints3d,
+                             None if found is None else found.mask, None if found is None else found.mask_box,
+                             dict(person.sources))
+            if found is not None:
+                updated.sources["segmenter"] = NAME
+            out.append(updated)
+        return out
+
+
+@register("pose2d", NAME)
+class MediaPipePose2D(PoseEstimator2D):
+    """Keypoints (COCO-17 + feet) and metric 3D keypoints from BlazePose on the isolated patch of each person.
+
+    patch_pass: "auto" re-runs BlazePose on the patch only when the person's keypoints did not come from it
+    already (e.g. a tracker's predicted box, or another detector) or when the patch overlaps another person's
+    box (so isolation changes the input); "always" and "never" force it. Without keypoints, "never" still runs
+    the patch.
+    """
+
+    def __init__(self, patch_pass: str = "auto", padding: float = 5.0, min_detection_confidence: float = 0.5,
+                 shared: dict | None = None):
+        if patch_pass not in ("auto", "always", "never"):
+            raise ValueError(f"patch_pass must be 'auto', 'always' or 'never', got {patch_pass!r}")
+        self.patch_pass, self.padding = patch_pass, padding
+        self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
+
+    def estimate(self, ctx: FrameContext, people: list[Person]) -> list[Person | None]:
+        out: list[Person | None] = []
+        for i, person in enumerate(people):
+            others = people[:i] + people[i + 1:]
+            have = person.keypoints is not None and person.sources.get("pose2d") == NAME
+            if have and self.patch_pass != "always":
+                patch_box = process_box(person.box, ctx.size, self.padding)
+                overlaps = any(iou(patch_box, o.box) > 0 for o in others)
+                if self.patch_pass == "never" or not overlaps:
+                    out.append(person)
+                    continue
+            found = _patch_person(ctx, self.engine, person, others, self.padding, 0.5)
+            if found is None:
+                out.append(None)
+                continue
+            sources = dict(person.sources)
+            sources.update(pose2d=NAME)
+            if person.mask is None or person.sources.get("segmenter") == NAME:
+                sources["segmenter"] = NAME
+                mask, mask_box = found.mask, found.mask_box
+            else:
+                mask, mask_box = person.mask, person.mask_box
+            out.append(Person(found.box, found.score, found.keypoints,
+                              found.keypoints3d, mask, mask_box, sources))
+        return out

@@ -1,0 +1,394 @@
+"""The perception stage end to end: video -> tracked people with keypoints, masks, camera-local bodies, contacts.
+
+Per frame (thesis 4.1.1-4.1.2): detector -> (+ the tracker's predicted boxes for people the detector missed)
+-> segmenter -> 2D pose on isolated patches -> tracker (boxes, pose, rough 3D location, colour histograms).
+Per track (4.1.3): the body fit (warm-started frame to frame), kinematic contacts, gender.
+Which estimator runs each task is named in PerceptionConfig and recorded in the result.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+
+from m3c.io import atomic_path, save_npz_atomic
+from m3c.perception.appearance import appearance_descriptor
+from m3c.perception.body import BodyFits, rough_location
+from m3c.perception.contacts import contact_rest_heights
+from m3c.perception.boxes import iou_matrix
+from m3c.perception.interfaces import TASKS
+from m3c.perception.registry import create
+from m3c.perception.tracking import Observation, Tracker, TrackerConfig
+from m3c.perception.types import FrameContext, Person
+from m3c.perception.video import default_intrinsics, read_frames, video_info
+
+DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
+                      "contacts": "kinematic", "depth": "none", "gender": "neutral"}
+MASK_DOWNSAMPLE = 4
+
+
+@dataclass
+class EstimatorSpec:
+    name: str
+    options: dict = field(default_factory=dict)
+
+
+@dataclass
+class PerceptionConfig:
+    """estimators: task -> EstimatorSpec (defaults DEFAULT_ESTIMATORS). intrinsics: fx, fy, cx, cy or None for
+    default_intrinsics(). static_camera: the camera frame is ground-static (contacts then use foot speeds).
+    detect_every: the detector searches for new people every this many frames (and in any frame where a
+    tracked person was not found again); in between, people are found on the patches of their tracks'
+    predicted boxes, enlarged by proposal_margin of their height on each side.
+    restart_gap: a track's body fit starts cold after more than this many frames without it.
+    duplicate_iou: two people whose boxes overlap more than this are one (the higher score stays)."""
+
+    estimators: dict = field(default_factory=lambda: {t: EstimatorSpec(n) for t, n in DEFAULT_ESTIMATORS.items()})
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    intrinsics: tuple | None = None
+    static_camera: bool = False
+    detect_every: int = 5
+    proposal_margin: float = 0.1
+    restart_gap: int = 5
+    duplicate_iou: float = 0.6
+    save_masks: bool = True
+
+    def __post_init__(self):
+        if self.detect_every < 1:
+            raise ValueError(f"detect_every must be >= 1, got {self.detect_every}")
+        missing = sorted(set(TASKS) - set(self.estimators))
+        if missing:
+            raise ValueError(f"no estimator named for: {', '.join(missing)}")
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "PerceptionConfig":
+        """{"detector": "hog" | {"name": "hog", "options": {...}}, ..., "tracker": {...}, "intrinsics": [...],
+        "static_camera": true, ...}; tasks not named keep their defaults."""
+        data = dict(data or {})
+        estimators = {t: EstimatorSpec(n) for t, n in DEFAULT_ESTIMATORS.items()}
+        for task in TASKS:
+            if task not in data:
+                continue
+            spec = data.pop(task)
+            if isinstance(spec, str):
+                estimators[task] = EstimatorSpec(spec)
+            elif isinstance(spec, dict) and "name" in spec and set(spec) <= {"name", "options"}:
+                estimators[task] = EstimatorSpec(str(spec["name"]), dict(spec.get("options") or {}))
+            else:
+                raise ValueError(f"{task}: give an estimator name or {{name: ..., options: {{...}}}}, got {spec!r}")
+        tracker = TrackerConfig(**(data.pop("tracker", None) or {}))
+        known = {f.name for f in fields(cls)} - {"estimators", "tracker"}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown perception setting(s): {', '.join(unknown)}; known: tasks {', '.join(TASKS)}, "
+                             f"tracker, {', '.join(sorted(known))}")
+        return cls(estimators=estimators, tracker=tracker, **data)
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "PerceptionConfig":
+        import yaml
+
+        with open(path) as fh:
+            return cls.from_dict(yaml.safe_load(fh) or {})
+
+    def to_dict(self) -> dict:
+        out = {task: {"name": spec.name, "options": dict(spec.options)} for task, spec in self.estimators.items()}
+        out["tracker"] = asdict(self.tracker)
+        for f in fields(self):
+            if f.name not in ("estimators", "tracker"):
+                value = getattr(self, f.name)
+                out[f.name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+
+@dataclass
+class PersonTrack:
+    """One tracked person over the frames it was seen in (n of them, increasing frame_ids).
+
+    boxes (n, 4), scores (n,), keypoints (n, K, 3) u, v, confidence with K = 17 (COCO-17) or 21 (COCO-17 then
+    types.FOOT_KEYPOINT_NAMES), keypoints3d (n, K, 4) metric root-relative x, y, z and confidence (confidence 0
+    where the pose estimator gave none), bodies: the
+    camera-local fits, contacts (n, 4) for m3c.motion.CONTACT_JOINTS, gender, estimators: task -> name.
+    """
+
+    track_id: int
+    frame_ids: np.ndarray
+    boxes: np.ndarray
+    scores: np.ndarray
+    keypoints: np.ndarray
+    keypoints3d: np.ndarray
+    bodies: BodyFits
+    contacts: np.ndarray
+    gender: str
+    estimators: dict
+
+
+@dataclass
+class PerceptionResult:
+    video: str
+    fps: float
+    image_size: tuple  # (height, width)
+    intrinsics: np.ndarray
+    num_frames: int
+    tracks: list
+    estimators: dict
+    seconds: dict  # stage -> seconds
+    frame_masks: np.ndarray | None = None  # (T, H/4, ceil(W/4 / 8)) packed bits: any person's mask, 4x downsampled
+    people_per_frame: np.ndarray | None = None  # (T,) people found per frame (before track filtering)
+    depth: np.ndarray | None = None  # (T, H/4, W/4) float32 relative depth, 4x downsampled; None without estimator
+
+    def save(self, path: str | Path) -> None:
+        """OUT.npz (arrays, track k's under "track{k}/...") and OUT.json (a readable summary), both atomic."""
+        path = Path(path)
+        arrays = {"fps": np.float64(self.fps), "image_size": np.array(self.image_size), "intrinsics": self.intrinsics,
+                  "num_frames": np.int64(self.num_frames)}
+        if self.frame_masks is not None:
+            arrays["frame_masks"] = self.frame_masks
+        if self.people_per_frame is not None:
+            arrays["people_per_frame"] = self.people_per_frame
+        if self.depth is not None:
+            arrays["depth"] = self.depth
+        for k, t in enumerate(self.tracks):
+            p = f"track{k}/"
+            b = t.bodies
+            arrays.update({p + "track_id": np.int64(t.track_id), p + "frame_ids": t.frame_ids, p + "boxes": t.boxes,
+                           p + "scores": t.scores, p + "keypoints": t.keypoints.astype(np.float32),
+                           p + "keypoints3d": t.keypoints3d.astype(np.float32),
+                           p + "transl": b.transl.astype(np.float32),
+                           p + "root_orient": b.root_orient.astype(np.float32),
+                           p + "body_pose": b.body_pose.astype(np.float32), p + "betas": b.betas.astype(np.float32),
+                           p + "reprojection_error_px": b.reprojection_error_px.astype(np.float32),
+                           p + "keypoint_error_px": b.keypoint_error_px.astype(np.float32),
+                           p + "num_keypoints": b.num_keypoints, p + "warm_started": b.warm_started,
+                           p + "fit_status": np.array(b.status), p + "contacts": t.contacts.astype(np.float32),
+                           p + "gender": np.array(t.gender)})
+        save_npz_atomic(path.with_suffix(".npz"), **arrays)
+        with atomic_path(path.with_suffix(".json")) as tmp:
+            tmp.write_text(json.dumps(self.summary(), indent=2))
+
+    def summary(self) -> dict:
+        tracks = []
+        for t in self.tracks:
+            valid = t.bodies.valid
+            errors = t.bodies.reprojection_error_px[valid]
+            tracks.append({"track_id": int(t.track_id), "first_frame": int(t.frame_ids[0]),
+                           "last_frame": int(t.frame_ids[-1]), "frames": int(len(t.frame_ids)),
+                           "fitted_frames": int(valid.sum()), "gender": t.gender,
+                           "median_reprojection_error_px": float(np.median(errors)) if len(errors) else None,
+                           "estimators": t.estimators})
+        return {"video": self.video, "fps": self.fps, "image_size": list(self.image_size),
+                "intrinsics": [float(v) for v in self.intrinsics], "num_frames": int(self.num_frames),
+                "estimators": self.estimators, "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
+                "tracks": tracks}
+
+
+def _same_person(a: np.ndarray, b: np.ndarray, max_iou: float) -> bool:
+    """Boxes overlapping by more than max_iou, or one lying (80%) inside the other, hold one person."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    if w <= 0 or h <= 0:
+        return False
+    inter = w * h
+    area_a, area_b = (a[2] - a[0]) * (a[3] - a[1]), (b[2] - b[0]) * (b[3] - b[1])
+    return inter > max_iou * (area_a + area_b - inter) or inter >= 0.8 * min(area_a, area_b)
+
+
+def _dedupe(people: list[Person], max_iou: float) -> list[Person]:
+    kept: list[Person] = []
+    for person in sorted(people, key=lambda p: -p.score):
+        if not any(_same_person(person.box, k.box, max_iou) for k in kept):
+            kept.append(person)
+    return kept
+
+
+def _proposal(box: np.ndarray, margin: float, size: tuple[int, int]) -> Person | None:
+    height, width = size
+    grow = margin * (box[3] - box[1])
+    b = np.clip(box + np.array([-grow, -grow, grow, grow]), 0, [width, height, width, height])
+    if b[2] - b[0] < 8 or b[3] - b[1] < 8:
+        return None
+    return Person(b, 0.0, sources={"detector": "tracker"})
+
+
+def _frame_mask(people: list[Person], size: tuple[int, int]) -> np.ndarray:
+    height, width = size
+    mask = np.zeros((height, width), dtype=bool)
+    for p in people:
+        if p.mask is not None:
+            mask |= p.full_mask(size)
+    small = mask[MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE, MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE]
+    return np.packbits(small, axis=1)
+
+
+def run_perception(video: str | Path, config: PerceptionConfig | None = None, max_frames: int | None = None,
+                   progress: Callable[[int], None] | None = None) -> PerceptionResult:
+    """Runs every perception estimator of `config` over a video file (its frame rate read from the file)."""
+    info = video_info(video)
+    return run_perception_frames((image for _, image in read_frames(video, max_frames)), info.fps,
+                                 (info.height, info.width), config, progress, str(video))
+
+
+def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: tuple[int, int],
+                          config: PerceptionConfig | None = None, progress: Callable[[int], None] | None = None,
+                          source: str = "frames") -> PerceptionResult:
+    """Runs every perception estimator of `config` over RGB frames (H, W, 3) uint8 of size image_size
+    (height, width) at fps frames per second."""
+    config = config or PerceptionConfig()
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    height, width = (int(v) for v in image_size)
+    intrinsics = (np.asarray(config.intrinsics, dtype=np.float64) if config.intrinsics is not None
+                  else default_intrinsics(width, height))
+    if intrinsics.shape != (4,) or not np.isfinite(intrinsics).all() or (intrinsics[:2] <= 0).any():
+        raise ValueError(f"intrinsics must be fx, fy, cx, cy with positive focal lengths, got {config.intrinsics}")
+    shared: dict = {}
+    est = {task: create(task, spec.name, spec.options, shared) for task, spec in config.estimators.items()}
+    names = {task: e.name for task, e in est.items()}
+    tracker = Tracker(config.tracker)
+    seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,
+               "contacts": 0.0}
+    records: dict[int, list[tuple[int, Person]]] = {}
+    frame_masks, people_per_frame, depth_maps = [], [], []
+    num_frames = 0
+    try:
+        for index, image in enumerate(frames):
+            ctx = FrameContext(image, index)
+            if ctx.size != (height, width):
+                raise ValueError(f"frame {index} is {ctx.size[0]} x {ctx.size[1]}, expected {height} x {width}")
+            t0 = time.perf_counter()
+            # People where their tracks predict them: found on their own (isolated) patches.
+            proposals = [p for p in (_proposal(box, config.proposal_margin, ctx.size)
+                                     for _, box in tracker.predicted_boxes()) if p is not None]
+            tracked = _posed(est, ctx, proposals) if proposals else []
+            t1 = time.perf_counter()
+            # New people (and tracked ones the patches missed).
+            new: list[Person] = []
+            if index % config.detect_every == 0 or len(tracked) < len(proposals):
+                new = est["detector"].detect(ctx, known=tracked)
+            t2 = time.perf_counter()
+            if new:
+                # Posed together, so every patch is isolated from every other person.
+                people = _posed(est, ctx, tracked + new)
+            else:
+                people = tracked
+            people = _dedupe(people, config.duplicate_iou)
+            t3 = time.perf_counter()
+            depth = est["depth"].estimate(ctx)
+            if depth is not None:
+                depth = np.asarray(depth, dtype=np.float32)
+                if depth.shape != ctx.size:
+                    raise ValueError(f"the depth estimator {names['depth']!r} returned shape {depth.shape}, "
+                                     f"expected the frame's {ctx.size}")
+                step = MASK_DOWNSAMPLE
+                depth_maps.append(depth[step // 2::step, step // 2::step])
+            t4 = time.perf_counter()
+            observations = [Observation(p.box, p.keypoints, rough_location(p.keypoints, p.keypoints3d, intrinsics),
+                                        appearance_descriptor(image, p.box, p.mask, p.mask_box)) for p in people]
+            for track_id, person in zip(tracker.update(observations), people):
+                records.setdefault(track_id, []).append((index, person))
+            t5 = time.perf_counter()
+            seconds["tracked_patches"] += t1 - t0
+            seconds["detect"] += t2 - t1
+            seconds["new_patches"] += t3 - t2
+            seconds["depth"] += t4 - t3
+            seconds["track"] += t5 - t4
+            if config.save_masks:
+                frame_masks.append(_frame_mask(people, ctx.size))
+            people_per_frame.append(len(people))
+            num_frames = index + 1
+            if progress:
+                progress(index)
+
+        tracks = []
+        confirmed = tracker.confirmed_ids()
+        for track_id in sorted(i for i in records if i in confirmed):
+            tracks.append(_finish_track(track_id, records[track_id], est, names, intrinsics, fps, config, seconds))
+        if 0 < len(depth_maps) < num_frames:
+            raise ValueError(f"the depth estimator {names['depth']!r} gave maps for {len(depth_maps)} of "
+                             f"{num_frames} frames; it must give one for every frame or none")
+    finally:
+        for e in est.values():
+            e.close()
+    return PerceptionResult(source, float(fps), (height, width), intrinsics, num_frames, tracks, names,
+                            seconds, np.stack(frame_masks) if frame_masks else None,
+                            np.array(people_per_frame, dtype=np.int64),
+                            np.stack(depth_maps) if depth_maps else None)
+
+
+def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
+    """Segmentation, then 2D pose; people without keypoints are dropped."""
+    people = est["segmenter"].segment(ctx, people)
+    return [p for p in est["pose2d"].estimate(ctx, people) if p is not None and p.keypoints is not None]
+
+
+def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsics: np.ndarray, fps: float,
+                  config: PerceptionConfig, seconds: dict) -> PersonTrack:
+    frame_ids = np.array([f for f, _ in entries], dtype=np.int64)
+    people = [p for _, p in entries]
+    n = len(people)
+    # Rows: COCO-17, plus the foot points when any frame has them (zero confidence where it does not).
+    K = max(len(p.keypoints) for p in people)
+    keypoints = np.zeros((n, K, 3))
+    keypoints3d = np.zeros((n, K, 4))
+    for i, p in enumerate(people):
+        keypoints[i, :len(p.keypoints)] = p.keypoints
+        if p.keypoints3d is not None:
+            keypoints3d[i, :len(p.keypoints3d)] = p.keypoints3d
+    has3d = bool((keypoints3d[..., 3] > 0).any())
+    restart = np.concatenate([[True], np.diff(frame_ids) > config.restart_gap + 1])
+    t0 = time.perf_counter()
+    bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids)
+    t1 = time.perf_counter()
+    contacts = np.zeros((n, 4))
+    valid = bodies.valid
+    if valid.sum() >= 2:
+        model = est["body"].model
+        betas = np.median(bodies.betas[valid], axis=0)
+        joints = model.joints(bodies.pose[valid], bodies.betas[valid], bodies.transl[valid])
+        contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid],
+                                                   contact_rest_heights(model, betas))
+    t2 = time.perf_counter()
+    seconds["body"] += t1 - t0
+    seconds["contacts"] += t2 - t1
+    sources: dict = {}
+    for p in people:
+        for task, name in p.sources.items():
+            sources.setdefault(task, set()).add(name)
+    estimators = {task: ",".join(sorted(v)) for task, v in sources.items()}
+    estimators.update(body=names["body"], contacts=names["contacts"], gender=names["gender"])
+    return PersonTrack(track_id, frame_ids, np.stack([p.box for p in people]), np.array([p.score for p in people]),
+                       keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators)
+
+
+def load_result(path: str | Path) -> PerceptionResult:
+    """Reads what PerceptionResult.save wrote (OUT.npz and OUT.json)."""
+    path = Path(path)
+    npz_path, json_path = path.with_suffix(".npz"), path.with_suffix(".json")
+    for p in (npz_path, json_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"{p} not found (PerceptionResult.save writes both OUT.npz and OUT.json)")
+    summary = json.loads(json_path.read_text())
+    with np.load(npz_path) as data:
+        arrays = {k: data[k] for k in data.files}
+    tracks = []
+    for k, info in enumerate(summary["tracks"]):
+        p = f"track{k}/"
+        bodies = BodyFits(arrays[p + "transl"].astype(np.float64), arrays[p + "root_orient"].astype(np.float64),
+                          arrays[p + "body_pose"].astype(np.float64), arrays[p + "betas"].astype(np.float64),
+                          arrays[p + "reprojection_error_px"].astype(np.float64),
+                          arrays[p + "keypoint_error_px"].astype(np.float64), arrays[p + "num_keypoints"],
+                          arrays[p + "warm_started"], [str(s) for s in arrays[p + "fit_status"]])
+        tracks.append(PersonTrack(int(arrays[p + "track_id"]), arrays[p + "frame_ids"], arrays[p + "boxes"],
+                                  arrays[p + "scores"], arrays[p + "keypoints"].astype(np.float64),
+                                  arrays[p + "keypoints3d"].astype(np.float64), bodies,
+                                  arrays[p + "contacts"].astype(np.float64), str(arrays[p + "gender"]),
+                                  dict(info["estimators"])))
+    return PerceptionResult(summary["video"], float(arrays["fps"]), tuple(int(v) for v in arrays["image_size"]),
+                            arrays["intrinsics"], int(arrays["num_frames"]), tracks, dict(summary["estimators"]),
+                            dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"),
+                            arrays.get("depth"))

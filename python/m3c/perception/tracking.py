@@ -1,0 +1,283 @@
+"""Multi-person tracking, SORT/DeepSORT-style with PHALP's cues (thesis 4.1.3, "Appearance-based Tracking").
+
+Each track predicts its box with a constant-velocity Kalman filter (centre, width, height and their rates,
+noise proportional to the box height as in DeepSORT). Detections are assigned by the Hungarian method
+(scipy.optimize.linear_sum_assignment) on a cost that averages the available cues, each in [0, 1]:
+  IoU        1 - IoU(predicted box, detection box)
+  2D pose    1 - mean_k exp(-d_k^2 / (2 kappa^2)), d_k the distance of keypoint k relative to its box's centre
+             and over its height (OKS-like; the pose's shape, as position is the other cues' part)
+  3D         1 - exp(-|x - x_pred|^2 / (2 sigma^2)), camera-frame person locations (metres)
+  appearance Bhattacharyya distance of colour histograms inside the masks (track: running average)
+Matching is a cascade: tracks seen in the previous frame first, then tracks lost for up to max_age frames
+(re-identification after an occlusion), where the stale IoU gives way to the distance from the predicted box
+(1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost.
+Unmatched detections start tentative tracks, confirmed after min_hits detections; a tentative track that
+misses a frame is dropped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from m3c.perception.appearance import bhattacharyya_distance
+from m3c.perception.boxes import as_box, iou_matrix
+
+INFEASIBLE = 1e6
+
+
+@dataclass
+class TrackerConfig:
+    iou_weight: float = 1.0
+    pose_weight: float = 1.0
+    location_weight: float = 1.0
+    appearance_weight: float = 1.0
+    reid_motion_weight: float = 0.5  # re-identification: distance from the predicted box, instead of IoU
+    max_cost: float = 0.6        # a detection joins a track seen in the previous frame below this cost
+    reid_max_cost: float = 0.45  # ... or a lost track below this one
+    max_age: int = 30            # frames a lost track waits to be re-identified
+    min_hits: int = 3            # detections before a track counts (tentative until then)
+    gate: float = 1.0            # centre distance gate, in box heights; widens by 0.5 per frame lost
+    pose_kappa: float = 0.1      # keypoint distance scale, fraction of the box height
+    min_keypoint_confidence: float = 0.3
+    location_sigma: float = 0.5  # metres
+    appearance_momentum: float = 0.8  # weight of the old descriptor in the running average
+
+    def __post_init__(self):
+        weights = (self.iou_weight, self.pose_weight, self.location_weight, self.appearance_weight,
+                   self.reid_motion_weight)
+        if min(weights) < 0 or sum(weights) <= 0:
+            raise ValueError("cue weights must be >= 0 with at least one > 0")
+        if self.max_age < 1 or self.min_hits < 1:
+            raise ValueError("max_age and min_hits must be >= 1")
+        if not 0 <= self.appearance_momentum < 1:
+            raise ValueError("appearance_momentum must be in [0, 1)")
+
+
+@dataclass
+class Observation:
+    """What the tracker sees of one detection: box (4,) pixels; optional keypoints (K, 3), camera-frame location
+    (3,) metres and appearance descriptor (D,)."""
+
+    box: np.ndarray
+    keypoints: np.ndarray | None = None
+    location: np.ndarray | None = None
+    appearance: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.box = as_box(self.box)
+
+
+class BoxKalmanFilter:
+    """Constant-velocity Kalman filter on (cx, cy, w, h); noise standard deviations scale with the height."""
+
+    POSITION_STD = 1.0 / 20.0
+    VELOCITY_STD = 1.0 / 160.0
+
+    def __init__(self, box: np.ndarray):
+        cx, cy, w, h = _box_to_cxcywh(box)
+        self.mean = np.array([cx, cy, w, h, 0, 0, 0, 0], dtype=np.float64)
+        s = np.array([2 * self.POSITION_STD * h] * 4 + [10 * self.VELOCITY_STD * h] * 4)
+        self.cov = np.diag(s ** 2)
+        self._F = np.eye(8)
+        self._F[:4, 4:] = np.eye(4)
+        self._H = np.eye(4, 8)
+
+    def predict(self) -> None:
+        h = max(self.mean[3], 1.0)
+        q = np.array([self.POSITION_STD * h] * 4 + [self.VELOCITY_STD * h] * 4) ** 2
+        self.mean = self._F @ self.mean
+        self.mean[2:4] = np.maximum(self.mean[2:4], 1.0)
+        self.cov = self._F @ self.cov @ self._F.T + np.diag(q)
+
+    def update(self, box: np.ndarray) -> None:
+        z = np.array(_box_to_cxcywh(box))
+        h = max(self.mean[3], 1.0)
+        R = np.diag(np.full(4, (self.POSITION_STD * h) ** 2))
+        S = self._H @ self.cov @ self._H.T + R
+        gain = np.linalg.solve(S, self._H @ self.cov).T
+        self.mean = self.mean + gain @ (z - self._H @ self.mean)
+        self.cov = (np.eye(8) - gain @ self._H) @ self.cov
+
+    def copy(self) -> "BoxKalmanFilter":
+        other = BoxKalmanFilter.__new__(BoxKalmanFilter)
+        other.mean, other.cov, other._F, other._H = self.mean.copy(), self.cov.copy(), self._F, self._H
+        return other
+
+    @property
+    def box(self) -> np.ndarray:
+        cx, cy, w, h = self.mean[:4]
+        return np.array([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2])
+
+
+def _normalise_keypoints(keypoints, box) -> np.ndarray:
+    """(K, 3) keypoints as (u - cx) / h, (v - cy) / h, confidence for the box's centre and height."""
+    cx, cy, _, h = _box_to_cxcywh(box)
+    k = np.asarray(keypoints, dtype=np.float64).copy()
+    k[:, 0] = (k[:, 0] - cx) / h
+    k[:, 1] = (k[:, 1] - cy) / h
+    return k
+
+
+def _box_to_cxcywh(box) -> tuple[float, float, float, float]:
+    b = as_box(box)
+    return 0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]), max(b[2] - b[0], 1.0), max(b[3] - b[1], 1.0)
+
+
+@dataclass
+class _Track:
+    track_id: int
+    kalman: BoxKalmanFilter
+    keypoints_in_box: np.ndarray | None  # (K, 3): (u - cx) / h, (v - cy) / h, confidence
+    location: np.ndarray | None
+    location_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    appearance: np.ndarray | None = None
+    hits: int = 1
+    time_since_update: int = 0
+
+    def predicted_location(self) -> np.ndarray | None:
+        if self.location is None:
+            return None
+        return self.location + self.time_since_update * self.location_velocity
+
+
+class Tracker:
+    """Online tracker: call update() once per frame with that frame's observations; it returns a track id per
+    observation. A track counts once it has min_hits detections (see confirmed_ids())."""
+
+    def __init__(self, config: TrackerConfig | None = None):
+        self.config = config or TrackerConfig()
+        self._tracks: list[_Track] = []
+        self._next_id = 0
+        self._hits: dict[int, int] = {}
+
+    # Costs ------------------------------------------------------------------------------------------------
+    def _pose_cost(self, track: _Track, obs: Observation) -> float | None:
+        """OKS-like dissimilarity of the two poses in box-normalised coordinates (keypoints relative to the box
+        centre, over its height): the pose's shape, while the boxes, locations and gates cover where it is."""
+        if track.keypoints_in_box is None or obs.keypoints is None:
+            return None
+        c = self.config.min_keypoint_confidence
+        observed = _normalise_keypoints(obs.keypoints, obs.box)
+        k = min(len(observed), len(track.keypoints_in_box))
+        ours, theirs = track.keypoints_in_box[:k], observed[:k]
+        both = (ours[:, 2] >= c) & (theirs[:, 2] >= c)
+        if both.sum() < 4:
+            return None
+        d2 = np.sum((ours[both, :2] - theirs[both, :2]) ** 2, axis=1) / self.config.pose_kappa ** 2
+        return float(1.0 - np.mean(np.exp(-0.5 * d2)))
+
+    def _cost_matrix(self, tracks: list[_Track], observations: list[Observation], use_iou: bool) -> np.ndarray:
+        cfg = self.config
+        cost = np.full((len(tracks), len(observations)), INFEASIBLE)
+        if not tracks or not observations:
+            return cost
+        predicted = np.array([t.kalman.box for t in tracks])
+        ious = iou_matrix(predicted, np.array([o.box for o in observations]))
+        for i, track in enumerate(tracks):
+            pb = predicted[i]
+            height = max(pb[3] - pb[1], 1.0)
+            gate = cfg.gate * height * (1.0 + 0.5 * max(track.time_since_update - 1, 0))
+            centre = 0.5 * (pb[:2] + pb[2:])
+            for j, obs in enumerate(observations):
+                if np.linalg.norm(0.5 * (obs.box[:2] + obs.box[2:]) - centre) > gate and ious[i, j] == 0:
+                    continue
+                terms = []
+                if use_iou and cfg.iou_weight > 0:
+                    terms.append((cfg.iou_weight, 1.0 - ious[i, j]))
+                elif not use_iou and cfg.reid_motion_weight > 0:
+                    # Where the prediction says the person went, at the gate's (growing) scale.
+                    d2 = float(np.sum((0.5 * (obs.box[:2] + obs.box[2:]) - centre) ** 2))
+                    terms.append((cfg.reid_motion_weight, 1.0 - np.exp(-0.5 * d2 / gate ** 2)))
+                pose = self._pose_cost(track, obs) if cfg.pose_weight > 0 else None
+                if pose is not None:
+                    terms.append((cfg.pose_weight, pose))
+                location = track.predicted_location()
+                if cfg.location_weight > 0 and location is not None and obs.location is not None:
+                    d2 = float(np.sum((location - obs.location) ** 2))
+                    terms.append((cfg.location_weight, 1.0 - np.exp(-0.5 * d2 / cfg.location_sigma ** 2)))
+                if cfg.appearance_weight > 0 and track.appearance is not None and obs.appearance is not None:
+                    terms.append((cfg.appearance_weight, bhattacharyya_distance(track.appearance, obs.appearance)))
+                if terms:
+                    w = np.array([t[0] for t in terms])
+                    cost[i, j] = float(np.dot(w, [t[1] for t in terms]) / w.sum())
+        return cost
+
+    @staticmethod
+    def _assign(cost: np.ndarray, max_cost: float) -> list[tuple[int, int]]:
+        if cost.size == 0:
+            return []
+        rows, cols = linear_sum_assignment(cost)
+        return [(int(r), int(c)) for r, c in zip(rows, cols) if cost[r, c] < max_cost]
+
+    # Updates ----------------------------------------------------------------------------------------------
+    def _absorb(self, track: _Track, obs: Observation) -> None:
+        track.kalman.update(obs.box)
+        if obs.keypoints is not None:
+            track.keypoints_in_box = _normalise_keypoints(obs.keypoints, obs.box)
+        if obs.location is not None:
+            location = np.asarray(obs.location, dtype=np.float64)
+            if track.location is not None:
+                gap = max(track.time_since_update, 1)
+                track.location_velocity = 0.5 * track.location_velocity + 0.5 * (location - track.location) / gap
+            track.location = location
+        if obs.appearance is not None:
+            m = self.config.appearance_momentum
+            old = track.appearance
+            track.appearance = obs.appearance if old is None else m * old + (1 - m) * obs.appearance
+        track.hits += 1
+        track.time_since_update = 0
+        self._hits[track.track_id] = track.hits
+
+    def update(self, observations: list[Observation]) -> list[int]:
+        cfg = self.config
+        for track in self._tracks:
+            track.kalman.predict()
+            track.time_since_update += 1
+        ids = [-1] * len(observations)
+        free = list(range(len(observations)))
+        # Stage 1: tracks seen in the previous frame, all cues.
+        recent = [t for t in self._tracks if t.time_since_update == 1]
+        for r, c in self._assign(self._cost_matrix(recent, observations, use_iou=True), cfg.max_cost):
+            self._absorb(recent[r], observations[c])
+            ids[c] = recent[r].track_id
+            free.remove(c)
+        # Stage 2: confirmed tracks lost for a while (re-identification), without the stale IoU.
+        lost = [t for t in self._tracks if t.time_since_update > 1 and t.hits >= cfg.min_hits]
+        remaining = [observations[c] for c in free]
+        matched = []
+        for r, c in self._assign(self._cost_matrix(lost, remaining, use_iou=False), cfg.reid_max_cost):
+            self._absorb(lost[r], remaining[c])
+            ids[free[c]] = lost[r].track_id
+            matched.append(free[c])
+        free = [c for c in free if c not in matched]
+        # Drop tentative tracks that missed and tracks lost for too long; start new ones.
+        self._tracks = [t for t in self._tracks if t.time_since_update == 0 or
+                        (t.hits >= cfg.min_hits and t.time_since_update <= cfg.max_age)]
+        for c in free:
+            obs = observations[c]
+            track = _Track(self._next_id, BoxKalmanFilter(obs.box), None, None)
+            track.hits = 0
+            track.time_since_update = 1
+            self._absorb(track, obs)
+            self._tracks.append(track)
+            ids[c] = track.track_id
+            self._next_id += 1
+        return ids
+
+    def predicted_boxes(self, max_lost: int = 5) -> list[tuple[int, np.ndarray]]:
+        """(track id, box) of the live tracks (tentative ones included) that missed fewer than max_lost frames,
+        predicted one frame ahead: where to look for each person in the next frame."""
+        out = []
+        for t in self._tracks:
+            if t.time_since_update < max_lost:
+                kalman = t.kalman.copy()
+                kalman.predict()
+                out.append((t.track_id, kalman.box))
+        return out
+
+    def confirmed_ids(self) -> set[int]:
+        """Ids of every track that reached min_hits detections so far."""
+        return {i for i, hits in self._hits.items() if hits >= self.config.min_hits}

@@ -1,0 +1,95 @@
+"""Kinematic contacts against the synthetic walkers' true contacts (m3c.eval.scenes), and their use by the
+ground stage."""
+
+import numpy as np
+import pytest
+
+from m3c.body import default_body_model
+from m3c.eval.scenes import make_scene
+from m3c.ground import estimate_ground_planes
+from m3c.motion import track_joints
+from m3c.perception import contact_track, create, estimate_up, kinematic_contacts
+from m3c.perception.contacts import contact_rest_heights, local_velocities
+
+
+@pytest.fixture(scope="module")
+def model():
+    return default_body_model()
+
+
+@pytest.fixture(scope="module")
+def scene(model):
+    return make_scene(model, num_people=2, num_frames=120, fps=30.0, seed=3)
+
+
+def per_foot(c):
+    """(n, 4) over CONTACT_JOINTS (ankles 7, 8; feet 10, 11) -> (n, 2) left/right foot in contact."""
+    return np.stack([c[:, [0, 2]].max(1), c[:, [1, 3]].max(1)], 1) > 0.5
+
+
+def test_contacts_agree_with_the_true_stance_foot(model, scene):
+    rng = np.random.default_rng(0)
+    estimator = create("contacts", "kinematic")
+    for truth in scene.truth:
+        joints = track_joints(model, truth)
+        # A monocular fit's errors: 5 mm per joint, and 3 cm of whole-body jitter mostly along the camera ray.
+        noisy = (joints + 0.005 * rng.normal(size=joints.shape) +
+                 0.03 * rng.normal(size=(len(joints), 1, 1)) * np.array([0.3, 0.2, 1.0]))
+        # The synthetic walkers plant the lowest joint itself on the ground (not the sole): no rest heights.
+        c = estimator.estimate(noisy, scene.fps, np.array([0.0, 1.0, 0.0]), True)
+        assert c.shape == (len(joints), 4) and ((c >= 0) & (c <= 1)).all()
+        agreement = (per_foot(c) == per_foot(truth.contacts)).mean()
+        assert agreement >= 0.85, agreement
+        # Heights alone (a moving camera's frame) still see the lowest foot, but not when it is lifting off.
+        heights_only = estimator.estimate(noisy, scene.fps, np.array([0.0, 1.0, 0.0]), False)
+        assert (per_foot(heights_only) == per_foot(truth.contacts)).mean() >= 0.6
+
+
+def test_up_from_the_spine_and_local_velocities(model, scene):
+    joints = track_joints(model, scene.truth[0])
+    assert np.degrees(np.arccos(estimate_up(joints) @ [0, 1, 0])) < 10
+    # Velocities of a line are exact, also with uneven frame times.
+    times = np.array([0.0, 0.1, 0.15, 0.4, 0.5, 0.9])
+    points = np.array([0.2, -1.0, 3.0]) * times[:, None, None] + np.array([1.0, 2.0, 3.0])
+    np.testing.assert_allclose(local_velocities(points, times, 0.2), np.tile([0.2, -1.0, 3.0], (6, 1, 1)), atol=1e-12)
+
+
+def test_contact_points_feed_the_ground_stage(model):
+    # Two people standing on the plane y = 0.3 (soles on it), swaying their arms, seen for 40 frames. (The
+    # synthetic walkers' stance feet are tilted with the leg, so their soles do not lie on the ground.)
+    rng = np.random.default_rng(5)
+    n, fps, floor = 40, 30.0, 0.3
+    rest = model.forward(np.zeros((1, 24, 3)), np.zeros(model.num_betas))
+    contact_tracks = []
+    for person in range(2):
+        pose = np.zeros((n, 24, 3))
+        pose[:, 0, 1] = rng.uniform(-np.pi, np.pi)  # facing anywhere (yaw about y)
+        pose[:, 16, 2] = -1.2 + 0.3 * np.sin(np.arange(n) / 5.0)  # arms down, swaying
+        pose[:, 17, 2] = 1.2 - 0.3 * np.sin(np.arange(n) / 5.0)
+        transl = np.tile([1.5 * person, floor - rest.vertices[0, :, 1].min(), 4.0], (n, 1))
+        joints = model.joints(pose, np.zeros(model.num_betas), transl)
+        contacts = create("contacts", "kinematic").estimate(joints, fps, None, True, None,
+                                                            contact_rest_heights(model))
+        assert (contacts > 0.5).mean() > 0.9  # standing still: feet in contact
+        ct = contact_track(model, np.arange(n), pose, np.zeros(model.num_betas), transl, contacts)
+        assert all(len(p) > 0 and f.all() for p, f in zip(ct.points, ct.is_foot))
+        assert all(np.abs(p[:, 1] - floor).max() < 0.03 for p in ct.points)  # sole vertices only
+        contact_tracks.append(ct)
+    for person, plane in enumerate(estimate_ground_planes(contact_tracks, up=np.array([0.0, 1.0, 0.0]))):
+        assert plane.valid.all()
+        angles = np.degrees(np.arccos(np.clip(plane.normal @ [0, 1, 0], -1, 1)))
+        assert angles.max() < 3.0
+        # The true floor under the person lies on the estimated plane (normal . x + offset = 0).
+        under_feet = np.array([1.5 * person, floor, 4.0])
+        np.testing.assert_allclose(plane.normal @ under_feet + plane.offset, 0.0, atol=0.01)
+
+
+def test_rest_heights_and_errors(model):
+    rest = contact_rest_heights(model)
+    assert rest.shape == (4,) and (rest > 0).all() and rest[0] > rest[2]  # ankles sit above the toe bases
+    with pytest.raises(ValueError, match="strictly increasing"):
+        kinematic_contacts(np.zeros((3, 4, 3)), np.array([0.0, 0.0, 1.0]), [0, 1, 0])
+    with pytest.raises(ValueError, match="NaN"):
+        kinematic_contacts(np.full((2, 4, 3), np.nan), np.array([0.0, 1.0]), [0, 1, 0])
+    with pytest.raises(ValueError, match="joints must have shape"):
+        create("contacts", "kinematic").estimate(np.zeros((5, 17, 3)), 30.0)

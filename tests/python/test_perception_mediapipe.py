@@ -1,0 +1,154 @@
+"""MediaPipe (BlazePose) backend: the landmark map against MediaPipe's own landmark names, the helpers, and, when
+the optional package and the shared clips are present, the whole perception stage on real video.
+
+The real-clip tests need mediapipe==0.10.14 (pip install 'm3c[perception]') and ../shared/data/video (or
+M3C_VIDEO_DIR); they skip, saying why, without them.
+"""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from m3c.body.joint_names import COCO17_NAMES
+from m3c.perception import PerceptionConfig, read_frames, run_perception, run_perception_frames, video_info
+from m3c.perception.evaluation import keypoints_in_mask_box
+from m3c.perception.mediapipe_pose import (MP_TO_COCO17, MP_TO_FEET, landmarks_to_keypoints, mediapipe_available,
+                                           square_tiles, tight_box)
+from m3c.perception.types import FOOT_KEYPOINT_NAMES
+
+needs_mediapipe = pytest.mark.skipif(not mediapipe_available(),
+                                     reason="mediapipe==0.10.14 not installed (pip install 'm3c[perception]')")
+VIDEO_DIR = Path(os.environ.get("M3C_VIDEO_DIR", Path(__file__).resolve().parents[3] / "shared" / "data" / "video"))
+TAIJI = VIDEO_DIR / "static_camera" / "hybrik_taiji.mp4"
+WALK = VIDEO_DIR / "moving_camera" / "glamr_pexels-walking-dynamic-5738706.mp4"
+
+
+def needs_video(path: Path):
+    return pytest.mark.skipif(not path.is_file(), reason=f"{path} not found (set M3C_VIDEO_DIR to the shared clips)")
+
+
+@needs_mediapipe
+def test_landmark_map_matches_mediapipe_names():
+    import mediapipe as mp
+
+    names = [mp.solutions.pose.PoseLandmark(i).name.lower() for i in MP_TO_COCO17 + MP_TO_FEET]
+    expected = list(COCO17_NAMES) + [n.replace("big_toe", "foot_index") for n in FOOT_KEYPOINT_NAMES]
+    assert names == expected
+
+
+def test_landmarks_to_keypoints_and_tight_box():
+    rng = np.random.default_rng(0)
+    landmarks = np.column_stack([rng.uniform(0, 100, (33, 3)), rng.uniform(-0.2, 1.2, 33)])
+    world = rng.normal(size=(33, 3))
+    keypoints, keypoints3d = landmarks_to_keypoints(landmarks, world)
+    assert keypoints.shape == (21, 3) and keypoints3d.shape == (21, 4)
+    np.testing.assert_array_equal(keypoints[5, :2], landmarks[11, :2])  # left shoulder
+    np.testing.assert_array_equal(keypoints3d[20, :3], world[32])  # right foot tip
+    assert ((keypoints[:, 2] >= 0) & (keypoints[:, 2] <= 1)).all()
+    kp = np.array([[10.0, 20.0, 0.9], [50.0, 80.0, 0.9], [500.0, 500.0, 0.1]])
+    mask = np.zeros((10, 10), bool)
+    mask[2:4, 5:9] = True  # frame pixels x 105..109, y 102..104 with mask_box origin (100, 100)
+    np.testing.assert_array_equal(tight_box(kp, mask, [100, 100, 110, 110], (300, 200)), [10, 20, 109, 104])
+    assert tight_box(kp[2:], None, None, (300, 200)) is None
+    with pytest.raises(ValueError, match="33, 4"):
+        landmarks_to_keypoints(np.zeros((17, 4)), None)
+
+
+@pytest.mark.parametrize("size", [(720, 1280), (540, 960), (1280, 720), (500, 500)])
+def test_square_tiles_cover_the_frame_with_overlap(size):
+    height, width = size
+    tiles = square_tiles(size, overlap=0.5)
+    covered = np.zeros(size, bool)
+    for t in tiles:
+        assert t[2] - t[0] == t[3] - t[1] == min(size) and t[0] >= 0 and t[1] >= 0
+        assert t[2] <= width and t[3] <= height
+        covered[t[1]:t[3], t[0]:t[2]] = True
+    assert covered.all()
+    starts = sorted(t[0] if width >= height else t[1] for t in tiles)
+    assert all(b - a <= min(size) / 2 for a, b in zip(starts, starts[1:]))
+
+
+def check_single_person_clip(result, min_fraction: float = 0.95, max_median_px: float = 3.0,
+                             max_p95_px: float = 6.0):
+    n = result.num_frames
+    assert np.count_nonzero(result.people_per_frame) >= min_fraction * n
+    assert len(result.tracks) == 1  # a single track id for the one person
+    track = result.tracks[0]
+    assert len(track.frame_ids) >= min_fraction * n
+    assert keypoints_in_mask_box(result, track).mean() >= 0.95
+    errors = track.bodies.reprojection_error_px[track.bodies.valid]
+    assert track.bodies.valid.mean() >= 0.95
+    assert np.median(errors) < max_median_px and np.percentile(errors, 95) < max_p95_px
+    assert track.estimators["detector"] in ("mediapipe", "mediapipe,tracker")
+    assert track.estimators["pose2d"] == "mediapipe" and track.estimators["body"] == "fit"
+
+
+@pytest.mark.slow
+@needs_mediapipe
+@needs_video(TAIJI)
+def test_static_clip():
+    check_single_person_clip(run_perception(TAIJI, PerceptionConfig(static_camera=True), max_frames=120))
+
+
+@pytest.mark.slow
+@needs_mediapipe
+@needs_video(WALK)
+def test_moving_clip():
+    check_single_person_clip(run_perception(WALK, max_frames=120))
+
+
+@pytest.mark.slow
+@needs_mediapipe
+@needs_video(TAIJI)
+def test_two_people_side_by_side_keep_their_ids():
+    # The static clip next to its mirror image, each half 640 x 360: two people whose square patches overlap the
+    # other's side, so patches are isolated; each must keep one track id on its own half.
+    import cv2
+
+    def frames():
+        for _, image in read_frames(TAIJI, 90):
+            half = cv2.resize(image, (640, 360), interpolation=cv2.INTER_AREA)
+            yield np.ascontiguousarray(np.concatenate([half, half[:, ::-1]], axis=1))
+
+    result = run_perception_frames(frames(), video_info(TAIJI).fps, (360, 1280),
+                                   PerceptionConfig(static_camera=True), source="taiji twice")
+    assert len(result.tracks) == 2
+    for track in result.tracks:
+        assert len(track.frame_ids) >= 0.95 * result.num_frames
+        centres = 0.5 * (track.boxes[:, 0] + track.boxes[:, 2])
+        assert (centres < 640).all() or (centres > 640).all()  # never jumps to the other person
+        assert np.median(track.bodies.reprojection_error_px[track.bodies.valid]) < 3.0
+
+
+@pytest.mark.slow
+@needs_mediapipe
+@needs_video(WALK)
+def test_perceive_command(tmp_path, capsys):
+    from m3c.cli import main
+    from m3c.perception import load_result
+
+    assert main(["perceive", str(WALK), str(tmp_path / "walk"), "--max-frames", "12"]) == 0
+    assert "1 tracks" in capsys.readouterr().out
+    result = load_result(tmp_path / "walk")
+    assert result.num_frames == 12 and len(result.tracks) == 1
+    assert main(["perceive", str(tmp_path / "missing.mp4"), str(tmp_path / "x")]) == 2
+
+
+@pytest.mark.slow
+@needs_mediapipe
+@needs_video(WALK)
+def test_hog_detector_finds_the_walker():
+    from m3c.perception import FrameContext, create
+
+    detector = create("detector", "hog")
+    found = 0
+    for index, image in read_frames(WALK, 20):
+        people = detector.detect(FrameContext(image, index))
+        found += bool(people)
+        for p in people:
+            centre = 0.5 * (p.box[0] + p.box[2])
+            assert 0.3 * image.shape[1] < centre < 0.7 * image.shape[1]  # the walker is in the middle
+            assert p.sources == {"detector": "hog"} and 0 < p.score < 1
+    assert found >= 18
