@@ -12,11 +12,11 @@ ground plane y = 0: the lowest mesh point of most frames touches it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
@@ -68,7 +68,7 @@ def detect_joint_map(bvh: BVHMotion) -> str:
 class RetargetConfig:
     fps: float = 30.0                 # output frame rate (the BVH is resampled by linear interpolation)
     up_axis: str = "y"                # the BVH's up axis: "y" or "z"
-    scale: float | None = None        # metres per BVH unit; None: from limb lengths
+    scale: float | None = None        # metres per BVH unit; None: from limb lengths, refined with the shape
     pose_prior: float = 0.03          # residual weight on each body rotation (metres per radian)
     temporal: float = 0.1             # residual weight on the change from the previous frame's pose
     shape_prior: float = 0.05         # residual weight on betas (metres per unit beta)
@@ -76,6 +76,7 @@ class RetargetConfig:
     shape_rounds: int = 3             # alternations of poses and betas
     fit_shape: bool = True
     calibrate_offsets: bool = True    # per-joint offsets for joints the two skeletons place differently
+    refine_scale: bool = True         # refine the limb-length scale by the fit on held-out frames
     max_iterations: int = 50
     ground_quantile: float = 0.1      # the ground touches this quantile of the per-frame lowest mesh point
 
@@ -145,12 +146,46 @@ def bvh_targets(bvh: BVHMotion, joint_map: dict[str, str], config: RetargetConfi
     else:
         scale = float(config.scale)
     pos = pos * scale
-    # Resample to the output rate (linear in time, per joint coordinate).
-    src_t = np.arange(len(pos)) * bvh.frame_time
+    # Resample to the output rate (linear in time, per joint coordinate; strided frame selections keep their times).
+    frame_ids = np.arange(bvh.num_frames)[slice(None) if frames is None else frames]
+    src_t = (frame_ids - frame_ids[0]) * bvh.frame_time
     out_t = np.arange(0.0, src_t[-1] + 1e-9, 1.0 / config.fps)
     flat = pos.reshape(len(pos), -1)
     resampled = np.stack([np.interp(out_t, src_t, flat[:, k]) for k in range(flat.shape[1])], axis=1)
     return resampled.reshape(len(out_t), -1, 3), scale
+
+
+def levenberg_marquardt(fun, x0: np.ndarray, max_iterations: int = 50, rtol: float = 1e-10) -> np.ndarray:
+    """Minimises 1/2 |r(x)|^2 with Levenberg-Marquardt (Marquardt's diagonal scaling); fun(x) -> (r, dr/dx).
+    Small dense problems (tens of parameters) solve faster here than through MINPACK's QR."""
+    x = np.asarray(x0, dtype=np.float64).copy()
+    r, J = fun(x)
+    cost = r @ r
+    damping = 1e-4
+    for _ in range(max_iterations):
+        g = J.T @ r
+        H = J.T @ J
+        diag = np.diag(H).copy()
+        diag[diag < 1e-12] = 1e-12
+        while True:
+            try:
+                step = np.linalg.solve(H + damping * np.diag(diag), -g)
+            except np.linalg.LinAlgError:
+                damping *= 10.0
+                continue
+            r_new, J_new = fun(x + step)
+            cost_new = r_new @ r_new
+            if cost_new < cost:
+                break
+            damping *= 10.0
+            if damping > 1e10:
+                return x  # no step decreases the cost: a minimum to working precision
+        decrease = cost - cost_new
+        x, r, J, cost = x + step, r_new, J_new, cost_new
+        damping = max(damping * 0.3, 1e-9)
+        if decrease <= rtol * max(cost, 1e-30) or np.abs(step).max() < 1e-12:
+            break
+    return x
 
 
 def global_rotations(pose: np.ndarray, parents) -> np.ndarray:
@@ -180,31 +215,25 @@ class _Fitter:
         parents = np.asarray(model.parents)
         self.carrier = np.array([j if SMPL_JOINT_NAMES[j] == "head" else parents[j] for j in smpl_ids])
         self.offsets = np.zeros((len(smpl_ids), 3))
+        self.rows = (3 * smpl_ids[:, None] + np.arange(3)).ravel()
+        nb = self.nparam - 6
+        self.prior_jacobian = np.zeros((nb, self.nparam))
+        self.prior_jacobian[:, 6:] = config.pose_prior * np.eye(nb)
 
     def offset_points(self, x) -> np.ndarray:
         """The matched points' offsets from their SMPL joints, in the world frame, for parameters x."""
         G = global_rotations(x[3:].reshape(1, -1, 3), self.model.parents)[0]
         return np.einsum("kij,kj->ki", G[self.carrier], self.offsets)
 
-    def residuals(self, x, target, betas, prev):
-        joints = self.model.joints(x[3:].reshape(1, -1, 3), betas, x[:3])[0, self.ids]
-        data = ((joints - target) * self.w[:, None]).ravel()
-        parts = [data, self.config.pose_prior * x[6:]]
+    def residuals_and_jacobian(self, x, target, betas, prev):
+        joints, jac = self.model.joints_jacobian(x[3:].reshape(1, -1, 3), betas, x[:3])
+        w3 = np.repeat(self.w, 3)
+        r = [(joints[0, self.ids] - target).ravel() * w3, self.config.pose_prior * x[6:]]
+        J = [jac[0, self.rows, : self.nparam] * w3[:, None], self.prior_jacobian]
         if prev is not None:
-            parts.append(self.config.temporal * (x[6:] - prev[6:]))
-        return np.concatenate(parts)
-
-    def jacobian(self, x, target, betas, prev):
-        _, jac = self.model.joints_jacobian(x[3:].reshape(1, -1, 3), betas, x[:3])
-        rows = (3 * self.ids[:, None] + np.arange(3)).ravel()
-        data = jac[0, rows, : self.nparam] * np.repeat(self.w, 3)[:, None]
-        nb = self.nparam - 6
-        prior = np.zeros((nb, self.nparam))
-        prior[:, 6:] = self.config.pose_prior * np.eye(nb)
-        parts = [data, prior]
-        if prev is not None:
-            parts.append(prior * (self.config.temporal / self.config.pose_prior))
-        return np.concatenate(parts)
+            r.append(self.config.temporal * (x[6:] - prev[6:]))
+            J.append(self.prior_jacobian * (self.config.temporal / self.config.pose_prior))
+        return np.concatenate(r), np.concatenate(J)
 
     def solve(self, x0, target, betas, prev, refreshes: int = 2):
         x = x0.copy()
@@ -212,8 +241,8 @@ class _Fitter:
             # Keep the root axis-angle in its principal range, far from the |theta| = 2 pi singularity.
             x[3:6] = Rotation.from_rotvec(x[3:6]).as_rotvec()
             shifted = target - self.offset_points(x)
-            x = least_squares(self.residuals, x, jac=self.jacobian, args=(shifted, betas, prev), method="lm",
-                              max_nfev=self.config.max_iterations * 4, xtol=1e-10, ftol=1e-10).x
+            x = levenberg_marquardt(lambda v: self.residuals_and_jacobian(v, shifted, betas, prev), x,
+                                    self.config.max_iterations)
         return x
 
     def calibrate(self, xs, targets, betas):
@@ -253,27 +282,41 @@ def _kabsch(src, dst):
 def _fit_betas(model, fitter: _Fitter, xs, targets, betas, config):
     """Betas for fixed poses of a few frames: data residuals over those frames plus the shape prior."""
     B = model.num_betas
-
     targets = [tgt - fitter.offset_points(x) for x, tgt in zip(xs, targets)]
+    w3 = np.repeat(fitter.w, 3)[:, None]
+    rows = (3 * fitter.ids[:, None] + np.arange(3)).ravel()
 
-    def residuals(b):
-        out = []
+    def residuals_and_jacobian(b):
+        r, J = [], []
         for x, tgt in zip(xs, targets):
-            joints = model.joints(x[3:].reshape(1, -1, 3), b, x[:3])[0, fitter.ids]
-            out.append(((joints - tgt) * fitter.w[:, None]).ravel())
-        out.append(config.shape_prior * b)
-        return np.concatenate(out)
+            joints, jac = model.joints_jacobian(x[3:].reshape(1, -1, 3), b, x[:3])
+            r.append(((joints[0, fitter.ids] - tgt) * fitter.w[:, None]).ravel())
+            J.append(jac[0, rows, fitter.nparam:] * w3)
+        return np.concatenate(r + [config.shape_prior * b]), np.concatenate(J + [config.shape_prior * np.eye(B)])
 
-    def jacobian(b):
-        out = []
-        rows = (3 * fitter.ids[:, None] + np.arange(3)).ravel()
-        for x in xs:
-            _, jac = model.joints_jacobian(x[3:].reshape(1, -1, 3), b, x[:3])
-            out.append(jac[0, rows, fitter.nparam:] * np.repeat(fitter.w, 3)[:, None])
-        out.append(config.shape_prior * np.eye(B))
-        return np.concatenate(out)
+    return levenberg_marquardt(residuals_and_jacobian, betas, config.max_iterations)
 
-    return least_squares(residuals, betas, jac=jacobian, method="lm", xtol=1e-10, ftol=1e-10).x
+
+def _shape_stage(model, fitter: _Fitter, targets, sample, config) -> np.ndarray:
+    """Betas (and the fitter's joint offsets) from alternating fits on the sampled frames; returns betas."""
+    betas = np.zeros(model.num_betas)
+    fitter.offsets = np.zeros_like(fitter.offsets)
+    xs = [fitter.solve(fitter.initial(targets[i], betas), targets[i], betas, None) for i in sample]
+    for _ in range(config.shape_rounds):
+        betas = _fit_betas(model, fitter, xs, targets[sample], betas, config)
+        if config.calibrate_offsets:
+            fitter.calibrate(xs, targets[sample], betas)
+        xs = [fitter.solve(x, targets[i], betas, None) for x, i in zip(xs, sample)]
+    return betas
+
+
+def _held_out_error(fitter: _Fitter, targets, frames, betas) -> float:
+    """Mean matched-point error (m) of independent per-frame fits on frames the shape was not fitted to."""
+    errors = []
+    for i in frames:
+        x = fitter.solve(fitter.initial(targets[i], betas), targets[i], betas, None)
+        errors.append(np.linalg.norm(fitter.matched_points(x[None], betas)[0] - targets[i], axis=-1).mean())
+    return float(np.mean(errors))
 
 
 def retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict[str, str] | str | None = None,
@@ -303,12 +346,23 @@ def retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict[str,
 
     if config.fit_shape and n > 0:
         sample = np.unique(np.linspace(0, n - 1, min(config.shape_frames, n)).round().astype(int))
-        xs = [fitter.solve(fitter.initial(targets[i], betas), targets[i], betas, None) for i in sample]
-        for _ in range(config.shape_rounds):
-            betas = _fit_betas(model, fitter, xs, targets[sample], betas, config)
-            if config.calibrate_offsets:
-                fitter.calibrate(xs, targets[sample], betas)
-            xs = [fitter.solve(x, targets[i], betas, None) for x, i in zip(xs, sample)]
+        if config.scale is None and config.refine_scale and n > 1:
+            # The limb-length scale is only a start: skeletons differ in proportions, so pick the factor whose
+            # shape fit explains held-out frames best (1-D bounded search on the log factor).
+            # (A lighter shape stage inside the search: fewer frames and rounds.)
+            quick = replace(config, shape_rounds=2)
+            few = sample[:: max(1, len(sample) // 6)]
+            held_out = np.unique(np.clip(few[:-1] + np.diff(few) // 2, 0, n - 1))
+
+            def held_out_error(log_factor):
+                scaled = targets * np.exp(log_factor)
+                return _held_out_error(fitter, scaled, held_out, _shape_stage(model, fitter, scaled, few, quick))
+
+            best = minimize_scalar(held_out_error, bounds=(np.log(0.8), np.log(1.25)), method="bounded",
+                                   options={"xatol": 1e-3})
+            targets = targets * np.exp(best.x)
+            scale *= float(np.exp(best.x))
+        betas = _shape_stage(model, fitter, targets, sample, config)
 
     params = np.zeros((n, fitter.nparam))
     prev = None
