@@ -121,7 +121,7 @@ class RetargetedMotion:
                        z["body_pose"].astype(np.float64), z["betas"].astype(np.float64),
                        z["fit_error_mm"].astype(np.float64) if "fit_error_mm" in z.files else np.zeros(len(z["transl"])),
                        str(z["source"]) if "source" in z.files else "",
-                       str(z["body_model"]) if "body_model" in z.files else "")
+                       str(z["body_model"]) if "body_model" in z.files else "", {"name": Path(path).stem})
 
 
 def bvh_targets(bvh: BVHMotion, joint_map: dict[str, str], config: RetargetConfig, model: BodyModel,
