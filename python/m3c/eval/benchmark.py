@@ -530,3 +530,45 @@ def run_benchmark(model: BodyModel, config: BenchmarkConfig | None = None, log=N
                 f"VO scale {seq.vo_scale:.3f}")
         reports.append(run_sequence(model, seq, config.optimizer, log))
     return BenchmarkReport(config, reports, getattr(model.data, "name", ""))
+
+
+# Motion from BVH folders -------------------------------------------------------------------------------------
+def default_cache_dir() -> Path:
+    import os
+
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "m3c" / "mocap"
+
+
+def retarget_folder(model: BodyModel, folder: str | Path, cache_dir: str | Path | None = None,
+                    log=None) -> list[Path]:
+    """Retargets every .bvh under `folder` at 30 fps (CMU files lose their added T-pose frame) into the cache
+    (keyed by the file's bytes, the retarget settings and the body model) and returns the .npz paths."""
+    import hashlib
+
+    from m3c.eval.retarget import RetargetConfig, detect_joint_map, retarget
+    from m3c.io.bvh import read_bvh
+
+    folder = Path(folder)
+    files = sorted(folder.rglob("*.bvh"))
+    if not files:
+        raise FileNotFoundError(f"no .bvh files under {folder}")
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    config = RetargetConfig()
+    out = []
+    for path in files:
+        key = hashlib.sha1(path.read_bytes() + repr(config).encode() +
+                           getattr(model.data, "name", "").encode()).hexdigest()[:12]
+        target = cache / f"{path.stem}-{key}.npz"
+        if not target.is_file():
+            bvh = read_bvh(path)
+            frames = slice(1, None) if detect_joint_map(bvh).startswith("cmu") else None
+            start = time.perf_counter()
+            motion = retarget(model, bvh, None, config, frames)
+            motion.source = str(path)
+            motion.save(target)
+            if log:
+                log(f"retargeted {path.name}: {motion.num_frames} frames, fit {motion.fit_error_mm.mean():.1f} mm "
+                    f"({time.perf_counter() - start:.0f} s) -> {target}")
+        out.append(target)
+    return out
