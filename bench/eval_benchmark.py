@@ -1,5 +1,5 @@
-"""The ground-truth accuracy benchmark (m3c.eval.benchmark) with its tables, plus the optimizer's cost as a ratio
-against the Local method (placing and evaluating the same bodies) measured in the same run.
+"""The ground-truth accuracy benchmark (m3c.eval.benchmark) with its tables, plus the optimizer's cost as a
+ratio against the Local method (placing and evaluating the same bodies) measured in the same run.
 
 Sequences: retargeted CMU motion capture (shipped), one to three people, virtual cameras (walking handheld,
 panning, orbiting, static), simulated keypoints / camera-local bodies / visual odometry with realistic errors.
@@ -43,8 +43,9 @@ def main() -> None:
     person_frames = sum(s.num_people for s in report.sequences) * config.num_frames
     local = sum(s.seconds["Local"] for s in report.sequences)
     opt = sum(s.seconds["Global Opt"] for s in report.sequences)
-    print(f"\nGlobal Opt: {opt:.1f} s for {person_frames} person-frames ({1000 * opt / person_frames:.1f} ms each), "
-          f"{opt / local:.1f}x the Local method's time (posing and evaluating the same bodies, {local:.1f} s)")
+    print(f"\nGlobal Opt: {opt:.1f} s for {person_frames} person-frames "
+          f"({1000 * opt / person_frames:.1f} ms each), {opt / local:.1f}x the Local method's time (posing and "
+          f"evaluating the same bodies, {local:.1f} s)")
     if args.json:
         with atomic_path(args.json) as tmp:
             tmp.write_text(json.dumps(report.summary(), indent=1))

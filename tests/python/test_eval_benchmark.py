@@ -71,7 +71,8 @@ def test_noise_free_local_reproduces_the_ground_truth(model, clips):
     assert len(result.matching.matches) == 2
     for key in ("pa_mpjpe", "mpjpe", "pve", "accel", "w_mpjpe", "wa_mpjpe", "rte"):
         assert result.mean(key) == pytest.approx(0.0, abs=1e-6), key
-    # Foot sliding is not a difference: a perfect prediction slides as much as the mocap itself (under 1 cm/frame).
+    # Foot sliding is not a difference: a perfect prediction slides as much as the mocap itself (under 1
+    # cm/frame).
     assert 0.0 < result.mean("foot_sliding") < 10.0
 
 

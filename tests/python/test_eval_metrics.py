@@ -70,7 +70,8 @@ def test_mpjpe_pelvis_is_the_mean_of_the_hips():
 
 
 def test_pa_mpjpe_hand_computed_scale():
-    # A square with one axis stretched 2x: no rotation helps, scale 0.6 is optimal (sum p.g / sum |p|^2 = 6/10);
+    # A square with one axis stretched 2x: no rotation helps, scale 0.6 is optimal (sum p.g / sum |p|^2 =
+    # 6/10);
     # errors 0.4 m on the x points, 0.2 m on the y points: mean 0.3 m = 300 mm.
     gt = np.array([[[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0]]])
     pred = np.array([[[1.0, 0, 0], [-1.0, 0, 0], [0, 2.0, 0], [0, -2.0, 0]]])

@@ -58,7 +58,8 @@ def test_bvh_forward_kinematics_hand_computed(tmp_path):
     assert bvh.names == ["Root", "Child", "Child_end"]
     assert bvh.fps == pytest.approx(2.0)
     pos = bvh.positions()
-    # Frame 0: R_root = Rz(90) Rx(90) (intrinsic, listed order). Rx(90) takes (0,0,1) to (0,-1,0), Rz(90) takes
+    # Frame 0: R_root = Rz(90) Rx(90) (intrinsic, listed order). Rx(90) takes (0,0,1) to (0,-1,0), Rz(90)
+    # takes
     # that to (1,0,0): the child sits at (1,2,3) + (1,0,0). (Extrinsic order would give (1,2,3) + (0,-1,0).)
     np.testing.assert_allclose(pos[0, 0], [1, 2, 3], atol=1e-12)
     np.testing.assert_allclose(pos[0, 1], [2, 2, 3], atol=1e-12)
@@ -82,7 +83,8 @@ def test_bvh_errors_name_the_problem(tmp_path):
     path.write_text(TWO_JOINTS.replace("Frames: 2", "Frames: 3"))
     with pytest.raises(BVHError, match="promises 3 frames"):
         read_bvh(path)
-    path.write_text(TWO_JOINTS.replace("Zrotation Xrotation Yrotation\n    End", "Zrotation Wrotation Yrotation\n    End"))
+    path.write_text(TWO_JOINTS.replace("Zrotation Xrotation Yrotation\n    End",
+                                       "Zrotation Wrotation Yrotation\n    End"))
     with pytest.raises(BVHError, match="unknown channels"):
         read_bvh(path)
     with pytest.raises(FileNotFoundError):
@@ -90,8 +92,8 @@ def test_bvh_errors_name_the_problem(tmp_path):
 
 
 def write_model_bvh(path, model, pose, transl, fps, units_per_metre=100.0, z_up=False):
-    """A BVH with the body model's own skeleton (joint names SMPL's), posed by `pose`: its joints coincide with
-    the model's joints, so a retarget must reproduce them."""
+    """A BVH with the body model's own skeleton (joint names SMPL's), posed by `pose`: its joints coincide
+    with the model's joints, so a retarget must reproduce them."""
     rest = model.joints(np.zeros((1, 24, 3)), np.zeros(model.num_betas))[0]
     parents = np.asarray(model.parents)
     children = {j: [c for c in range(24) if parents[c] == j] for j in range(24)}
@@ -158,7 +160,8 @@ def test_retarget_recovers_the_model_own_motion(tmp_path, open_model, z_up):
     path = tmp_path / "self.bvh"
     write_model_bvh(path, open_model, pose, transl, fps, z_up=z_up)
     joint_map = {name: name for name in JOINT_MAPS["cmu_motionbuilder"]}  # the same 16 joints, SMPL names
-    # z-up: the scale from limb lengths alone (exact for identical skeletons); y-up: then refined by the search.
+    # z-up: the scale from limb lengths alone (exact for identical skeletons); y-up: then refined by the
+    # search.
     config = RetargetConfig(fps=fps / 2, up_axis="z" if z_up else "y", pose_prior=1e-3, temporal=1e-3,
                             refine_scale=not z_up)
     result = retarget(open_model, path, joint_map, config)
@@ -167,7 +170,8 @@ def test_retarget_recovers_the_model_own_motion(tmp_path, open_model, z_up):
     assert result.info["scale"] == pytest.approx(0.01, rel=1e-6 if z_up else 2e-3)  # cm to metres
     assert np.abs(result.betas).max() < 0.05
     assert result.fit_error_mm.max() < 3.0
-    # The fitted joints are the source joints (shifted onto the ground); every 2nd source frame is an output frame.
+    # The fitted joints are the source joints (shifted onto the ground); every 2nd source frame is an output
+    # frame.
     ids = [SMPL_JOINT_NAMES.index(k) for k in joint_map]
     truth = open_model.joints(pose[::2], np.zeros(open_model.num_betas), transl[::2])[:, ids]
     fitted = open_model.joints(result.pose(), result.betas, result.transl)[:, ids]

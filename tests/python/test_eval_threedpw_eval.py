@@ -1,4 +1,5 @@
-"""3DPW evaluation of prediction files, on a small dataset written here in 3DPW's layout (synthetic body model)."""
+"""3DPW evaluation of prediction files, on a small dataset written here in 3DPW's layout (synthetic body
+model)."""
 
 import pickle
 
@@ -33,7 +34,8 @@ def make_dataset(root, model, rng, people_per_seq=(2, 1), n=12):
             people.append(dict(pose=pose, transl=transl, betas=betas, valid=valid))
         data = {"sequence": name, "poses": [p["pose"].reshape(n, 72) for p in people],
                 "trans": [p["transl"] for p in people],
-                "jointPositions": [model.joints(p["pose"], p["betas"], p["transl"]).reshape(n, 72) for p in people],
+                "jointPositions": [model.joints(p["pose"], p["betas"], p["transl"]).reshape(n, 72)
+                                   for p in people],
                 "poses2d": [np.zeros((n, 3, 18)) for _ in people], "campose_valid": [p["valid"] for p in people],
                 "genders": ["m", "f"][:count], "betas": [p["betas"] for p in people], "cam_poses": cam_from_world,
                 "cam_intrinsics": np.array([[1000.0, 0, 540], [0, 1000.0, 960], [0, 0, 1]]),

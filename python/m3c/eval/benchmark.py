@@ -1,10 +1,10 @@
 """A ground-truth benchmark that runs offline: real motion capture, virtual cameras, simulated perception.
 
 Each sequence places one to three people, whose motions are retargeted motion-capture clips (the CMU clips
-shipped in m3c/eval/data, plus any BVH folder the user adds), in a world with a ground plane (y up, ground y = 0,
-as m3c.eval.scenes). A virtual camera films them: walking handheld behind or beside the group, panning from
-one spot, orbiting the group, or static on a tripod. From the ground truth the generator simulates what the
-perception stages would give, with their typical errors:
+shipped in m3c/eval/data, plus any BVH folder the user adds), in a world with a ground plane (y up, ground y
+= 0, as m3c.eval.scenes). A virtual camera films them: walking handheld behind or beside the group, panning
+from one spot, orbiting the group, or static on a tripod. From the ground truth the generator simulates what
+the perception stages would give, with their typical errors:
   - COCO-17 keypoints: pixel noise that grows as the confidence drops, occlusion by nearer people (low
     confidence, large noise), points outside the image (confidence 0), outliers, dropped detections and
     occlusion gaps of several frames; a track spans its first to last detection;
@@ -135,7 +135,8 @@ class BenchmarkSequence:
     clips: list[str]
 
     def local_tracks(self, model: BodyModel) -> list[Track]:
-        """The Local method: camera-local bodies placed with the VO cameras at scale 1 (the optimizer's start)."""
+        """The Local method: camera-local bodies placed with the VO cameras at scale 1 (the optimizer's
+        start)."""
         out = []
         for sim in self.simulated:
             vo = self.cameras_vo.world_from_cam[sim.frames]
@@ -203,7 +204,8 @@ def _place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n
 
 
 def _true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
-    """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per frame."""
+    """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per
+    frame."""
     joints = model.joints(pose, betas, transl)[:, list(CONTACT_JOINTS)]
     step = np.linalg.norm(np.diff(joints, axis=0), axis=-1)
     step = np.concatenate([step, step[-1:]], axis=0)
@@ -532,7 +534,7 @@ def run_benchmark(model: BodyModel, config: BenchmarkConfig | None = None, log=N
     return BenchmarkReport(config, reports, getattr(model.data, "name", ""))
 
 
-# Motion from BVH folders -------------------------------------------------------------------------------------
+# Motion from BVH folders ------------------------------------------------------------------------------------
 def default_cache_dir() -> Path:
     import os
 

@@ -122,7 +122,8 @@ def format_value(key: str, value: float | None, width: int = 9, digits: int = 1)
 
 def format_method_table(rows: dict[str, dict | str], columns=tuple(METRICS)) -> str:
     """The thesis's Table 5.1 layout: one row per method, one column per metric (units in the header).
-    A row given as a string is printed as a note in place of its numbers (e.g. a method that could not run)."""
+    A row given as a string is printed as a note in place of its numbers (e.g. a method that could not
+    run)."""
     name_w = max([len("Method")] + [len(k) for k in rows]) + 2
     col_w = max(9, *(len(METRICS[c][0]) + 1 for c in columns))
     head1 = "Method".ljust(name_w) + "".join(METRICS[c][0].rjust(col_w) for c in columns)

@@ -2,9 +2,9 @@
 
 Alignment: a predicted and a ground-truth track are compared on the frames both contain (the ground truth is
 usually longer; frames before the prediction's first and after its last are dropped).
-Matching: the tracker's ids are not the dataset's, so every (ground truth, prediction) pair is scored by its mean
-PA-MPJPE over the common frames and the Hungarian (Munkres) algorithm picks the one-to-one assignment with the
-least total, i.e. the least average PA-MPJPE over the matched ground-truth tracks.
+Matching: the tracker's ids are not the dataset's, so every (ground truth, prediction) pair is scored by its
+mean PA-MPJPE over the common frames and the Hungarian (Munkres) algorithm picks the one-to-one assignment
+with the least total, i.e. the least average PA-MPJPE over the matched ground-truth tracks.
 """
 
 from __future__ import annotations
@@ -60,7 +60,8 @@ class Matching:
 
 def pa_mpjpe_cost(gt_tracks: list[JointTrack], pred_tracks: list[JointTrack],
                   min_common_frames: int = 1) -> np.ndarray:
-    """(G, P) mean PA-MPJPE (mm) of every pair over its common frames; inf where fewer than min_common_frames."""
+    """(G, P) mean PA-MPJPE (mm) of every pair over its common frames; inf where fewer than
+    min_common_frames."""
     cost = np.full((len(gt_tracks), len(pred_tracks)), np.inf)
     for g, gt in enumerate(gt_tracks):
         for p, pred in enumerate(pred_tracks):
@@ -73,7 +74,8 @@ def pa_mpjpe_cost(gt_tracks: list[JointTrack], pred_tracks: list[JointTrack],
     return cost
 
 
-def match_tracks(gt_tracks: list[JointTrack], pred_tracks: list[JointTrack], min_common_frames: int = 1) -> Matching:
+def match_tracks(gt_tracks: list[JointTrack], pred_tracks: list[JointTrack],
+                 min_common_frames: int = 1) -> Matching:
     """One-to-one assignment of predictions to ground-truth tracks minimising the summed mean PA-MPJPE."""
     cost = pa_mpjpe_cost(gt_tracks, pred_tracks, min_common_frames)
     matches = []

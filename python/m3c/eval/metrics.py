@@ -1,6 +1,6 @@
 """The field's motion-capture metrics, written from their definitions (thesis 5.2.1; EMDB/WHAM/GVHMR for the
-world-frame ones). Inputs are metres (joints, vertices, camera centres) and frames; outputs are per-frame arrays
-so that callers can average over frames of many tracks, as the peers do.
+world-frame ones). Inputs are metres (joints, vertices, camera centres) and frames; outputs are per-frame
+arrays so that callers can average over frames of many tracks, as the peers do.
 
 Units of the outputs:
   MPJPE, PA-MPJPE, PVE, W-MPJPE100, WA-MPJPE100, foot sliding, ATE, RPE translation: millimetres
@@ -8,8 +8,8 @@ Units of the outputs:
   jitter: m/s^3 (tables print it in units of 10 m/s^3, as EMDB/WHAM/GVHMR do)
   RTE: percent of the ground-truth path length; RPE rotation: degrees
 
-All position errors are Euclidean distances (the thesis's equations 5.1-5.3 write a square, but its numbers and
-every peer's code are mean distances in mm).
+All position errors are Euclidean distances (the thesis's equations 5.1-5.3 write a square, but its numbers
+and every peer's code are mean distances in mm).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ def _same_shape(pred: np.ndarray, gt: np.ndarray) -> None:
                          "tracks to their common frames first (m3c.eval.matching.common_frames)")
 
 
-# Alignment ----------------------------------------------------------------------------------------------------
+# Alignment --------------------------------------------------------------------------------------------------
 def umeyama(source, target, with_scale: bool = True):
     """The similarity (or, without scale, rigid) transform that best maps `source` onto `target` in least
     squares: target ~ s R source + t (Umeyama 1991). source, target: (..., N, 3), batched over leading axes.
@@ -87,7 +87,8 @@ def procrustes_align(pred, gt) -> np.ndarray:
 
 
 def pelvis_of(joints, pelvis) -> np.ndarray:
-    """Pelvis (n, 3): the mean of the joints with indices `pelvis` (the hips; one index for a pelvis joint)."""
+    """Pelvis (n, 3): the mean of the joints with indices `pelvis` (the hips; one index for a pelvis
+    joint)."""
     return np.asarray(joints)[:, list(pelvis)].mean(axis=1)
 
 
@@ -95,9 +96,10 @@ def _per_point_error_mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.linalg.norm(a - b, axis=-1).mean(axis=-1) * M_TO_MM
 
 
-# Camera-frame (pose) metrics ------------------------------------------------------------------------------------
+# Camera-frame (pose) metrics --------------------------------------------------------------------------------
 def mpjpe(pred_joints, gt_joints, pelvis=(0,)) -> np.ndarray:
-    """Mean per-joint position error after aligning each frame's pelvis (mean of joints `pelvis`), mm per frame."""
+    """Mean per-joint position error after aligning each frame's pelvis (mean of joints `pelvis`), mm per
+    frame."""
     pred = _points("pred_joints", pred_joints, 3)
     gt = _points("gt_joints", gt_joints, 3)
     _same_shape(pred, gt)
@@ -127,8 +129,9 @@ def pve(pred_vertices, gt_vertices, pred_joints, gt_joints, pelvis=(0,)) -> np.n
 
 
 def accel_error(pred_joints, gt_joints, fps: float, pelvis=(0,), valid=None) -> np.ndarray:
-    """Acceleration error (Kanazawa et al.): |a_pred - a_gt| averaged over joints, with a_t = x_{t-1} - 2 x_t +
-    x_{t+1} of pelvis-aligned joints, times fps^2: m/s^2, one value per interior frame (n - 2).
+    """Acceleration error (Kanazawa et al.): |a_pred - a_gt| averaged over joints, with
+    a_t = x_{t-1} - 2 x_t + x_{t+1} of pelvis-aligned joints, times fps^2: m/s^2, one value per interior frame
+    (n - 2).
     valid (n,) bool: an interior frame whose stencil touches an invalid frame is dropped."""
     pred = _points("pred_joints", pred_joints, 3)
     gt = _points("gt_joints", gt_joints, 3)
@@ -150,7 +153,7 @@ def accel_error(pred_joints, gt_joints, fps: float, pelvis=(0,), valid=None) -> 
     return err
 
 
-# World-frame metrics ---------------------------------------------------------------------------------------------
+# World-frame metrics ----------------------------------------------------------------------------------------
 def _segments(n: int, length: int):
     if length < 1:
         raise ValueError(f"segment length must be >= 1, got {length}")
@@ -158,8 +161,8 @@ def _segments(n: int, length: int):
 
 
 def w_mpjpe(pred_joints, gt_joints, segment: int = SEGMENT_FRAMES) -> np.ndarray:
-    """W-MPJPE100: world joints cut into segments of `segment` frames; each segment's prediction is aligned to the
-    ground truth by the similarity transform fitted on its first two frames' joints only; mm per frame."""
+    """W-MPJPE100: world joints cut into segments of `segment` frames; each segment's prediction is aligned to
+    the ground truth by the similarity transform fitted on its first two frames' joints only; mm per frame."""
     pred = _points("pred_joints", pred_joints, 3)
     gt = _points("gt_joints", gt_joints, 3)
     _same_shape(pred, gt)
@@ -172,7 +175,8 @@ def w_mpjpe(pred_joints, gt_joints, segment: int = SEGMENT_FRAMES) -> np.ndarray
 
 
 def wa_mpjpe(pred_joints, gt_joints, segment: int = SEGMENT_FRAMES) -> np.ndarray:
-    """WA-MPJPE100: as W-MPJPE100 but each segment is aligned with the similarity fitted on all its joints; mm."""
+    """WA-MPJPE100: as W-MPJPE100 but each segment is aligned with the similarity fitted on all its joints;
+    mm."""
     pred = _points("pred_joints", pred_joints, 3)
     gt = _points("gt_joints", gt_joints, 3)
     _same_shape(pred, gt)
@@ -184,8 +188,8 @@ def wa_mpjpe(pred_joints, gt_joints, segment: int = SEGMENT_FRAMES) -> np.ndarra
 
 
 def rte(pred_root, gt_root) -> np.ndarray:
-    """Root translation error: the predicted root path rigidly aligned (no scale) to the ground truth over the whole
-    sequence, the per-frame distance divided by the ground truth's path length; percent per frame."""
+    """Root translation error: the predicted root path rigidly aligned (no scale) to the ground truth over the
+    whole sequence, the per-frame distance divided by the ground truth's path length; percent per frame."""
     pred = _points("pred_root", pred_root, 2)
     gt = _points("gt_root", gt_root, 2)
     _same_shape(pred, gt)
@@ -210,9 +214,9 @@ def jitter(joints, fps: float) -> np.ndarray:
 
 
 def foot_sliding(pred_feet, gt_feet, contact_speed: float = FOOT_CONTACT_SPEED) -> np.ndarray:
-    """Foot sliding: for every foot point (n, F, 3) and frame step where the ground-truth point moves less than
-    `contact_speed` metres per frame (a contact), the predicted point's displacement over that step; mm, one value
-    per contact (empty when the ground truth never plants a foot)."""
+    """Foot sliding: for every foot point (n, F, 3) and frame step where the ground-truth point moves less
+    than `contact_speed` metres per frame (a contact), the predicted point's displacement over that step; mm,
+    one value per contact (empty when the ground truth never plants a foot)."""
     pred = _points("pred_feet", pred_feet, 3)
     gt = _points("gt_feet", gt_feet, 3)
     _same_shape(pred, gt)
@@ -220,7 +224,7 @@ def foot_sliding(pred_feet, gt_feet, contact_speed: float = FOOT_CONTACT_SPEED) 
     return np.linalg.norm(np.diff(pred, axis=0), axis=-1)[contact] * M_TO_MM
 
 
-# Camera trajectory ----------------------------------------------------------------------------------------------
+# Camera trajectory ------------------------------------------------------------------------------------------
 def _poses(name: str, value) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 3 or arr.shape[1:] != (4, 4):
@@ -231,8 +235,8 @@ def _poses(name: str, value) -> np.ndarray:
 
 
 def align_trajectory(pred_world_from_cam, gt_world_from_cam, with_scale: bool = True) -> np.ndarray:
-    """pred camera poses (T, 4, 4) mapped into the ground-truth world by the Sim(3) (or SE(3)) transform that best
-    aligns the camera centres (Umeyama); the rotations are rotated and the translations scaled accordingly."""
+    """pred camera poses (T, 4, 4) mapped into the ground-truth world by the Sim(3) (or SE(3)) transform that
+    best aligns the camera centres (Umeyama); the rotations are rotated and the translations scaled accordingly."""
     pred = _poses("pred_world_from_cam", pred_world_from_cam)
     gt = _poses("gt_world_from_cam", gt_world_from_cam)
     if pred.shape != gt.shape:
@@ -245,8 +249,8 @@ def align_trajectory(pred_world_from_cam, gt_world_from_cam, with_scale: bool = 
 
 
 def camera_ate(pred_world_from_cam, gt_world_from_cam, with_scale: bool = True) -> np.ndarray:
-    """Absolute trajectory error: camera-centre distances after Sim(3) alignment, mm per frame (RMSE = the root of
-    the mean square of these)."""
+    """Absolute trajectory error: camera-centre distances after Sim(3) alignment, mm per frame (RMSE = the root
+    of the mean square of these)."""
     aligned = align_trajectory(pred_world_from_cam, gt_world_from_cam, with_scale)
     gt = _poses("gt_world_from_cam", gt_world_from_cam)
     return np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=-1) * M_TO_MM

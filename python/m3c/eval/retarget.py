@@ -1,13 +1,13 @@
 """Retargeting BVH motion capture onto the body model's 24 SMPL-layout joints by inverse kinematics.
 
-The BVH skeleton and the body model disagree in proportions and in where some joints sit, so the fit matches the
-joints both skeletons define alike (hips, knees, ankles, toe bases, shoulders, elbows, wrists, neck base, head)
-after normalising the BVH (up axis to +y, file units to metres by the ratio of limb lengths), and leaves the
-rest (spine, collars, hands, twist about the bones) to a weak pull towards the rest pose and towards the previous
-frame. Per frame it solves for the root translation, root orientation and 23 joint rotations with
-Levenberg-Marquardt on the C++ core's analytic joint Jacobians (BodyModel.joints_jacobian); the shape (betas)
-is fitted once, alternating with the poses of a few frames spread over the clip. The result stands on the
-ground plane y = 0: the lowest mesh point of most frames touches it.
+The BVH skeleton and the body model disagree in proportions and in where some joints sit, so the fit matches
+the joints both skeletons define alike (hips, knees, ankles, toe bases, shoulders, elbows, wrists, neck base,
+head) after normalising the BVH (up axis to +y, file units to metres by the ratio of limb lengths), and
+leaves the rest (spine, collars, hands, twist about the bones) to a weak pull towards the rest pose and
+towards the previous frame. Per frame it solves for the root translation, root orientation and 23 joint
+rotations with Levenberg-Marquardt on the C++ core's analytic joint Jacobians (BodyModel.joints_jacobian);
+the shape (betas) is fitted once, alternating with the poses of a few frames spread over the clip. The result
+stands on the ground plane y = 0: the lowest mesh point of most frames touches it.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ JOINT_MAPS = {
         "left_hip": "LeftHip", "right_hip": "RightHip", "left_knee": "LeftKnee", "right_knee": "RightKnee",
         "left_ankle": "LeftAnkle", "right_ankle": "RightAnkle", "left_foot": "LeftToe", "right_foot": "RightToe",
         "neck": "lowerneck", "head": "Head", "left_shoulder": "LeftShoulder", "right_shoulder": "RightShoulder",
-        "left_elbow": "LeftElbow", "right_elbow": "RightElbow", "left_wrist": "LeftWrist", "right_wrist": "RightWrist",
+        "left_elbow": "LeftElbow", "right_elbow": "RightElbow", "left_wrist": "LeftWrist",
+        "right_wrist": "RightWrist",
     },
     "cmu_motionbuilder": {  # CMU with MotionBuilder-friendly names (e.g. 01_01.bvh)
         "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg", "left_knee": "LeftLeg", "right_knee": "RightLeg",
@@ -119,14 +120,16 @@ class RetargetedMotion:
                 raise ValueError(f"{path}: not a retargeted motion file, missing {sorted(missing)}")
             return cls(float(z["fps"]), z["transl"].astype(np.float64), z["root_orient"].astype(np.float64),
                        z["body_pose"].astype(np.float64), z["betas"].astype(np.float64),
-                       z["fit_error_mm"].astype(np.float64) if "fit_error_mm" in z.files else np.zeros(len(z["transl"])),
+                       z["fit_error_mm"].astype(np.float64) if "fit_error_mm" in z.files
+                       else np.zeros(len(z["transl"])),
                        str(z["source"]) if "source" in z.files else "",
                        str(z["body_model"]) if "body_model" in z.files else "", {"name": Path(path).stem})
 
 
 def bvh_targets(bvh: BVHMotion, joint_map: dict[str, str], config: RetargetConfig, model: BodyModel,
                 frames=None) -> tuple[np.ndarray, float]:
-    """Target positions (n, len(joint_map), 3) in metres, y up, resampled to config.fps, and the scale used."""
+    """Target positions (n, len(joint_map), 3) in metres, y up, resampled to config.fps, and the scale
+    used."""
     if config.up_axis not in _UP:
         raise ValueError(f"up_axis must be one of {sorted(_UP)}, got {config.up_axis!r}")
     idx = [bvh.index(name) for name in joint_map.values()]
@@ -146,7 +149,8 @@ def bvh_targets(bvh: BVHMotion, joint_map: dict[str, str], config: RetargetConfi
     else:
         scale = float(config.scale)
     pos = pos * scale
-    # Resample to the output rate (linear in time, per joint coordinate; strided frame selections keep their times).
+    # Resample to the output rate (linear in time, per joint coordinate; strided frame selections keep their
+    # times).
     frame_ids = np.arange(bvh.num_frames)[slice(None) if frames is None else frames]
     src_t = (frame_ids - frame_ids[0]) * bvh.frame_time
     out_t = np.arange(0.0, src_t[-1] + 1e-9, 1.0 / config.fps)
@@ -201,8 +205,9 @@ class _Fitter:
     """Per-frame IK residuals and their analytic Jacobian for one set of matched joints.
 
     Each BVH joint is matched to a body point = the SMPL joint plus a constant offset in the frame of the bone
-    that carries it (the joint's parent bone; the head's own): the offsets absorb where the two skeletons place
-    a joint differently (calibrated on a few frames), so that those differences do not bend the fitted pose.
+    that carries it (the joint's parent bone; the head's own): the offsets absorb where the two skeletons
+    place a joint differently (calibrated on a few frames), so that those differences do not bend the fitted
+    pose.
     The offset term is held fixed within one solve and refreshed between solves.
     """
 

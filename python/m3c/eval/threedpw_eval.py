@@ -75,7 +75,8 @@ def _eval_regressor(model: BodyModel, j_regressor_h36m):
 
 def ground_truth_tracks(seq: ThreeDPWSequence, models: dict[str, BodyModel], j_regressor_h36m=None
                         ) -> list[EvalTrack]:
-    """Every person on its valid frames, posed by the gendered model in the world and the dataset's cameras."""
+    """Every person on its valid frames, posed by the gendered model in the world and the dataset's
+    cameras."""
     world_from_cam = seq.world_from_cam
     out = []
     for person in seq.people:
@@ -140,6 +141,7 @@ def format_3dpw_tables(evaluation: dict) -> str:
         text = f"{name}^{row['people']}".ljust(name_w)
         for m in methods:
             r = row[m]
-            text += format_value("pa_mpjpe", r.mean("pa_mpjpe"), 24, 2) + format_value("mpjpe", r.mean("mpjpe"), 9, 2)
+            text += format_value("pa_mpjpe", r.mean("pa_mpjpe"), 24, 2)
+            text += format_value("mpjpe", r.mean("mpjpe"), 9, 2)
         lines.append(text)
     return "\n".join(lines)

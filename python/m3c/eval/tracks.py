@@ -14,15 +14,17 @@ from scipy.spatial.transform import Rotation
 from m3c.body import BodyModel
 from m3c.eval.matching import JointTrack
 
-# Foot points for foot sliding, by keypoint-vertex name (GVHMR uses SMPL vertices 3216, 3387, 6617, 6787: the big
+# Foot points for foot sliding, by keypoint-vertex name (GVHMR uses SMPL vertices 3216, 3387, 6617, 6787: the
+# big
 # toes and heels, which these names select on SMPL).
 FOOT_VERTEX_NAMES = ("left_big_toe", "left_heel", "right_big_toe", "right_heel")
 
 
 def rigidly_move_body(root_orient, transl, target_from_source, pelvis_rest) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (root_orient, transl) of the same bodies after a rigid motion target_from_source ((n, 4, 4) or
-    (4, 4)). The body model rotates about its rest pelvis joint `pelvis_rest` ((3,) or (n, 3): it depends on
-    betas), so the translation changes by more than the rotated translation: J0 + transl' = R (J0 + transl) + t."""
+    """Parameters (root_orient, transl) of the same bodies after a rigid motion target_from_source ((n, 4, 4)
+    or (4, 4)). The body model rotates about its rest pelvis joint `pelvis_rest` ((3,) or (n, 3): it depends
+    on betas), so the translation changes by more than the rotated translation:
+    J0 + transl' = R (J0 + transl) + t."""
     root_orient = np.asarray(root_orient, dtype=np.float64).reshape(-1, 3)
     transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
     T = np.asarray(target_from_source, dtype=np.float64)

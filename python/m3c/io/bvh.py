@@ -2,9 +2,9 @@
 
 Conventions of the format, as the files in the wild use them: each joint's CHANNELS are applied in the order
 listed, rotations compose left to right (R = R_c1 R_c2 R_c3, angles in degrees) and map the joint's frame into
-its parent's. A joint with position channels takes them as its translation in the parent's frame (its OFFSET is
-the rest value of the same thing, e.g. Bandai Namco files repeat the offset in every frame); a joint without
-takes its OFFSET. End Sites become joints without channels, named "<parent>_end".
+its parent's. A joint with position channels takes them as its translation in the parent's frame (its OFFSET
+is the rest value of the same thing, e.g. Bandai Namco files repeat the offset in every frame); a joint
+without takes its OFFSET. End Sites become joints without channels, named "<parent>_end".
 Units are the file's own (CMU: about 5.6 cm per unit; many files: cm); the up axis is usually y.
 """
 
@@ -60,7 +60,8 @@ class BVHMotion:
         raise KeyError(f"{self.path or 'BVH'}: no joint named {name!r}; joints are {self.names}")
 
     def world_transforms(self, frames=None) -> tuple[np.ndarray, np.ndarray]:
-        """World rotations (F, J, 3, 3) and positions (F, J, 3) of every joint (file units) by forward kinematics."""
+        """World rotations (F, J, 3, 3) and positions (F, J, 3) of every joint (file units) by forward
+        kinematics."""
         motion = self.motion if frames is None else self.motion[frames]
         F, J = len(motion), len(self.joints)
         rot = np.zeros((F, J, 3, 3))

@@ -1,7 +1,7 @@
 """3DPW (von Marcard et al., ECCV 2018) sequence files: sequenceFiles/{train,validation,test}/<name>.pkl.
 
-Each file is a latin1 pickle (written by Python 2) holding a dict; per-person fields are lists with one entry per
-actor (one or two people):
+Each file is a latin1 pickle (written by Python 2) holding a dict; per-person fields are lists with one entry
+per actor (one or two people):
   sequence        str, the sequence name
   genders         'm' / 'f' per actor (the dataset's README calls the field `gender`; both are read)
   betas           (10,) or longer SMPL shape per actor (the first 10 are used)
@@ -27,7 +27,8 @@ import numpy as np
 
 FPS = 30.0
 SPLITS = ("train", "validation", "test")
-# OpenPose COCO-18 (nose, neck, r-shoulder, r-elbow, r-wrist, l-shoulder, l-elbow, l-wrist, r-hip, r-knee, r-ankle,
+# OpenPose COCO-18 (nose, neck, r-shoulder, r-elbow, r-wrist, l-shoulder, l-elbow, l-wrist, r-hip, r-knee,
+# r-ankle,
 # l-hip, l-knee, l-ankle, r-eye, l-eye, r-ear, l-ear) rows giving M3C's COCO-17 order.
 OPENPOSE18_TO_COCO17 = (0, 15, 14, 17, 16, 5, 2, 6, 3, 7, 4, 11, 8, 12, 9, 13, 10)
 
@@ -67,7 +68,8 @@ def _field(data: dict, path: Path, *names: str):
     for name in names:
         if name in data:
             return data[name]
-    raise ValueError(f"{path}: not a 3DPW sequence file, the field {names[0]!r} is missing (fields: {sorted(data)})")
+    raise ValueError(f"{path}: not a 3DPW sequence file, the field {names[0]!r} is missing "
+                     f"(fields: {sorted(data)})")
 
 
 def _per_person(value, count: int, name: str, path: Path, shape_tail: tuple) -> list[np.ndarray]:
@@ -121,7 +123,8 @@ def read_sequence(path: str | Path, split: str = "") -> ThreeDPWSequence:
         if lengths != {n}:
             raise ValueError(f"{path}: person {k}'s fields cover {sorted(lengths)} frames, the cameras {n}")
         if len(betas) != count or len(genders) != count or len(betas[k]) < 10:
-            raise ValueError(f"{path}: betas/genders must list 10 shape values and a gender for each of {count} people")
+            raise ValueError(f"{path}: betas/genders must list 10 shape values and a gender for each of "
+                             f"{count} people")
         g = str(genders[k]).lower()
         gender = {"m": "male", "f": "female"}.get(g[:1])
         if gender is None:
