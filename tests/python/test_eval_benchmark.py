@@ -1,7 +1,6 @@
 """The mocap benchmark: seeded generation, a noise-free pipeline that must reproduce the ground truth exactly,
 the camera motions, the simulated perception errors, and a short end-to-end run."""
 
-import copy
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +8,7 @@ import pytest
 
 from m3c.body import default_body_model
 from m3c.eval import metrics as M
-from m3c.eval.benchmark import (BenchmarkConfig, load_clips, make_sequence, run_benchmark, run_sequence)
+from m3c.eval.benchmark import BenchmarkConfig, load_clips, make_sequence, run_benchmark
 from m3c.eval.benchmark import _eval_tracks
 from m3c.eval.evaluate import evaluate_sequence
 from m3c.eval.scenes import project

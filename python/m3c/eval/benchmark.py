@@ -35,7 +35,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from m3c.body import BodyModel
 from m3c.eval import metrics as M
-from m3c.eval.evaluate import SequenceResult, aggregate, evaluate_sequence, format_method_table, format_value
+from m3c.eval.evaluate import aggregate, evaluate_sequence, format_method_table, format_value
 from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track, pelvis_rest, rigidly_move_body
