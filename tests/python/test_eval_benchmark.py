@@ -131,3 +131,30 @@ def test_short_end_to_end_run(model):
     assert rows["Local"]["pa_mpjpe"] > 0 and rows["Global Opt"]["rte"] is not None
     summary = report.summary()
     assert summary["sequences"][0]["matched"] == {"Local": 1, "Global Opt": 1}
+
+
+def test_retarget_folder_caches(tmp_path, model, monkeypatch):
+    import m3c.eval.retarget as retarget_module
+    from m3c.eval.benchmark import retarget_folder
+    from m3c.eval.retarget import RetargetedMotion
+
+    from test_eval_retarget import TWO_JOINTS
+
+    calls = []
+
+    def fake_retarget(model, bvh, joint_map, config, frames):
+        calls.append(frames)
+        return RetargetedMotion(30.0, np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((3, 23, 3)), np.zeros(10),
+                                np.zeros(3))
+
+    monkeypatch.setattr(retarget_module, "retarget", fake_retarget)
+    monkeypatch.setattr(retarget_module, "detect_joint_map", lambda bvh: "cmu_motionbuilder")
+    (tmp_path / "mocap" / "sub").mkdir(parents=True)
+    (tmp_path / "mocap" / "sub" / "a.bvh").write_text(TWO_JOINTS)
+    first = retarget_folder(model, tmp_path / "mocap", tmp_path / "cache")
+    second = retarget_folder(model, tmp_path / "mocap", tmp_path / "cache")
+    assert first == second and first[0].is_file() and first[0].parent == tmp_path / "cache"
+    assert calls == [slice(1, None)]  # retargeted once; CMU files lose their added T-pose frame
+    assert RetargetedMotion.load(first[0]).source.endswith("a.bvh")
+    with pytest.raises(FileNotFoundError, match="no .bvh"):
+        retarget_folder(model, tmp_path / "cache", tmp_path / "cache")
