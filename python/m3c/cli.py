@@ -91,6 +91,9 @@ def _pipeline_config(args):
         overrides["camera.intrinsics"] = list(args.intrinsics)
     if getattr(args, "static_camera", False):
         overrides["vo.static"] = True
+        for name, entry in config.nodes.items():
+            if entry.type == "perception":
+                overrides[f"{name}.static_camera"] = True  # contacts from foot speeds in the camera frame
     if getattr(args, "frames", None):
         start, stop, step = args.frames
         overrides.update({"frames.start": start, "frames.stop": stop, "frames.step": step})

@@ -278,3 +278,34 @@ def test_track_bad_input():
         estimate_ground_planes([ContactTrack(np.arange(2), pts, feet)], up=CAMERA_UP,
                                params=GroundParams(max_distance=-1.0))
     assert estimate_ground_planes([], up=CAMERA_UP) == []
+
+
+def test_level_with_body_up_takes_the_tilt_the_soles_cannot_fix():
+    from m3c.ground import PlaneFit, level_with_body_up
+
+    rng = np.random.default_rng(3)
+    # Soles along a straight walk (x) on the ground y = 0, two feet 0.2 m apart; the true up is +y.
+    along = rng.uniform(0, 3, 400)
+    side = np.where(rng.random(400) < 0.5, -0.1, 0.1) + rng.normal(0, 0.02, 400)
+    points = np.stack([along, rng.normal(0, 0.003, 400), side], axis=1)
+    # A fit rolled by 15 degrees about the walking line and pitched by 2 degrees along it ...
+    roll, pitch = np.radians(15), np.radians(2)
+    normal = np.array([-np.sin(pitch), np.cos(roll), np.sin(roll)])
+    fit = PlaneFit(normal=normal / np.linalg.norm(normal), offset=0.0, inliers=np.ones(400, bool), rms=0.05)
+    # ... keeps its slope along the walk (the points fix it) and takes its roll from the people's upright
+    # direction, here leaning forward along the path and 1 degree sideways.
+    body_up = np.array([0.3, 1.0, np.tan(np.radians(1))])
+    fixed, changed = level_with_body_up(fit, points, body_up)
+    assert changed
+    n = fit.normal
+    expected = np.array([n[0] / n[1], 1.0, np.tan(np.radians(1))])
+    np.testing.assert_allclose(fixed.normal, expected / np.linalg.norm(expected), atol=5e-3)  # ~0.3 degrees
+    assert fixed.rms < 0.1
+    # Points spread over an area fix the tilt themselves: the plane is kept.
+    area = np.stack([rng.uniform(0, 3, 400), np.zeros(400), rng.uniform(0, 2, 400)], axis=1)
+    same, changed = level_with_body_up(fit, area, body_up)
+    assert not changed and same is fit
+    # A patch (a step or two) fixes nothing: the normal is the people's up.
+    fixed, changed = level_with_body_up(fit, points * [0.1, 1, 1], body_up)
+    assert changed
+    np.testing.assert_allclose(fixed.normal, body_up / np.linalg.norm(body_up), atol=1e-9)

@@ -58,16 +58,21 @@ def test_video_with_zero_frames(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_default_pipeline_names_every_missing_component(small_video, tmp_path, capsys):
+def test_default_pipeline_names_a_missing_perception_backend(small_video, tmp_path, capsys, monkeypatch):
+    # Without MediaPipe the default perception cannot run: the run stops before anything runs and says what to
+    # install; nothing is written.
+    monkeypatch.setattr("m3c.perception.mediapipe_pose.mediapipe_available", lambda: False)
     code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out")
     assert code == 3
-    for node in ("detections", "masks", "keypoints", "body", "tracking", "contacts", "vo"):
-        assert f"node {node!r}" in err
-    assert "--static-camera" in err
-    assert not (tmp_path / "out").exists()  # nothing ran: no folder, no fake results
-    # A static camera removes the odometry from the list.
-    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--static-camera")
-    assert code == 3 and "node 'vo'" not in err and "node 'detections'" in err
+    assert "node 'perception'" in err and "pip install 'm3c[perception]'" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_unknown_perception_estimator(small_video, tmp_path, capsys):
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--set",
+                           "perception.estimators={detector: nope}")
+    assert code == 2 and "no detector estimator named 'nope'" in err and "available:" in err
+    assert not (tmp_path / "out").exists()
 
 
 def frames_only_config(tmp_path):
@@ -107,20 +112,18 @@ def test_missing_body_model_file(small_video, tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
-def test_video_with_no_people(small_video, tmp_path, capsys):
+def test_video_with_no_people_given_as_perception_outputs(small_video, tmp_path, capsys):
     empty = {"frame": np.zeros(0, np.int64), "box": np.zeros((0, 4), np.float32), "score": np.zeros(0, np.float32)}
     folder = tmp_path / "perception"
-    save_outputs(folder / "detections", {"detections": empty})
-    save_outputs(folder / "keypoints", {"keypoints": {"keypoints": np.zeros((0, 17, 3), np.float32)}})
-    save_outputs(folder / "body", {"body": {"pose": np.zeros((0, 24, 3)), "betas": np.zeros((0, 10)),
-                                            "transl": np.zeros((0, 3))}})
-    save_outputs(folder / "tracking", {"tracking": {"track_id": np.zeros(0, np.int64)}})
+    save_outputs(folder, {"detections": empty, "keypoints": {"keypoints": np.zeros((0, 17, 3), np.float32)},
+                          "body": {"pose": np.zeros((0, 24, 3)), "betas": np.zeros((0, 10)),
+                                   "transl": np.zeros((0, 3))},
+                          "tracking": {"track_id": np.zeros(0, np.int64)}})
     config = PipelineConfig.default().to_mapping()
-    for name in ("detections", "keypoints", "body", "tracking"):
-        config["nodes"][name] = {"type": "load", "config": {"path": str(folder / name), "outputs": [name]}}
-    del config["nodes"]["contacts"], config["nodes"]["local_tracks"]["inputs"]["contacts"]
-    del config["nodes"]["masks"], config["nodes"]["patches"]["inputs"]["masks"]
-    del config["nodes"]["vo"]["inputs"]["masks"]
+    config["nodes"]["perception"] = {"type": "load", "config": {
+        "path": str(folder), "outputs": ["detections", "keypoints", "body", "tracking"]}}
+    del config["nodes"]["local_tracks"]["inputs"]["contacts"]
+    del config["nodes"]["vo"]["inputs"]["masks"], config["nodes"]["vo"]["inputs"]["detections"]
     path = tmp_path / "no_people.yaml"
     path.write_text(yaml.safe_dump(config))
     out = tmp_path / "out"

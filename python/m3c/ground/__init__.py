@@ -1,8 +1,8 @@
 """Ground planes from body contacts: DBSCAN, robust plane fits, per-person association, temporal filling."""
 
-from m3c.ground.planes import (CAMERA_UP, FramePlanes, GroundParams, PlaneFit, dbscan, fit_plane,
+from m3c.ground.planes import (CAMERA_UP, FramePlanes, GroundParams, PlaneFit, dbscan, fit_plane, level_with_body_up,
                                frame_planes)
 from m3c.ground.tracks import ContactTrack, GroundTrack, estimate_ground_planes, foot_vertex_ids
 
 __all__ = ["CAMERA_UP", "ContactTrack", "FramePlanes", "GroundParams", "GroundTrack", "PlaneFit", "dbscan",
-           "estimate_ground_planes", "fit_plane", "foot_vertex_ids", "frame_planes"]
+           "estimate_ground_planes", "fit_plane", "foot_vertex_ids", "level_with_body_up", "frame_planes"]

@@ -111,6 +111,40 @@ def fit_plane(points, *, up, robust: bool = True, inlier_threshold: float = 0.02
     return PlaneFit(normal=normal, offset=float(offset), inliers=inliers, rms=float(rms))
 
 
+def level_with_body_up(plane: PlaneFit, points, body_up, min_extent: float = 0.25) -> tuple[PlaneFit, bool]:
+    """Takes the plane's tilt from the people's upright direction where the contact points cannot fix it.
+
+    The tilt of a plane fitted to soles is fixed, along each in-plane direction, only as far as the points
+    extend along it: over a short clip (a step or two) or a straight walk (a narrow strip), the soles' own tilt
+    decides it, and a foot fitted a little rolled tilts the ground. Along each in-plane principal axis of the
+    inliers with an rms extent below min_extent metres, the normal takes the slope of body_up (3,), the
+    people's mean pelvis-to-neck direction (people stand and walk upright on average: sideways exactly, forward
+    within a few degrees). Returns (plane, whether it was changed); the plane keeps passing through the points."""
+    points = np.asarray(points, dtype=np.float64)[plane.inliers]
+    up = np.asarray(body_up, dtype=np.float64)
+    if len(points) < 3 or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
+        return plane, False
+    up = up / np.linalg.norm(up)
+    centred = points - points.mean(axis=0)
+    in_plane = centred - np.outer(centred @ plane.normal, plane.normal)
+    _, spread, axes = np.linalg.svd(in_plane, full_matrices=False)
+    extent = spread[:2] / np.sqrt(len(points))  # rms extent along the two in-plane axes
+    short = extent < min_extent
+    if not short.any():
+        return plane, False
+    # The normal in the basis (axis 0, axis 1, fitted normal), with the slopes along short axes from body_up.
+    coords = np.array([up @ axes[0] if short[0] else 0.0, up @ axes[1] if short[1] else 0.0,
+                       abs(up @ plane.normal)])
+    normal = coords[0] * axes[0] + coords[1] * axes[1] + coords[2] * plane.normal
+    if np.linalg.norm(normal) < 1e-6:
+        return plane, False
+    normal /= np.linalg.norm(normal)
+    heights = points @ normal
+    offset = -float(np.median(heights))
+    rms = float(np.sqrt(np.mean((heights + offset) ** 2)))
+    return PlaneFit(normal=normal, offset=offset, inliers=plane.inliers, rms=rms), True
+
+
 @dataclass(frozen=True)
 class FramePlanes:
     labels: np.ndarray  # (N,) DBSCAN cluster per contact point, -1 = noise

@@ -1,5 +1,10 @@
-"""Perception and odometry nodes (thesis levels 1-3): each validates the data contract of m3c.nodes.records
-around a component reached through m3c.nodes.adapters."""
+"""Perception and odometry nodes (thesis levels 1-3).
+
+The default graph runs M3C's perception (m3c.perception) as one `perception` node and its patch visual odometry
+(m3c.vo) in the `vo` node. The per-task node types below it (detections, masks, keypoints, body, tracking,
+contacts) hold the same data contract (m3c.nodes.records) for graphs that take each task from a separate
+component, reached through m3c.nodes.adapters.
+"""
 
 from __future__ import annotations
 
@@ -9,8 +14,129 @@ from typing import Any
 import numpy as np
 
 from m3c.nodes import adapters
-from m3c.nodes.records import table_length
-from m3c.pipeline import Node, PipelineError, register_node
+from m3c.nodes.frames import stream_frames
+from m3c.nodes.records import decode_mask, encode_masks, table_length
+from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, register_node
+
+
+@register_node
+class PerceptionNode(Node):
+    """People in every frame, in one streaming pass (m3c.perception.run_perception_frames): detection (with the
+    tracker's predicted boxes as proposals between detector runs), segmentation, the thesis's isolated square
+    patches (5 px padding, shifted inside the frame, other people whitened), 2D keypoints, appearance-aware
+    tracking; then per track the camera-local body fit (warm-started frame to frame) and contacts.
+
+    One node rather than one per task because the tasks feed each other within a frame: the tracker's
+    predictions are the detector's proposals, and each person's patch is isolated from everyone found in the
+    frame. Outputs are the per-detection tables of m3c.nodes.records, one row per tracked person per frame
+    (people of unconfirmed tracks and frames whose body fit failed are left out).
+
+    Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
+    static_camera (contacts from foot speeds in the camera frame), and any other m3c.perception.PerceptionConfig
+    setting under `options` (tracker, detect_every, ...).
+    """
+
+    type_name = "perception"
+    level = "patch"
+    inputs = ("video", "camera")
+    outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        estimators: dict[str, Any] = field(default_factory=dict)
+        static_camera: bool = False
+        options: dict[str, Any] = field(default_factory=dict)
+
+    def _perception_config(self, intrinsics=None, body_model: str | None = None):
+        from m3c.perception import PerceptionConfig
+
+        data = {**self.config.options, **self.config.estimators, "static_camera": self.config.static_camera}
+        if intrinsics is not None:
+            data["intrinsics"] = [float(v) for v in intrinsics]
+        try:
+            config = PerceptionConfig.from_dict(data)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"node {self.name!r}: {err}") from None
+        body = config.estimators["body"]
+        if body.name == "fit" and body_model is not None and "model_path" not in body.options:
+            body.options["model_path"] = body_model  # fit with the run's body model
+        return config
+
+    def check(self, ctx) -> None:
+        from m3c.perception.mediapipe_pose import NAME, mediapipe_available
+
+        from m3c.perception import available
+
+        config = self._perception_config()
+        for task, spec in config.estimators.items():
+            if spec.name not in available(task):
+                raise InputError(f"node {self.name!r}: no {task} estimator named {spec.name!r}; available: "
+                                 f"{', '.join(available(task))}")
+        users = sorted(task for task, spec in config.estimators.items() if spec.name == NAME)
+        if users and not mediapipe_available():
+            raise ComponentUnavailable(self.name, f"MediaPipe (the {', '.join(users)} estimator)",
+                                       "install it with pip install 'm3c[perception]' (mediapipe==0.10.14, "
+                                       "its pose models ship inside the wheel)")
+
+    def run(self, ctx, inputs):
+        import cv2
+
+        from m3c.perception import run_perception_frames
+
+        video = inputs["video"]
+        config = self._perception_config(inputs["camera"]["intrinsics"], ctx.settings.body_model)
+        T = int(video["num_frames"])
+        with ctx.progress("people", T) as bar:
+            frames = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB) for _, frame in stream_frames(ctx, video))
+            result = run_perception_frames(frames, float(video["fps"]), (video["height"], video["width"]), config,
+                                           progress=lambda _: bar.update(), source=video["name"])
+        if result.num_frames != T:
+            raise InputError(f"{video['name']}: decoded {result.num_frames} of {T} frames")
+        ctx.log.info("%d track(s); seconds per stage: %s", len(result.tracks),
+                     ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items() if v >= 0.05))
+        return self._tables(result)
+
+    @staticmethod
+    def _tables(result) -> dict:
+        rows: dict[str, list] = {k: [] for k in ("frame", "box", "score", "keypoints", "pose", "betas", "transl",
+                                                 "track_id", "contacts", "mask")}
+        for track in result.tracks:
+            valid = track.bodies.valid
+            pose = track.bodies.pose
+            for i in np.flatnonzero(valid):
+                rows["frame"].append(track.frame_ids[i])
+                rows["box"].append(track.boxes[i])
+                rows["score"].append(track.scores[i])
+                rows["keypoints"].append(track.keypoints[i, :17])
+                rows["pose"].append(pose[i])
+                rows["betas"].append(track.bodies.betas[i])
+                rows["transl"].append(track.bodies.transl[i])
+                rows["track_id"].append(track.track_id)
+                rows["contacts"].append(track.contacts[i])
+                mask = track.masks[i] if track.masks is not None else None
+                if mask is None:
+                    rows["mask"].append((np.zeros((0, 0), bool), 0, 0))
+                else:
+                    rows["mask"].append((mask[0], int(mask[1][0]), int(mask[1][1])))
+        n = len(rows["frame"])
+        order = np.lexsort((-np.asarray(rows["score"], dtype=np.float64).reshape(n),
+                            np.asarray(rows["frame"], dtype=np.int64).reshape(n)))
+
+        def column(name, dtype, trailing):
+            return np.asarray(rows[name], dtype=dtype).reshape((n,) + trailing)[order]
+
+        num_betas = len(result.tracks[0].bodies.betas[0]) if result.tracks else 10
+        return {
+            "detections": {"frame": column("frame", np.int64, ()), "box": column("box", np.float32, (4,)),
+                           "score": column("score", np.float32, ())},
+            "masks": encode_masks([rows["mask"][k] for k in order]),
+            "keypoints": {"keypoints": column("keypoints", np.float32, (17, 3))},
+            "body": {"pose": column("pose", np.float64, (24, 3)), "betas": column("betas", np.float64, (num_betas,)),
+                     "transl": column("transl", np.float64, (3,))},
+            "tracking": {"track_id": column("track_id", np.int64, ())},
+            "contacts": {"joint_contacts": column("contacts", np.float32, (4,))},
+        }
 
 
 @dataclass
@@ -194,32 +320,94 @@ class ContactsNode(AdapterNode):
 @register_node
 class VisualOdometryNode(AdapterNode):
     """Camera poses world_from_cam (T, 4, 4); the world is the first camera's frame, translation up to scale.
-    With static: true the camera is taken not to move (identity poses) and no odometry runs."""
+
+    backend "patch" (default): M3C's patch visual odometry (m3c.vo), streaming the frames, with every person's
+    mask (from the masks and detections inputs) hidden from it, and depth maps when the depth node gives them;
+    options: m3c.vo.VOConfig settings. Any other backend goes through the "vo" adapter. With static: true the
+    camera is taken not to move (identity poses) and no odometry runs."""
 
     type_name = "vo"
     level = "patch"
     component = "vo"
-    inputs = ("video", "masks", "depth", "camera")
-    optional_inputs = ("masks", "depth")
+    inputs = ("video", "masks", "detections", "depth", "camera")
+    optional_inputs = ("masks", "detections", "depth")
     outputs = ("cameras",)
 
     @dataclass
     class Config(BackendConfig):
+        backend: str = "patch"
         static: bool = False
 
     def check(self, ctx) -> None:
-        if not self.config.static:
+        if self.config.static:
+            return
+        if self.config.backend == "patch":
+            self._vo_config()
+        else:
             super().check(ctx)
+
+    def _vo_config(self):
+        from m3c.vo import VOConfig
+
+        try:
+            return VOConfig(**self.config.options)
+        except TypeError as err:
+            raise InputError(f"node {self.name!r}: bad option in vo.options ({err}); options are m3c.vo.VOConfig "
+                             "settings") from None
 
     def run(self, ctx, inputs):
         T = int(inputs["video"]["num_frames"])
         if self.config.static:
             return {"cameras": {"world_from_cam": np.tile(np.eye(4), (T, 1, 1)), "static": True,
                                 "source": "static camera (declared)"}}
-        out = super().run(ctx, inputs)["cameras"]
+        if self.config.backend == "patch":
+            out = self._patch_vo(ctx, inputs)
+        else:
+            out = super().run(ctx, inputs)["cameras"]
         poses = np.asarray(out.get("world_from_cam"), dtype=np.float64)
         if poses.shape != (T, 4, 4) or not np.isfinite(poses).all():
             raise PipelineError(f"node {self.name!r}: world_from_cam must be ({T}, 4, 4) and finite, got "
                                 f"{poses.shape}")
         return {"cameras": {"world_from_cam": poses, "static": False,
                             "source": str(out.get("source", self.config.backend))}}
+
+    def _patch_vo(self, ctx, inputs) -> dict:
+        from m3c.vo import VisualOdometry
+
+        video, masks, detections = inputs["video"], inputs["masks"], inputs["detections"]
+        if (masks is None) != (detections is None):
+            raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
+                                "odometry) or neither")
+        rows_of_frame: dict[int, list[int]] = {}
+        if masks is not None:
+            for n, frame in enumerate(np.asarray(detections["frame"])):
+                rows_of_frame.setdefault(int(frame), []).append(n)
+        depth = inputs["depth"]
+        maps = depth.get("depth") if depth is not None and depth.get("available") else None
+        height, width = int(video["height"]), int(video["width"])
+        vo = VisualOdometry(intrinsics=inputs["camera"]["intrinsics"], config=self._vo_config(), bgr=True)
+        with ctx.progress("camera", int(video["num_frames"])) as bar:
+            for i, frame in stream_frames(ctx, video):
+                mask = None
+                if masks is not None:
+                    mask = np.zeros((height, width), dtype=bool)
+                    for n in rows_of_frame.get(i, ()):
+                        person, x0, y0 = decode_mask(masks, n)
+                        h, w = person.shape
+                        x1, y1 = min(x0 + w, width), min(y0 + h, height)
+                        if x1 > max(x0, 0) and y1 > max(y0, 0):
+                            mask[max(y0, 0):y1, max(x0, 0):x1] |= person[max(-y0, 0):y1 - y0, max(-x0, 0):x1 - x0]
+                frame_depth = None
+                if maps is not None:
+                    import cv2
+
+                    frame_depth = cv2.resize(np.asarray(maps[i], dtype=np.float32), (width, height))
+                vo.add_frame(frame, mask, frame_depth)
+                bar.update()
+        result = vo.finish()
+        ctx.log.info("visual odometry: %s; median tracked ratio %.2f", result.message,
+                     float(np.median(result.tracking_ratio)))
+        if result.static_camera:
+            ctx.log.warning("the camera barely moved: odometry gives rotation only (pass --static-camera if it "
+                            "stood still)")
+        return {"world_from_cam": result.world_from_cam, "source": "patch visual odometry (m3c.vo)"}

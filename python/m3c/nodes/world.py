@@ -15,7 +15,8 @@ from typing import Literal
 import numpy as np
 
 from m3c.body.transform import rest_root_joint, transform_smpl
-from m3c.ground import CAMERA_UP, ContactTrack, GroundParams, estimate_ground_planes, fit_plane, foot_vertex_ids
+from m3c.ground import (CAMERA_UP, ContactTrack, GroundParams, estimate_ground_planes, fit_plane, foot_vertex_ids,
+                        level_with_body_up)
 from m3c.motion import CONTACT_JOINTS
 from m3c.pipeline import ComponentUnavailable, Node, PipelineError, register_node
 
@@ -177,10 +178,11 @@ class GroundNode(Node):
         seed: int = 0
         max_distance: float = 0.10
         fill: Literal["hold", "linear"] = "hold"
+        level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
 
     def params(self) -> GroundParams:
         c = asdict(self.config)
-        for key in ("planes", "contact_threshold", "window", "max_tilt"):
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up"):
             c.pop(key)
         return GroundParams(**c)
 
@@ -214,6 +216,11 @@ class GroundNode(Node):
                                      min_support=self.config.min_support, seed=self.config.seed)
             except ValueError as err:
                 ctx.log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
+        if dominant is not None and self.config.level_with_body_up:
+            dominant, levelled = level_with_body_up(dominant, pooled, self._body_up(model, tracks, cameras))
+            if levelled:
+                ctx.log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
+                             "it is taken from the people's upright direction")
         if dominant is not None:
             height = float(dominant.signed_distance(cameras[0, :3, 3]))
             world_from_vo = gravity_frame(dominant.normal, cameras[0], height)
@@ -257,6 +264,20 @@ class GroundNode(Node):
         return {"ground": {"world_from_vo": world_from_vo, "up_source": "ground" if dominant else "camera",
                            "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
                            "contact_points": int(len(pooled)), "tracks": out_tracks}}
+
+    @staticmethod
+    def _body_up(model, tracks, cameras) -> np.ndarray:
+        """Mean unit pelvis-to-neck direction of every visible person-frame, in the metric VO frame."""
+        directions = []
+        for track in tracks:
+            frames = np.flatnonzero(track["visible"])
+            joints = model.joints(_poses(track)[frames], track["betas"], track["transl"][frames])
+            spine = joints[:, 12] - joints[:, 0]
+            spine /= np.linalg.norm(spine, axis=1, keepdims=True)
+            rotations = cameras[track["first_frame"] + frames, :3, :3]
+            directions.append(np.einsum("nij,nj->ni", rotations, spine))
+        mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
+        return mean / max(np.linalg.norm(mean), 1e-12)
 
     def _contact_points(self, model, track, cameras, foot_ids, foot_joint) -> list[np.ndarray]:
         n = track["num_frames"]

@@ -126,6 +126,7 @@ class PersonTrack:
     contacts: np.ndarray
     gender: str
     estimators: dict
+    masks: list | None = None  # per frame (bool mask, mask_box) or None; kept in memory only (not saved)
 
 
 @dataclass
@@ -361,8 +362,10 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
             sources.setdefault(task, set()).add(name)
     estimators = {task: ",".join(sorted(v)) for task, v in sources.items()}
     estimators.update(body=names["body"], contacts=names["contacts"], gender=names["gender"])
+    masks = [(p.mask, p.mask_box) if p.mask is not None else None for p in people] if config.save_masks else None
     return PersonTrack(track_id, frame_ids, np.stack([p.box for p in people]), np.array([p.score for p in people]),
-                       keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators)
+                       keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators,
+                       masks)
 
 
 def load_result(path: str | Path) -> PerceptionResult:
