@@ -119,3 +119,37 @@ def test_evaluate_3dpw(tmp_path, synthetic_body_model, rng, h36m_regressor):
 
     text = format_3dpw_tables(evaluation)
     assert "downtown_fake_00^2" in text and "Noisy: PA-MPJPE" in text
+
+
+def test_m3c_run_folders_are_read_as_predictions(tmp_path, synthetic_body_model, rng):
+    import json
+
+    from m3c.io.results import SCHEMA
+
+    model = synthetic_body_model
+    truth = make_dataset(tmp_path / "3DPW", model, rng)
+    runs = tmp_path / "runs"
+    for name, (people, world_from_cam) in truth.items():
+        # `m3c run --frames 0::2` output: every other frame processed, people valid from frame 2 on.
+        frame_ids = np.arange(0, 12, 2)
+        P, T = len(people), len(frame_ids)
+        valid = np.tile(frame_ids >= 2, (P, 1))
+        arrays = {"frame_ids": frame_ids, "world_from_cam": world_from_cam[frame_ids], "track_ids": np.arange(P),
+                  "valid": valid, "betas": np.stack([p["betas"] for p in people]),
+                  "world_root_orient": np.full((P, T, 3), np.nan), "body_pose": np.full((P, T, 23, 3), np.nan),
+                  "world_transl": np.full((P, T, 3), np.nan)}
+        for k, p in enumerate(people):
+            arrays["world_root_orient"][k, valid[k]] = p["pose"][frame_ids[valid[k]], 0]
+            arrays["body_pose"][k, valid[k]] = p["pose"][frame_ids[valid[k]], 1:]
+            arrays["world_transl"][k, valid[k]] = p["transl"][frame_ids[valid[k]]]
+        (runs / name).mkdir(parents=True)
+        np.savez(runs / name / "results.npz", **arrays)
+        (runs / name / "results.json").write_text(json.dumps({"schema": SCHEMA}))
+    models = {"male": model, "female": model, "neutral": model}
+    evaluation = evaluate_3dpw(tmp_path / "3DPW", "test", {"M3C": runs}, models)
+    row = evaluation["methods"]["M3C"]
+    for key in ("pa_mpjpe", "mpjpe", "w_mpjpe"):
+        assert row[key] == pytest.approx(0.0, abs=1e-6), key
+    # Frames the run skipped are not predictions: each person is evaluated on the 5 processed frames.
+    result = evaluation["sequences"]["downtown_fake_00"]["M3C"]
+    assert result.mean("pa_mpjpe") == pytest.approx(0.0, abs=1e-6)

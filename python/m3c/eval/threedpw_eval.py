@@ -8,6 +8,7 @@ Predictions: one file per sequence, `<results dir>/<sequence name>.npz`, holding
     track{k}_body_pose     (n, 23, 3) or (n, 69)              track{k}_betas  (10,) or (n, 10)
 and, for the sequence, `world_from_cam` (T, 4, 4) of the method's own cameras (camera-frame metrics pose the
 world-frame bodies in these cameras; a camera-local method writes its local bodies with identity cameras).
+An `m3c run` output folder `<results dir>/<sequence name>/` (results.npz) is read as well (read_m3c_results).
 Predictions are posed by the neutral SMPL model. Joints: the 14 evaluation joints from the H36M regressor
 (J_regressor_h36m, 17 x 6890, which users bring) with pelvis = mean of J14 rows 2 and 3; without it, SMPL's 24
 joints with pelvis = mean of the hips (not comparable with published 3DPW numbers).
@@ -69,6 +70,29 @@ def read_predictions(path: str | Path) -> tuple[list[PredictedTrack], np.ndarray
     return tracks, world_from_cam
 
 
+def read_m3c_results(folder: str | Path) -> tuple[list[PredictedTrack], np.ndarray]:
+    """(tracks, world_from_cam) from an `m3c run` output folder, in read_predictions' form: track frames are
+    the video's frame ids, and world_from_cam covers frames 0 .. last processed (frames skipped by a frame step
+    take the previous processed camera)."""
+    from m3c.io.results import load_results
+
+    _, r = load_results(folder)
+    frame_ids = np.asarray(r["frame_ids"], dtype=np.int64)
+    cams = np.asarray(r["world_from_cam"], dtype=np.float64)
+    index = np.searchsorted(frame_ids, np.arange(frame_ids[-1] + 1), side="right") - 1
+    world_from_cam = cams[np.maximum(index, 0)]
+    tracks = []
+    for p in range(len(r["track_ids"])):
+        valid = np.asarray(r["valid"][p], dtype=bool)
+        if not valid.any():
+            continue
+        tracks.append(PredictedTrack(frame_ids[valid], np.asarray(r["world_root_orient"][p][valid], np.float64),
+                                     np.asarray(r["body_pose"][p][valid], np.float64),
+                                     np.asarray(r["betas"][p], np.float64),
+                                     np.asarray(r["world_transl"][p][valid], np.float64)))
+    return tracks, world_from_cam
+
+
 def _eval_regressor(model: BodyModel, j_regressor_h36m):
     return None if j_regressor_h36m is None else model.h36m_regressor(j_regressor_h36m, evaluation_joints=True)
 
@@ -114,8 +138,9 @@ def evaluate_3dpw(root: str | Path, split: str, results: dict[str, str | Path], 
         table[seq.name] = {"people": len(gt)}
         for method, folder in results.items():
             pred_path = Path(folder) / f"{seq.name}.npz"
-            if pred_path.is_file():
-                tracks, cams = read_predictions(pred_path)
+            run_folder = Path(folder) / seq.name
+            if pred_path.is_file() or (run_folder / "results.npz").is_file():
+                tracks, cams = read_predictions(pred_path) if pred_path.is_file() else read_m3c_results(run_folder)
                 pred = prediction_tracks(tracks, cams, models["neutral"], j_regressor_h36m)
             else:
                 pred = []
