@@ -116,12 +116,12 @@ nodes:
     inputs: {{tracks: local_tracks.tracks, cameras: vo.cameras, scale: scale.scale}}
   lift:
     inputs: {{video: frames.video, camera: camera.camera, tracks: local_tracks.tracks, cameras: vo.cameras,
-             scale: scale.scale, ground: ground.ground}}
+             scale: ground.scale, ground: ground.ground}}
     config: {{method: camera}}
   optimize:
     inputs: {{camera: camera.camera, world: lift.world}}
   results:
-    inputs: {{video: frames.video, camera: camera.camera, cameras: vo.cameras, scale: scale.scale,
+    inputs: {{video: frames.video, camera: camera.camera, cameras: vo.cameras, scale: ground.scale,
              ground: ground.ground, world: lift.world, result: optimize.result}}
   overlay:
     inputs: {{video: frames.video, camera: camera.camera, result: optimize.result}}

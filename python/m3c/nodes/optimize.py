@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -53,10 +53,15 @@ class OptimizeNode(Node):
     class Config:
         enabled: bool = True
         optimizer: dict[str, Any] = field(default_factory=dict)  # OptimizerConfig fields to override
+        # free: the stages that free the camera scale estimate it; fixed: it stays at the lift's; auto: fixed when
+        # it was measured against the ground (the contacts' speed is a weaker cue: leg swing along the view
+        # direction is barely seen), free otherwise.
+        scale: Literal["auto", "free", "fixed"] = "auto"
 
     def key_config(self, ctx):
         # The resolved recipe: a changed default in the core re-runs the optimization.
-        return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer))}
+        return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer)),
+                "scale": self.config.scale}
 
     def check(self, ctx) -> None:
         optimizer_config(self.config.optimizer)
@@ -74,6 +79,9 @@ class OptimizeNode(Node):
                                "camera_scale": cameras.initial_scale, "camera_offset": np.zeros(3), "stages": [],
                                "stopped_early": False, "optimized": False}}
         config = optimizer_config(self.config.optimizer)
+        if self.config.scale == "fixed" or (self.config.scale == "auto" and world.get("scale_source") == "ground"):
+            for stage in config.stages:
+                stage.free = [v for v in stage.free if v != "scale"]
         metric = _scaled(world_from_cam, cameras.initial_scale)
         motion_tracks = [to_motion_track(t, metric) for t in tracks]
         result = optimize(ctx.body_model(), motion_tracks, cameras, config)

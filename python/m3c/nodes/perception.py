@@ -323,7 +323,8 @@ class VisualOdometryNode(AdapterNode):
 
     backend "patch" (default): M3C's patch visual odometry (m3c.vo), streaming the frames, with every person's
     mask (from the masks and detections inputs) hidden from it, and depth maps when the depth node gives them;
-    options: m3c.vo.VOConfig settings. Any other backend goes through the "vo" adapter. With static: true the
+    options: m3c.vo.VOConfig settings. Any other backend goes through the "vo" adapter. Output cameras:
+    world_from_cam (T, 4, 4), static, source, and points (M, 3) the odometry's map when it gives one. With static: true the
     camera is taken not to move (identity poses) and no odometry runs."""
 
     type_name = "vo"
@@ -368,8 +369,11 @@ class VisualOdometryNode(AdapterNode):
         if poses.shape != (T, 4, 4) or not np.isfinite(poses).all():
             raise PipelineError(f"node {self.name!r}: world_from_cam must be ({T}, 4, 4) and finite, got "
                                 f"{poses.shape}")
-        return {"cameras": {"world_from_cam": poses, "static": False,
-                            "source": str(out.get("source", self.config.backend))}}
+        cameras = {"world_from_cam": poses, "static": False, "source": str(out.get("source", self.config.backend))}
+        points = np.asarray(out.get("points", np.zeros((0, 3))), dtype=np.float32).reshape(-1, 3)
+        if np.isfinite(points).all():
+            cameras["points"] = points  # the odometry's map (world, VO units), for the scale against the ground
+        return {"cameras": cameras}
 
     def _patch_vo(self, ctx, inputs) -> dict:
         from m3c.vo import VisualOdometry
@@ -410,4 +414,5 @@ class VisualOdometryNode(AdapterNode):
         if result.static_camera:
             ctx.log.warning("the camera barely moved: odometry gives rotation only (pass --static-camera if it "
                             "stood still)")
-        return {"world_from_cam": result.world_from_cam, "source": "patch visual odometry (m3c.vo)"}
+        return {"world_from_cam": result.world_from_cam, "points": result.points,
+                "source": "patch visual odometry (m3c.vo)"}

@@ -154,12 +154,15 @@ class GroundNode(Node):
     Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), up_source
     ("ground" or "camera"), plane (normal (3,), offset) the dominant plane in the world (y = 0 when found),
     tracks: per track normal (n, 3), offset (n,) in the world, observed (n,), valid (n,).
+    Output scale: the scale node's, or (source "ground") the camera scale measured against the ground: the
+    contacts give the camera's metric height above the ground in each frame, the odometry's map points on the
+    ground the same height in VO units (m3c.vo.scale_from_ground); the ground is then fitted again at that scale.
     """
 
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale")
-    outputs = ("ground",)
+    outputs = ("ground", "scale")
     settings = ("body_model",)
 
     @dataclass
@@ -179,48 +182,44 @@ class GroundNode(Node):
         max_distance: float = 0.10
         fill: Literal["hold", "linear"] = "hold"
         level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
+        scale_from_ground: bool = True  # measure the camera scale against the odometry's ground points
 
     def params(self) -> GroundParams:
         c = asdict(self.config)
-        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up"):
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up", "scale_from_ground"):
             c.pop(key)
         return GroundParams(**c)
 
     def run(self, ctx, inputs):
         model = ctx.body_model()
         tracks = inputs["tracks"]["tracks"]
-        cameras = metric_cameras(inputs["cameras"]["world_from_cam"], inputs["scale"]["value"])
+        vo_cameras = np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64)
+        scale = dict(inputs["scale"])
         foot_ids = foot_vertex_ids(model.data.weights)
         # Each foot vertex takes the contact probability of the contact joint that moves it most.
         foot_joint = np.argmax(model.data.weights[foot_ids][:, list(CONTACT_JOINTS)], axis=1)
-        contact_tracks, all_points, raw = [], [], []
         with ctx.progress("contact vertices", len(tracks)) as bar:
+            in_camera = []
             for track in tracks:
-                points = self._contact_points(model, track, cameras, foot_ids, foot_joint)
-                all_points.extend(points)
-                raw.append(points)
-                # One foot's sole in one frame hardly fixes a plane (a flexed foot tilts it): each frame also
-                # takes the contacts of the frames within `window`, steps at several places on the ground.
-                pooled = [np.concatenate(points[max(0, t - self.config.window):t + self.config.window + 1])
-                          for t in range(len(points))]
-                contact_tracks.append(ContactTrack(_track_frames(track), pooled, [np.ones(len(p), bool)
-                                                                                  for p in pooled]))
+                in_camera.append(self._contact_points(model, track, foot_ids, foot_joint))
                 bar.update()
+        body_up = self._body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
+        cameras = metric_cameras(vo_cameras, scale["value"])
+        dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, body_up)
+        measured = self._ground_scale(ctx, dominant, tracks, in_camera, inputs["cameras"], scale)
+        if measured is not None:
+            scale = measured
+            cameras = metric_cameras(vo_cameras, scale["value"])
+            dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, body_up)
         up_vo = cameras[0, :3, :3] @ CAMERA_UP
-        pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
-        dominant = None
-        if len(pooled) >= self.config.min_support:
-            try:
-                dominant = fit_plane(pooled, up=up_vo, robust=self.config.robust,
-                                     inlier_threshold=max(self.config.inlier_threshold, 0.05),
-                                     min_support=self.config.min_support, seed=self.config.seed)
-            except ValueError as err:
-                ctx.log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
-        if dominant is not None and self.config.level_with_body_up:
-            dominant, levelled = level_with_body_up(dominant, pooled, self._body_up(model, tracks, cameras))
-            if levelled:
-                ctx.log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
-                             "it is taken from the people's upright direction")
+        contact_tracks = []
+        for track, points in zip(tracks, raw):
+            # One foot's sole in one frame hardly fixes a plane (a flexed foot tilts it): each frame also
+            # takes the contacts of the frames within `window`, steps at several places on the ground.
+            pooled_track = [np.concatenate(points[max(0, t - self.config.window):t + self.config.window + 1])
+                            for t in range(len(points))]
+            contact_tracks.append(ContactTrack(_track_frames(track), pooled_track,
+                                               [np.ones(len(p), bool) for p in pooled_track]))
         if dominant is not None:
             height = float(dominant.signed_distance(cameras[0, :3, 3]))
             world_from_vo = gravity_frame(dominant.normal, cameras[0], height)
@@ -263,7 +262,69 @@ class GroundNode(Node):
                           for track, points in zip(tracks, raw)]
         return {"ground": {"world_from_vo": world_from_vo, "up_source": "ground" if dominant else "camera",
                            "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
-                           "contact_points": int(len(pooled)), "tracks": out_tracks}}
+                           "contact_points": int(len(pooled)), "tracks": out_tracks},
+                "scale": scale}
+
+    def _dominant(self, ctx, tracks, in_camera, cameras, body_up):
+        """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), all contact points
+        there, and per track per frame its contact points there."""
+        raw = []
+        for track, points in zip(tracks, in_camera):
+            world = []
+            for i, p in enumerate(points):
+                cam = cameras[track["first_frame"] + i]
+                world.append(p @ cam[:3, :3].T + cam[:3, 3])
+            raw.append(world)
+        all_points = [p for points in raw for p in points]
+        pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
+        up_vo = cameras[0, :3, :3] @ CAMERA_UP
+        dominant = None
+        if len(pooled) >= self.config.min_support:
+            try:
+                dominant = fit_plane(pooled, up=up_vo, robust=self.config.robust,
+                                     inlier_threshold=max(self.config.inlier_threshold, 0.05),
+                                     min_support=self.config.min_support, seed=self.config.seed)
+            except ValueError as err:
+                ctx.log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
+        if dominant is not None and self.config.level_with_body_up:
+            dominant, levelled = level_with_body_up(dominant, pooled, body_up)
+            if levelled:
+                ctx.log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
+                             "it is taken from the people's upright direction")
+        return dominant, pooled, raw
+
+    def _ground_scale(self, ctx, dominant, tracks, in_camera, cameras, scale) -> dict | None:
+        """The camera scale measured against the ground (m3c.vo.scale_from_ground): the people's contacts give
+        the camera's metric height above the ground in each frame, the odometry's map points on the ground the
+        same height in VO units. None when not measured (setting off, static camera, no ground, too little
+        support: the scale node's value stands)."""
+        from m3c.vo.scale import scale_from_ground
+
+        points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+        if not self.config.scale_from_ground or cameras["static"] or dominant is None or scale["source"] == "given":
+            return None
+        vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
+        by_frame: dict[int, list[np.ndarray]] = {}
+        for track, points_cam in zip(tracks, in_camera):
+            for i, p in enumerate(points_cam):
+                if len(p):
+                    by_frame.setdefault(track["first_frame"] + i, []).append(p)
+        frames = np.array(sorted(by_frame), dtype=np.int64)
+        if not len(frames) or not len(points):
+            ctx.log.info("camera scale not measured against the ground: %s",
+                         "the odometry gave no map points" if not len(points) else "no planted feet")
+            return None
+        normals = np.einsum("fji,j->fi", vo[frames, :3, :3], dominant.normal)  # R_t^T n: the ground up per camera
+        heights = np.array([np.median(-(np.concatenate(by_frame[f]) @ n)) for f, n in zip(frames, normals)])
+        value, info = scale_from_ground(points, vo, normals, heights, frames)
+        if value is None:
+            ctx.log.info("camera scale not measured against the ground: %s", info.reason)
+            return None
+        ctx.log.info("camera scale %.4f m per VO unit measured against the ground (%d map points, %d frames, spread "
+                     "%.1f%%); the %s estimate was %.4f", value, info.points, info.frames, 100 * info.spread,
+                     scale["source"], scale["value"])
+        return {"value": float(value), "source": "ground", "frames": int(info.frames),
+                "ground_points": int(info.points), "spread": float(info.spread)}
 
     @staticmethod
     def _body_up(model, tracks, cameras) -> np.ndarray:
@@ -279,7 +340,8 @@ class GroundNode(Node):
         mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
         return mean / max(np.linalg.norm(mean), 1e-12)
 
-    def _contact_points(self, model, track, cameras, foot_ids, foot_joint) -> list[np.ndarray]:
+    def _contact_points(self, model, track, foot_ids, foot_joint) -> list[np.ndarray]:
+        """Per frame of the track, the contact vertices in that frame's camera (metres)."""
         n = track["num_frames"]
         points = [np.zeros((0, 3)) for _ in range(n)]
         if "contacts" not in track:
@@ -292,9 +354,7 @@ class GroundNode(Node):
                 continue
             verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
             for k, i in enumerate(chunk):
-                selected = verts[k][in_contact[i][foot_joint]]
-                cam = cameras[track["first_frame"] + i]
-                points[i] = selected @ cam[:3, :3].T + cam[:3, 3]
+                points[i] = verts[k][in_contact[i][foot_joint]]
         return points
 
 
@@ -400,5 +460,6 @@ class LiftNode(Node):
                 world["ground_offset"] = ground["tracks"][k]["offset"]
             out.append(world)
         return {"world": {"tracks": out, "world_from_cam": optimizer_cameras, "initial_scale": scale,
+                          "scale_source": str(inputs["scale"].get("source", "")),
                           "static": bool(inputs["cameras"]["static"]),
                           "method": "wham" if lifter is not None else "camera"}}
