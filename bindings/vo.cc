@@ -123,8 +123,24 @@ py::dict ResultToDict(const PatchVOResult& r) {
   stats["final_ba_seconds"] = s.final_ba_seconds;
   stats["front_end_seconds"] = s.front_end_seconds;
   stats["total_seconds"] = s.total_seconds;
+  const py::ssize_t M = static_cast<py::ssize_t>(r.points.size());
+  py::array_t<double> points({M, py::ssize_t{3}}), pixels({M, py::ssize_t{2}});
+  py::array_t<int32_t> point_frames(M), point_inliers(M);
+  auto xm = points.mutable_unchecked<2>();
+  auto uvm = pixels.mutable_unchecked<2>();
+  for (py::ssize_t i = 0; i < M; ++i) {
+    const vo::MapPoint& p = r.points[i];
+    for (int k = 0; k < 3; ++k) xm(i, k) = p.world[k];
+    uvm(i, 0) = p.host_uv.x(), uvm(i, 1) = p.host_uv.y();
+    point_frames.mutable_at(i) = p.host_frame;
+    point_inliers.mutable_at(i) = p.inlier_observations;
+  }
   py::dict out;
   out["world_from_cam"] = poses;
+  out["points"] = points;
+  out["point_frames"] = point_frames;
+  out["point_pixels"] = pixels;
+  out["point_inliers"] = point_inliers;
   out["intrinsics"] = K;
   out["processing_scale"] = r.processing_scale;
   out["quality"] = quality;
@@ -308,6 +324,9 @@ Args:
 
 Returns:
     dict with world_from_cam (T, 4, 4) float64 (world = first camera, OpenCV axes, arbitrary scale),
+    points (M, 3) float64 (the final map: patches of the final keyframes after bundle adjustment, world frame,
+    VO units), point_frames (M,) int32 host frame, point_pixels (M, 2) host pixel (input resolution),
+    point_inliers (M,) int32 inlier keyframe measurements (>= 1),
     intrinsics (4,), processing_scale, quality (per-frame arrays attempted, tracked, inliers,
     reprojection_rms_px, keyframe, interpolated, refined), static_camera, stats, message.
 )doc");

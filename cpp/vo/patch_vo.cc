@@ -745,6 +745,7 @@ struct PatchVO::Impl {
       result.world_from_cam[t] = t < first ? Rigid3() : first_from_world * PoseOf(t).Inverse();
       result.quality[t] = frames[t].quality;
     }
+    if (initialized) CollectMapPoints(first_from_world, &result.points);
     stats.num_frames = T;
     stats.num_keyframes = static_cast<int>(keyframes.size());
     stats.num_patches = static_cast<int>(patches.size());
@@ -752,6 +753,30 @@ struct PatchVO::Impl {
     stats.total_seconds = Seconds(start_time);
     result.stats = stats;
     return result;
+  }
+
+  // The final map (see PatchVOResult::points), in the result's world frame (`first_from_world` * internal world).
+  void CollectMapPoints(const Rigid3& first_from_world, std::vector<MapPoint>* points) const {
+    for (int f : keyframes) {
+      for (int id : frames[f].hosted) {
+        const Patch& p = patches[id];
+        if (p.dead || !p.optimized || !(p.inverse_depth > 0) || !std::isfinite(p.inverse_depth)) continue;
+        int inliers = 0;
+        for (int o : p.observations) {
+          const Observation& ob = observations[o];
+          if (keyframe_index[ob.frame] >= 0 && ObservationError(ob) < options.outlier_threshold_px) ++inliers;
+        }
+        if (inliers == 0) continue;
+        const Eigen::Vector4d x = WorldPoint(p, false);
+        MapPoint m;
+        m.world = first_from_world * Eigen::Vector3d(x.head<3>() / x.w());
+        m.host_frame = p.host;
+        // Inverse of Intrinsics::Scaled's pixel mapping (pixel centres at integer + 0.5).
+        m.host_uv = (p.uv.array() + 0.5) / scale - 0.5;
+        m.inlier_observations = inliers;
+        points->push_back(m);
+      }
+    }
   }
 
   // Homogeneous world point of a patch (w = inverse depth; at infinity when `at_infinity`).

@@ -103,8 +103,19 @@ struct PatchVOStats {
   double total_seconds = 0.0;
 };
 
+// A patch of the final map: a 3D point with an inverse depth along its host pixel's ray.
+struct MapPoint {
+  Eigen::Vector3d world = Eigen::Vector3d::Zero();  // world = the first camera, VO units
+  int host_frame = 0;                               // input frame index
+  Eigen::Vector2d host_uv = Eigen::Vector2d::Zero();  // pixel in the host frame, input resolution
+  int inlier_observations = 0;  // keyframe measurements with reprojection error < outlier threshold
+};
+
 struct PatchVOResult {
   std::vector<Rigid3> world_from_cam;  // one per input frame; world = the first camera
+  // The final map: every patch hosted by a final keyframe that went through bundle adjustment, has positive
+  // inverse depth and at least one inlier measurement. Empty for a static camera (no depth is observable).
+  std::vector<MapPoint> points;
   Intrinsics intrinsics;               // at input resolution
   double processing_scale = 1.0;       // processing resolution / input resolution
   std::vector<FrameQuality> quality;

@@ -7,8 +7,9 @@ true path length.
 import numpy as np
 import pytest
 
-from m3c.vo import VOConfig, relative_ate, run_vo
-from m3c.vo.synthetic import following_occluders, forward_trajectory, render_sequence, static_trajectory
+from m3c.vo import VOConfig, relative_ate, run_vo, umeyama_sim3
+from m3c.vo.synthetic import (ROOM_MAX, ROOM_MIN, following_occluders, forward_trajectory, render_sequence,
+                              static_trajectory)
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +143,40 @@ def test_non_keyframe_poses_without_refinement(room_sequence):
     assert not result.quality["refined"].any()
     assert not result.quality["keyframe"].all()
     assert relative_ate(result.world_from_cam, seq.world_from_cam) <= 0.01
+
+
+def _distance_to_room(points):
+    """Distance of each point to the nearest wall, floor or ceiling of the rendered room (metres)."""
+    return np.minimum(np.abs(points - ROOM_MIN), np.abs(points - ROOM_MAX)).min(axis=1)
+
+
+@pytest.mark.parametrize("max_image_side", [640, 200])
+def test_map_points_lie_on_the_room_and_reproject_to_their_host_pixels(room_sequence, max_image_side):
+    """The exposed map, scaled by the similarity that aligns the VO trajectory onto the truth (both worlds are the
+    first camera; the trajectory's rotation about its own direction is weakly determined, so the first true
+    camera places the map), lies on the room's surfaces and projects through the true host camera onto the host
+    pixel. At max_image_side 200 the VO works on a downscaled image (scale 0.625), so the host pixels must have
+    been mapped back to input resolution."""
+    seq = room_sequence
+    result = run_vo(seq.frames, intrinsics=seq.intrinsics, config=VOConfig(max_image_side=max_image_side))
+    assert relative_ate(result.world_from_cam, seq.world_from_cam) <= 0.01
+    M = len(result.points)
+    assert M >= 300
+    assert result.points.shape == (M, 3) and result.point_pixels.shape == (M, 2)
+    assert result.point_frames.shape == (M,) and result.point_inliers.shape == (M,)
+    assert np.all(result.point_inliers >= 1)
+    assert np.all(result.quality["keyframe"][result.point_frames])  # hosts are keyframes
+    scale, _, _ = umeyama_sim3(result.camera_centres, seq.camera_centres)
+    first = seq.world_from_cam[0]
+    world = (scale * result.points) @ first[:3, :3].T + first[:3, 3]
+    cam_from_world = np.linalg.inv(seq.world_from_cam[result.point_frames])
+    x = np.einsum("nij,nj->ni", cam_from_world[:, :3, :3], world) + cam_from_world[:, :3, 3]
+    assert np.all(x[:, 2] > 0)
+    # Distance to the nearest surface relative to the distance from the host camera.
+    relative = _distance_to_room(world) / np.linalg.norm(x, axis=1)
+    assert np.median(relative) < 0.01 and np.quantile(relative, 0.9) < 0.03, np.quantile(relative, [0.5, 0.9])
+    fx, fy, cx, cy = seq.intrinsics
+    uv = np.column_stack([fx * x[:, 0] / x[:, 2] + cx, fy * x[:, 1] / x[:, 2] + cy])
+    error = np.linalg.norm(uv - result.point_pixels, axis=1)
+    assert np.median(error) < 0.5 and np.quantile(error, 0.9) < 1.0, np.quantile(error, [0.5, 0.9])
+    assert np.all((result.point_pixels >= -0.5) & (result.point_pixels <= [319.5, 239.5]))

@@ -89,6 +89,11 @@ class VOResult:
         refined (non-keyframe pose refined motion-only against the final map).
     static_camera: the camera never moved enough to initialise; translation is zero, rotation fitted.
     stats: timings (seconds) and counts.
+    points: (M, 3) float64, the final map in the world frame (VO units): every patch of a final keyframe
+        that went through bundle adjustment with positive depth and >= 1 inlier measurement (empty for a
+        static camera).
+    point_frames: (M,) int host frame of each point; point_pixels: (M, 2) its pixel in the host frame
+        (input resolution); point_inliers: (M,) inlier keyframe measurements of each point.
     """
     world_from_cam: np.ndarray
     intrinsics: np.ndarray
@@ -98,6 +103,10 @@ class VOResult:
     message: str
     processing_scale: float = 1.0
     extra: dict = field(default_factory=dict)
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    point_frames: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    point_pixels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    point_inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
     @property
     def camera_centres(self) -> np.ndarray:
@@ -114,7 +123,11 @@ class VOResult:
         return cls(world_from_cam=np.asarray(d["world_from_cam"]), intrinsics=np.asarray(d["intrinsics"]),
                    quality={k: np.asarray(v) for k, v in d["quality"].items()},
                    static_camera=bool(d["static_camera"]), stats=dict(d["stats"]), message=str(d["message"]),
-                   processing_scale=float(d["processing_scale"]))
+                   processing_scale=float(d["processing_scale"]),
+                   points=np.asarray(d.get("points", np.zeros((0, 3)))).reshape(-1, 3),
+                   point_frames=np.asarray(d.get("point_frames", np.zeros(0, np.int32))),
+                   point_pixels=np.asarray(d.get("point_pixels", np.zeros((0, 2)))).reshape(-1, 2),
+                   point_inliers=np.asarray(d.get("point_inliers", np.zeros(0, np.int32))))
 
 
 def _check_intrinsics(intrinsics) -> np.ndarray | None:

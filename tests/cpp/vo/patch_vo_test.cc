@@ -149,6 +149,22 @@ TEST(PatchVO, ExactMeasurementsGiveExactTrajectoryThroughAReplaceableFrontEnd) {
     EXPECT_LT(LogSO3(r.world_from_cam[i].rotation * truth[i].rotation.conjugate()).norm(), 1e-5) << i;
     EXPECT_LT(r.quality[i].reprojection_rms_px, 1e-3) << i;
   }
+  // The final map, aligned by the trajectory's similarity, lies on the plane and projects onto its host pixel
+  // through the true host camera.
+  const int n = static_cast<int>(r.world_from_cam.size());
+  Eigen::Matrix3Xd est(3, n), gt(3, n);
+  for (int i = 0; i < n; ++i) est.col(i) = r.world_from_cam[i].translation, gt.col(i) = truth[i].translation;
+  const Eigen::Matrix4d sim = Eigen::umeyama(est, gt, true);
+  ASSERT_GT(r.points.size(), 100u);
+  for (const MapPoint& p : r.points) {
+    const Eigen::Vector3d in_first = sim.topLeftCorner<3, 3>() * p.world + sim.topRightCorner<3, 1>();
+    const Eigen::Vector3d x = first_from_world.Inverse() * in_first;
+    EXPECT_NEAR(x.z() - 0.4 * x.y(), 3.0, 3e-3);
+    ASSERT_TRUE(p.host_frame >= 0 && p.host_frame < 40);
+    EXPECT_TRUE(r.quality[p.host_frame].keyframe);
+    EXPECT_GE(p.inlier_observations, 1);
+    EXPECT_LT((K.Project(cam_from_world[p.host_frame] * x) - p.host_uv).norm(), 1e-2);
+  }
 }
 
 TEST(PatchVO, FramesSkippedBeforeInitialisationAreInterpolated) {
