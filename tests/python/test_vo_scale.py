@@ -1,4 +1,4 @@
-"""Metric VO scale from the ground: synthetic scenes with known scale, and the patch VO's own map of a room."""
+"""Metric VO scale from the ground: synthetic scenes of known scale, and the patch VO's own map of a room."""
 
 import numpy as np
 import pytest
@@ -14,7 +14,8 @@ def _metric_cameras(T=30):
     poses = np.tile(np.eye(4), (T, 1, 1))
     for i in range(T):
         s = i / (T - 1)
-        poses[i, :3, :3] = look_rotation(0.2 * np.sin(2 * np.pi * s), -0.25 + 0.05 * np.sin(4 * np.pi * s), 0.03)
+        pitch = -0.25 + 0.05 * np.sin(4 * np.pi * s)  # looking down at the ground
+        poses[i, :3, :3] = look_rotation(0.2 * np.sin(2 * np.pi * s), pitch, 0.03)
         poses[i, :3, 3] = [0.3 * np.sin(2 * np.pi * s), 0.05 * np.sin(6 * np.pi * s), 3.0 * s]
     return poses
 
@@ -25,9 +26,10 @@ def _ground_points(rng, n):
 
 def _clutter(rng, n):
     """A wall beside the path and objects of every height standing on the ground (no single height)."""
-    wall = np.column_stack([np.full(n // 2, 2.0), rng.uniform(-1.0, GROUND_Y, n // 2), rng.uniform(3, 10, n // 2)])
-    m = n - n // 2
-    things = np.column_stack([rng.uniform(-3, 3, m), rng.uniform(0.0, GROUND_Y - 0.1, m), rng.uniform(2, 12, m)])
+    k, m = n // 2, n - n // 2
+    wall = np.column_stack([np.full(k, 2.0), rng.uniform(-1.0, GROUND_Y, k), rng.uniform(3, 10, k)])
+    across = rng.uniform(-3, 3, m)
+    things = np.column_stack([across, rng.uniform(0.0, GROUND_Y - 0.1, m), rng.uniform(2, 12, m)])
     return np.concatenate([wall, things])
 
 

@@ -2,9 +2,9 @@
 
 The people's contact points give the ground plane in metric camera coordinates (unit normal n pointing up,
 towards the camera's side, and the camera's height h above it in metres). The VO map has points on the same
-ground in VO units: seen from the same camera, their height below it along -n is h / scale. Each VO point below
-the camera, near the ground's direction, is a vote log(h_t / height) for log(scale); the ground is the densest
-narrow peak among the votes (trees, walls, cars and people give spread-out votes of their own).
+ground in VO units: seen from the same camera, their height below it along -n is h / scale. Each VO point
+below the camera, near the ground's direction, is a vote log(h_t / height) for log(scale); the ground is the
+densest narrow peak among the votes (trees, walls, cars and people give spread-out votes of their own).
 """
 
 from __future__ import annotations
@@ -51,7 +51,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         points: (M, 3) VO map points in the VO world frame (VOResult.points).
         world_from_cam: (T, 4, 4) VO camera poses (VOResult.world_from_cam), translation in VO units.
         ground_normal_cam: (F, 3) for each frame in `frames` the ground's normal in that frame's camera
-            coordinates (OpenCV axes), pointing up, i.e. towards the camera's side of the plane; normalised here.
+            coordinates (OpenCV axes), pointing up, i.e. towards the camera's side of the plane; normalised
+            here.
         camera_height_m: (F,) the camera's height above that plane, metres (> 0).
         frames: (F,) indices into world_from_cam; None means every frame (F = T).
         max_angle_deg: a point votes in frame t when the angle between its direction from the camera and the
@@ -99,7 +100,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         votes.append(np.log(height / below[keep]))
         vote_point.append(np.flatnonzero(keep))
         vote_frame.append(np.full(int(keep.sum()), frame))
-    votes, vote_point, vote_frame = np.concatenate(votes), np.concatenate(vote_point), np.concatenate(vote_frame)
+    votes = np.concatenate(votes)
+    vote_point, vote_frame = np.concatenate(vote_point), np.concatenate(vote_frame)
     info.candidates = len(votes)
     if len(votes) < min_support:
         info.reason = f"{len(votes)} map point votes below the camera, fewer than min_support = {min_support}"
@@ -121,8 +123,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         info.reason = f"the ground peak has {info.support} votes, fewer than min_support = {min_support}"
         return None, info
     if info.contrast < min_contrast:
-        info.reason = (f"no surface at one height below the camera: the peak holds {info.contrast:.2f}x the votes "
-                       f"of its flanks, less than min_contrast = {min_contrast}")
+        info.reason = (f"no surface at one height below the camera: the peak holds {info.contrast:.2f}x the "
+                       f"votes of its flanks, less than min_contrast = {min_contrast}")
         return None, info
     return float(np.exp(centre)), info
 
