@@ -21,7 +21,7 @@ class GroundScaleInfo:
     support: votes in the ground peak (point-frame pairs); points: distinct map points among them;
     frames: frames that contributed to the peak; candidates: votes in the cone below the camera;
     spread: robust standard deviation (1.4826 MAD) of the peak's log-votes, i.e. relative scale spread;
-    contrast: peak votes over the mean votes of an equally wide band on either side;
+    contrast: peak votes over the votes of the denser of the two equally wide bands beside it;
     reason: why no scale was returned ("" when one was).
     """
     support: int = 0
@@ -61,8 +61,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         min_depth: points must lie at camera z > min_depth (VO units), i.e. in front of the camera.
         half_width: half width of the ground peak in log-scale (0.05: votes within about +-5%).
         min_support: fewest votes in the peak for a scale.
-        min_contrast: the peak must hold at least this many times the votes of an equally wide band on
-            either side (mean of the two); a smooth spread of heights (no surface at one height) fails.
+        min_contrast: the peak must hold at least this many times the votes of each equally wide band beside
+            it; a smooth spread of heights, or its edge (no surface at one height), fails.
 
     Returns:
         (scale in metres per VO unit, or None with info.reason; GroundScaleInfo).
@@ -113,11 +113,14 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
     for _ in range(3):  # re-centre on the peak's median
         centre = float(np.median(votes[np.abs(votes - centre) <= half_width]))
     peak = np.abs(votes - centre) <= half_width
-    flank = (np.abs(votes - centre) > half_width) & (np.abs(votes - centre) <= 3.0 * half_width)
+    # Flanks as wide as the peak on either side; the denser one counts, so that the edge of a spread of heights
+    # (e.g. the lower end of a wall) is no peak.
+    lower = np.count_nonzero((votes < centre - half_width) & (votes >= centre - 3.0 * half_width))
+    upper = np.count_nonzero((votes > centre + half_width) & (votes <= centre + 3.0 * half_width))
     info.support = int(peak.sum())
     info.points = len(np.unique(vote_point[peak]))
     info.frames = len(np.unique(vote_frame[peak]))
-    info.contrast = float(info.support / max(flank.sum() / 2.0, 1.0))
+    info.contrast = float(info.support / max(lower, upper, 1))
     info.spread = float(1.4826 * np.median(np.abs(votes[peak] - centre)))
     if info.support < min_support:
         info.reason = f"the ground peak has {info.support} votes, fewer than min_support = {min_support}"
