@@ -152,11 +152,11 @@ def _distance_to_room(points):
 
 @pytest.mark.parametrize("max_image_side", [640, 200])
 def test_map_points_lie_on_the_room_and_reproject_to_their_host_pixels(room_sequence, max_image_side):
-    """The exposed map, scaled by the similarity that aligns the VO trajectory onto the truth (both worlds are the
-    first camera; the trajectory's rotation about its own direction is weakly determined, so the first true
-    camera places the map), lies on the room's surfaces and projects through the true host camera onto the host
-    pixel. At max_image_side 200 the VO works on a downscaled image (scale 0.625), so the host pixels must have
-    been mapped back to input resolution."""
+    """The exposed map, scaled by the similarity that aligns the VO trajectory onto the truth (both worlds are
+    the first camera; the trajectory's rotation about its own direction is weakly determined, so the first
+    true camera places the map), lies on the room's surfaces and projects through the true host camera onto
+    the host pixel. At max_image_side 200 the VO works on a downscaled image (scale 0.625), so the host pixels
+    must have been mapped back to input resolution."""
     seq = room_sequence
     result = run_vo(seq.frames, intrinsics=seq.intrinsics, config=VOConfig(max_image_side=max_image_side))
     assert relative_ate(result.world_from_cam, seq.world_from_cam) <= 0.01

@@ -2,9 +2,9 @@
 
 The people's contact points give the ground plane in metric camera coordinates (unit normal n pointing up,
 towards the camera's side, and the camera's height h above it in metres). The VO map has points on the same
-ground in VO units: seen from the same camera, their height below it along -n is h / scale. Each VO point below
-the camera, near the ground's direction, is a vote log(h_t / height) for log(scale); the ground is the densest
-narrow peak among the votes (trees, walls, cars and people give spread-out votes of their own).
+ground in VO units: seen from the same camera, their height below it along -n is h / scale. Each VO point
+below the camera, near the ground's direction, is a vote log(h_t / height) for log(scale); the ground is the
+densest narrow peak among the votes (trees, walls, cars and people give spread-out votes of their own).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ class GroundScaleInfo:
     support: votes in the ground peak (point-frame pairs); points: distinct map points among them;
     frames: frames that contributed to the peak; candidates: votes in the cone below the camera;
     spread: robust standard deviation (1.4826 MAD) of the peak's log-votes, i.e. relative scale spread;
-    contrast: peak votes over the mean votes of an equally wide band on either side;
+    contrast: peak votes over the votes of the denser of the two equally wide bands beside it;
     reason: why no scale was returned ("" when one was).
     """
     support: int = 0
@@ -51,7 +51,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         points: (M, 3) VO map points in the VO world frame (VOResult.points).
         world_from_cam: (T, 4, 4) VO camera poses (VOResult.world_from_cam), translation in VO units.
         ground_normal_cam: (F, 3) for each frame in `frames` the ground's normal in that frame's camera
-            coordinates (OpenCV axes), pointing up, i.e. towards the camera's side of the plane; normalised here.
+            coordinates (OpenCV axes), pointing up, i.e. towards the camera's side of the plane; normalised
+            here.
         camera_height_m: (F,) the camera's height above that plane, metres (> 0).
         frames: (F,) indices into world_from_cam; None means every frame (F = T).
         max_angle_deg: a point votes in frame t when the angle between its direction from the camera and the
@@ -60,8 +61,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         min_depth: points must lie at camera z > min_depth (VO units), i.e. in front of the camera.
         half_width: half width of the ground peak in log-scale (0.05: votes within about +-5%).
         min_support: fewest votes in the peak for a scale.
-        min_contrast: the peak must hold at least this many times the votes of an equally wide band on
-            either side (mean of the two); a smooth spread of heights (no surface at one height) fails.
+        min_contrast: the peak must hold at least this many times the votes of each equally wide band beside
+            it; a smooth spread of heights, or its edge (no surface at one height), fails.
 
     Returns:
         (scale in metres per VO unit, or None with info.reason; GroundScaleInfo).
@@ -99,7 +100,8 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
         votes.append(np.log(height / below[keep]))
         vote_point.append(np.flatnonzero(keep))
         vote_frame.append(np.full(int(keep.sum()), frame))
-    votes, vote_point, vote_frame = np.concatenate(votes), np.concatenate(vote_point), np.concatenate(vote_frame)
+    votes = np.concatenate(votes)
+    vote_point, vote_frame = np.concatenate(vote_point), np.concatenate(vote_frame)
     info.candidates = len(votes)
     if len(votes) < min_support:
         info.reason = f"{len(votes)} map point votes below the camera, fewer than min_support = {min_support}"
@@ -111,18 +113,21 @@ def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_nor
     for _ in range(3):  # re-centre on the peak's median
         centre = float(np.median(votes[np.abs(votes - centre) <= half_width]))
     peak = np.abs(votes - centre) <= half_width
-    flank = (np.abs(votes - centre) > half_width) & (np.abs(votes - centre) <= 3.0 * half_width)
+    # Flanks as wide as the peak on either side; the denser one counts, so that the edge of a spread of heights
+    # (e.g. the lower end of a wall) is no peak.
+    lower = np.count_nonzero((votes < centre - half_width) & (votes >= centre - 3.0 * half_width))
+    upper = np.count_nonzero((votes > centre + half_width) & (votes <= centre + 3.0 * half_width))
     info.support = int(peak.sum())
     info.points = len(np.unique(vote_point[peak]))
     info.frames = len(np.unique(vote_frame[peak]))
-    info.contrast = float(info.support / max(flank.sum() / 2.0, 1.0))
+    info.contrast = float(info.support / max(lower, upper, 1))
     info.spread = float(1.4826 * np.median(np.abs(votes[peak] - centre)))
     if info.support < min_support:
         info.reason = f"the ground peak has {info.support} votes, fewer than min_support = {min_support}"
         return None, info
     if info.contrast < min_contrast:
-        info.reason = (f"no surface at one height below the camera: the peak holds {info.contrast:.2f}x the votes "
-                       f"of its flanks, less than min_contrast = {min_contrast}")
+        info.reason = (f"no surface at one height below the camera: the peak holds {info.contrast:.2f}x the "
+                       f"votes of its flanks, less than min_contrast = {min_contrast}")
         return None, info
     return float(np.exp(centre)), info
 
