@@ -7,6 +7,7 @@
 
 #include "body/kinematics.h"
 #include "motion/humor_term.h"
+#include "motion/vposer_term.h"
 #include "util/check.h"
 
 namespace m3c::motion {
@@ -50,9 +51,9 @@ OptimizerConfig DefaultOptimizerConfig() {
   shaped.insert({"shape_prior", shape});
   W smoothed = shaped, posed = shaped, motion = shaped;
   scale_fit.insert({"contact_height", 10.0});
-  smoothed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}});
-  posed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}, {"pose_smoothness", 1.0}});
-  motion.insert({{"pose_prior", pose}, {"motion_prior", 0.075}, {"contact_velocity", 100.0}, {"contact_height", 10.0}});
+  smoothed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}, {"pose_anchor", 1.0}});
+  posed.insert({{"joint_smoothness", smooth}, {"pose_prior", pose}, {"latent_smoothness", 1.0}, {"pose_anchor", 1.0}});
+  motion.insert({{"pose_prior", pose}, {"pose_anchor", 1.0}, {"motion_prior", 0.075}, {"contact_velocity", 100.0}, {"contact_height", 10.0}});
   W refine = motion;
   refine.insert({"joint_acceleration", smooth});
   config.stages = {
@@ -70,8 +71,13 @@ OptimizerConfig DefaultOptimizerConfig() {
 
 const std::vector<std::string>& WorldOptimizer::BuiltinTerms() {
   static const std::vector<std::string> names = {"reprojection",     "shape_prior",      "joint_smoothness",
-                                                  "joint_acceleration", "pose_prior",       "pose_smoothness",
+                                                  "joint_acceleration", "pose_anchor",      "pose_smoothness",
                                                   "contact_velocity",   "contact_height"};
+  return names;
+}
+
+const std::vector<std::string>& WorldOptimizer::LearnedTerms() {
+  static const std::vector<std::string> names = {"pose_prior", "latent_smoothness", "motion_prior"};
   return names;
 }
 
@@ -94,6 +100,13 @@ WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::Keypoin
 
 void WorldOptimizer::AddTerm(const std::string& name, TermBuilder builder) {
   terms_.emplace_back(name, std::move(builder));
+}
+
+void WorldOptimizer::SetPosePrior(const nn::VPoser* vposer) {
+  M3C_CHECK(vposer == nullptr || 3 * (model_->num_joints() - 1) >= 3 * vposer->num_joints())
+      << "the VPoser prior covers " << vposer->num_joints() << " body joints; the body model has only "
+      << model_->num_joints() - 1;
+  pose_prior_ = vposer;
 }
 
 void WorldOptimizer::SetMotionPrior(const nn::HumorPrior* prior, double fps) {
@@ -221,9 +234,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           problem->AddResidualBlock(new BlockDifferenceCost(3 * (J - 1), weight), nullptr, vars.body[i][f],
                                     vars.body[i][f + 1]);
         }
-      } else if (term == "pose_prior") {
+      } else if (term == "pose_anchor") {
+        // A Gaussian around the initial (regressed) pose of each frame, not around the T-pose.
         for (int f = 0; f < n; ++f) {
-          problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(3 * (J - 1)), weight), nullptr,
+          problem->AddResidualBlock(new GaussianPriorCost(tr.body.row(f).transpose(), weight), nullptr,
                                     vars.body[i][f]);
         }
       } else if (term == "joint_smoothness" || term == "joint_acceleration") {
@@ -286,6 +300,16 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       }
     }
   };
+  auto add_pose_prior = [&](const std::string& term, double weight, ceres::Problem* problem) {
+    const std::vector<double> stencil = term == "pose_prior" ? std::vector<double>{1.0} : std::vector<double>{-1.0, 1.0};
+    const int F = static_cast<int>(stencil.size());
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      for (int f = 0; f + F <= static_cast<int>(tracks[i].transl.rows()); ++f) {
+        problem->AddResidualBlock(new VPoserLatentCost(pose_prior_, 3 * (J - 1), stencil, weight), nullptr,
+                                  std::vector<double*>(vars.body[i].begin() + f, vars.body[i].begin() + f + F));
+      }
+    }
+  };
   auto is_builtin = [](const std::string& term) {
     const auto& names = BuiltinTerms();
     return std::find(names.begin(), names.end(), term) != names.end();
@@ -299,6 +323,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   auto add_term = [&](const std::string& term, double weight, ceres::Problem* problem) {
     if (is_builtin(term)) {
       add_builtin(term, weight, problem);
+      return true;
+    }
+    if ((term == "pose_prior" || term == "latent_smoothness") && pose_prior_ != nullptr) {
+      add_pose_prior(term, weight, problem);
       return true;
     }
     if (term == "motion_prior" && motion_prior_ != nullptr) {

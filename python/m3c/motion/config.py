@@ -5,13 +5,20 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
 1/2 * sum over its terms of weight * loss:
   reprojection      sum_k conf_k^2 GM(|pi(x_k) - u_k|^2), GM(s) = sigma^2 s / (sigma^2 + s), pixels
   shape_prior       n_frames * |betas|^2 per person
-  pose_prior        |body pose|^2 per frame (axis-angle; a VPoser latent prior replaces it when configured)
-  pose_smoothness   |body pose_{t+1} - body pose_t|^2 (the latent smoothness of stage (iv) without VPoser)
-  joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis)
+  pose_anchor       |body pose_t - initial body pose_t|^2 per frame (axis-angle): a Gaussian around the
+                    regressed pose, which is per-frame evidence; unlike |body pose|^2 it does not pull
+                    towards the T-pose
+  pose_smoothness   |body pose_{t+1} - body pose_t|^2 (axis-angle)
+  joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis;
+                    it also penalises real motion)
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
-  motion_prior      the HuMoR transition term, when HuMoR weights are configured (otherwise reported unavailable)
+Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
+unavailable otherwise and runs without them):
+  pose_prior        |z_t|^2, z_t the VPoser encoder mean of frame t's body joints 1..21 (SLAHMR's VPoser prior)
+  latent_smoothness |z_{t+1} - z_t|^2 (the thesis's stage (iv) latent smoothness)
+  motion_prior      the HuMoR transition term
 """
 
 from __future__ import annotations
@@ -54,7 +61,7 @@ class OptimizerConfig:
                    core.min_depth, core.optimize_offset, core.num_threads, stages)
 
     def validate(self) -> None:
-        known_terms = set(_core.builtin_optimizer_terms()) | {"motion_prior"}
+        known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
         for stage in self.stages:
             unknown = set(stage.free) - set(PARAMETER_GROUPS)
             if unknown:
