@@ -34,6 +34,7 @@ void BindMotion(py::module_& m) {
       .def_readwrite("contact_height_tolerance", &OptimizerConfig::contact_height_tolerance)
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
+      .def_readwrite("max_scale_uncertainty", &OptimizerConfig::max_scale_uncertainty)
       .def_readwrite("num_threads", &OptimizerConfig::num_threads)
       .def_readwrite("stages", &OptimizerConfig::stages);
   m.def("default_optimizer_config", &DefaultOptimizerConfig,

@@ -54,6 +54,9 @@ struct OptimizerConfig {
   double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
   double min_depth = 0.05;            // metres in front of the camera
   bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
+  // Relative standard error of the closed-form scale fit from stance feet above which the camera scale is
+  // deemed unobservable (a camera that barely translates) and frozen at its initial value.
+  double max_scale_uncertainty = 0.25;
   int num_threads = 2;
   std::vector<StageConfig> stages;
 };

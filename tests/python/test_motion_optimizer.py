@@ -169,3 +169,21 @@ def test_pose_anchor_holds_the_initial_pose_not_the_t_pose(model, scene):
     assert stage.terms["pose_anchor"] == (0.0, 0.0)
     for a, b in zip(res.tracks, scene.init):
         np.testing.assert_array_equal(a.body_pose, b.body_pose)
+
+
+def test_scale_of_a_camera_that_barely_translates_is_frozen(model, scene):
+    """A camera that only turns (its VO centre is still up to millimetre noise) gives the stance-feet scale fit
+    no baseline: the scale is kept at its initial value and frozen, and the stage says why."""
+    rng = np.random.default_rng(0)
+    world_from_cam = np.array(scene.cameras_vo.world_from_cam, copy=True)
+    world_from_cam[:, :3, 3] = world_from_cam[0, :3, 3] + 1e-3 * rng.normal(size=(len(world_from_cam), 3))
+    config = OptimizerConfig.default()
+    config.stages = config.stages[:3]
+    res = optimize(model, scene.init, Cameras(world_from_cam, scene.cameras_vo.intrinsics, initial_scale=1.5),
+                   config)
+    assert "unobservable" in res.stages[2].message, res.stages[2].message
+    assert res.camera_scale == 1.5
+    # With the real (walking) camera the same stages fit it.
+    res = optimize(model, scene.init, scene.cameras_vo, config)
+    assert "scale initialised from" in res.stages[2].message
+    assert abs(res.camera_scale / scene.vo_scale - 1.0) < 0.1

@@ -141,9 +141,13 @@ class BenchmarkSequence:
         for sim in self.simulated:
             vo = self.cameras_vo.world_from_cam[sim.frames]
             root, transl = rigidly_move_body(sim.root_cam, sim.transl_cam, vo, pelvis_rest(model, sim.betas))
-            m = len(sim.frames)
+            # The ground as a camera-local estimate sees it (metric, in each frame's camera, as the optimizer
+            # takes it): the world plane y = 0 in the true cameras.
+            true = self.cameras_true.world_from_cam[sim.frames]
+            normal_in_cam = np.einsum("tji,j->ti", true[:, :3, :3], UP)
+            offset_in_cam = true[:, :3, 3] @ UP
             out.append(Track(int(sim.frames[0]), sim.keypoints.copy(), transl, root, sim.body_pose.copy(),
-                             sim.betas.copy(), np.tile(UP, (m, 1)), np.zeros(m), sim.contacts.copy()))
+                             sim.betas.copy(), normal_in_cam, offset_in_cam, sim.contacts.copy()))
         return out
 
 

@@ -49,6 +49,9 @@ class OptimizerConfig:
     contact_height_tolerance: float = 0.08
     min_depth: float = 0.05
     optimize_offset: bool = False
+    # Relative standard error of the stance-feet scale fit above which the camera scale is deemed unobservable
+    # (a camera that barely translates, e.g. panning) and frozen at its initial value.
+    max_scale_uncertainty: float = 0.25
     num_threads: int = 2
     stages: list[StageSpec] = field(default_factory=list)
 
@@ -58,7 +61,7 @@ class OptimizerConfig:
         stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
                   for s in core.stages]
         return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
-                   core.min_depth, core.optimize_offset, core.num_threads, stages)
+                   core.min_depth, core.optimize_offset, core.max_scale_uncertainty, core.num_threads, stages)
 
     def validate(self) -> None:
         known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
@@ -75,7 +78,7 @@ class OptimizerConfig:
         self.validate()
         core = _core.OptimizerConfig()
         for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
-                    "optimize_offset", "num_threads"):
+                    "optimize_offset", "max_scale_uncertainty", "num_threads"):
             setattr(core, key, getattr(self, key))
         stages = []
         for spec in self.stages:

@@ -20,8 +20,10 @@ class Track:
     """One person over frames first_frame .. first_frame + n - 1, world frame, metres.
 
     keypoints: n x K x 3 (u, v, confidence; confidence 0 where unseen); transl: n x 3; root_orient: n x 3
-    axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (plane
-    n.x + d = 0, world frame), contacts n x 4 probabilities for CONTACT_JOINTS.
+    axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (the
+    person's ground plane n.x + d = 0 in each frame's CAMERA coordinates, metric, as a camera-local estimate
+    gives it: it moves with the camera scale the optimizer estimates), contacts n x 4 probabilities for
+    CONTACT_JOINTS.
     """
 
     first_frame: int
