@@ -61,7 +61,8 @@ struct OptimizerConfig {
   std::vector<StageConfig> stages;
 };
 
-// The thesis's recipe as Ceres stages, with SLAHMR's weights (REFERENCE.md B).
+// The thesis's recipe as Ceres stages, with SLAHMR's weights (REFERENCE.md B) and the departures its
+// definition lists (acceleration instead of velocity smoothing, pose_anchor instead of an L2 pose prior).
 OptimizerConfig DefaultOptimizerConfig();
 
 struct TermCost {

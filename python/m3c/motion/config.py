@@ -1,5 +1,8 @@
 """Configuration of the staged world-frame optimization, mirrored in YAML. The defaults come from the C++ core
-(one definition of the recipe): the thesis's stages with SLAHMR's weights.
+(one definition of the recipe, DefaultOptimizerConfig in cpp/motion/world_optimizer.cc, which explains each
+choice): the thesis's stages with SLAHMR's weights, except that joints are smoothed by their acceleration
+(also in the root stages) instead of their velocity, and the body pose is held by pose_anchor (plus VPoser's
+pose_prior when VPoser weights are given) instead of an L2 pull towards the T-pose.
 
 Each stage frees some parameter groups (transl, root, body, betas, scale, offset) and minimises
 1/2 * sum over its terms of weight * loss:
