@@ -59,7 +59,7 @@ OptimizerConfig DefaultOptimizerConfig() {
   root_fit.insert({"joint_acceleration", accel});
   scale_fit.insert({{"shape_prior", shape}, {"contact_velocity", 100.0}, {"contact_height", 10.0}});
   shaped.insert({"shape_prior", shape});
-  W smoothed = shaped, motion = shaped;
+  W smoothed = shaped, motion = shaped;  // motion: no joint smoothness while the scale is free
   shaped.insert({"joint_acceleration", accel});
   smoothed.insert({{"joint_acceleration", accel}, {"pose_anchor", anchor}, {"pose_prior", pose}});
   W posed = smoothed;
