@@ -7,6 +7,7 @@
 #include "body/body_model.h"
 #include "motion/world_optimizer.h"
 #include "nn/humor.h"
+#include "nn/vposer.h"
 
 namespace m3c::bindings {
 
@@ -33,11 +34,14 @@ void BindMotion(py::module_& m) {
       .def_readwrite("contact_height_tolerance", &OptimizerConfig::contact_height_tolerance)
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
+      .def_readwrite("max_scale_uncertainty", &OptimizerConfig::max_scale_uncertainty)
       .def_readwrite("num_threads", &OptimizerConfig::num_threads)
       .def_readwrite("stages", &OptimizerConfig::stages);
   m.def("default_optimizer_config", &DefaultOptimizerConfig,
         "The thesis's staged recipe with SLAHMR's weights (REFERENCE.md B).");
-  m.def("builtin_optimizer_terms", &WorldOptimizer::BuiltinTerms);
+  m.def("builtin_optimizer_terms", &WorldOptimizer::BuiltinTerms, "Terms that are always available.");
+  m.def("learned_optimizer_terms", &WorldOptimizer::LearnedTerms,
+        "Terms that need network weights: pose_prior, latent_smoothness (VPoser), motion_prior (HuMoR).");
 
   py::class_<TrackInput>(m, "TrackInput")
       .def(py::init<>())
@@ -87,14 +91,16 @@ void BindMotion(py::module_& m) {
       "optimize_world",
       [](const body::BodyModel& model, const body::KeypointRegressor& keypoints,
          const body::KeypointRegressor* contacts, const std::vector<TrackInput>& tracks, const CameraInput& cameras,
-         const OptimizerConfig& config, const nn::HumorPrior* motion_prior, double fps) {
+         const OptimizerConfig& config, const nn::HumorPrior* motion_prior, double fps, const nn::VPoser* pose_prior) {
         WorldOptimizer optimizer(&model, &keypoints, contacts, config);
         if (motion_prior) optimizer.SetMotionPrior(motion_prior, fps);
+        if (pose_prior) optimizer.SetPosePrior(pose_prior);
         py::gil_scoped_release release;
         return optimizer.Optimize(tracks, cameras);
       },
       py::arg("model"), py::arg("keypoint_regressor"), py::arg("contact_regressor"), py::arg("tracks"),
       py::arg("cameras"), py::arg("config"), py::arg("motion_prior") = nullptr, py::arg("fps") = 30.0,
+      py::arg("pose_prior") = nullptr,
       "Runs the staged world-frame optimization; see m3c.motion.optimize for the public API.");
 }
 

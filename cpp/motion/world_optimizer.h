@@ -15,6 +15,7 @@
 #include "body/body_model.h"
 #include "motion/costs.h"
 #include "nn/humor.h"
+#include "nn/vposer.h"
 
 namespace m3c::motion {
 
@@ -53,11 +54,15 @@ struct OptimizerConfig {
   double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
   double min_depth = 0.05;            // metres in front of the camera
   bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
+  // Relative standard error of the closed-form scale fit from stance feet above which the camera scale is
+  // deemed unobservable (a camera that barely translates) and frozen at its initial value.
+  double max_scale_uncertainty = 0.25;
   int num_threads = 2;
   std::vector<StageConfig> stages;
 };
 
-// The thesis's recipe as Ceres stages, with SLAHMR's weights (REFERENCE.md B).
+// The thesis's recipe as Ceres stages, with SLAHMR's weights (REFERENCE.md B) and the departures its
+// definition lists (acceleration instead of velocity smoothing, pose_anchor instead of an L2 pose prior).
 OptimizerConfig DefaultOptimizerConfig();
 
 struct TermCost {
@@ -107,14 +112,20 @@ class WorldOptimizer {
   // Registers a term by name; stages activate it through their weights map.
   void AddTerm(const std::string& name, TermBuilder builder);
 
+  // Enables the "pose_prior" (|z_t|^2) and "latent_smoothness" (|z_{t+1} - z_t|^2) terms, z_t the VPoser
+  // encoder mean of frame t's body pose (vposer_term.h). Without it they are reported unavailable.
+  void SetPosePrior(const nn::VPoser* vposer);
+
   // Enables the "motion_prior" term: HuMoR's transition likelihood of consecutive states (humor_term.h) for
   // every person with a ground plane. fps is the video's frame rate (HuMoR was trained at 30).
   void SetMotionPrior(const nn::HumorPrior* prior, double fps);
 
   OptimizerResult Optimize(const std::vector<TrackInput>& tracks, const CameraInput& cameras);
 
-  // Names of the built-in terms.
+  // Names of the built-in terms (always available).
   static const std::vector<std::string>& BuiltinTerms();
+  // Names of the terms that need learned weights: pose_prior, latent_smoothness (VPoser), motion_prior (HuMoR).
+  static const std::vector<std::string>& LearnedTerms();
 
  private:
   const body::BodyModel* model_;
@@ -124,6 +135,7 @@ class WorldOptimizer {
   OptimizerConfig config_;
   std::vector<std::pair<std::string, TermBuilder>> terms_;
   const nn::HumorPrior* motion_prior_ = nullptr;
+  const nn::VPoser* pose_prior_ = nullptr;
   double fps_ = 30.0;
 };
 

@@ -60,4 +60,57 @@ VPoser::VPoser(const SafetensorsFile& file) {
   }
 }
 
+void VPoser::EncodeMean(const double* pose_body, double* mean, double* jacobian) const {
+  // Forward, keeping each LeakyReLU's slopes (1 or slope_) for the reverse pass.
+  Eigen::VectorXd h = Eigen::Map<const Eigen::VectorXd>(pose_body, 3 * num_joints_);
+  std::vector<Eigen::VectorXd> slopes;
+  auto dense = [](const Dense& d, const Eigen::VectorXd& x) -> Eigen::VectorXd { return d.weight * x + d.bias; };
+  auto fc = [&](Op op) -> const Dense& { return op == Op::kFc1 ? enc_fc1_ : op == Op::kFc2 ? enc_fc2_ : enc_fc3_; };
+  for (Op op : encoder_ops_) {
+    switch (op) {
+      case Op::kBatchNorm1:
+        h = h.cwiseProduct(enc_bn1_.scale) + enc_bn1_.shift;
+        break;
+      case Op::kBatchNorm2:
+        h = h.cwiseProduct(enc_bn2_.scale) + enc_bn2_.shift;
+        break;
+      case Op::kFc1:
+      case Op::kFc2:
+      case Op::kFc3:
+        h = dense(fc(op), h);
+        break;
+      case Op::kLeakyRelu: {
+        Eigen::VectorXd s = (h.array() > 0.0).select(Eigen::VectorXd::Ones(h.size()), slope_);
+        h = h.cwiseProduct(s);
+        slopes.push_back(std::move(s));
+        break;
+      }
+    }
+  }
+  Eigen::Map<Eigen::VectorXd>(mean, latent_dim_) = dense(enc_mu_, h);
+  if (jacobian == nullptr) return;
+  // Reverse: G = d mean / d (current activations), latent_dim x width.
+  RowMatrixXd G = enc_mu_.weight;
+  for (auto it = encoder_ops_.rbegin(); it != encoder_ops_.rend(); ++it) {
+    switch (*it) {
+      case Op::kBatchNorm1:
+        G = G * enc_bn1_.scale.asDiagonal();
+        break;
+      case Op::kBatchNorm2:
+        G = G * enc_bn2_.scale.asDiagonal();
+        break;
+      case Op::kFc1:
+      case Op::kFc2:
+      case Op::kFc3:
+        G = G * fc(*it).weight;
+        break;
+      case Op::kLeakyRelu:
+        G = G * slopes.back().asDiagonal();
+        slopes.pop_back();
+        break;
+    }
+  }
+  Eigen::Map<RowMatrixXd>(jacobian, latent_dim_, 3 * num_joints_) = G;
+}
+
 }  // namespace m3c::nn

@@ -30,6 +30,10 @@ class VPoser {
   // pose_body (3 num_joints, axis-angle) -> mean (latent_dim), scale (latent_dim).
   template <typename T>
   void Encode(const T* pose_body, T* mean, T* scale) const;
+  // The encoder mean alone, in double, with its exact Jacobian d mean / d pose_body (latent_dim x 3 num_joints,
+  // row-major) when `jacobian` is not null: a reverse pass over the encoder's ops, about latent_dim / (3
+  // num_joints) the cost of forward-mode Jets. For pose priors inside a solver (motion/vposer_term.h).
+  void EncodeMean(const double* pose_body, double* mean, double* jacobian) const;
 
  private:
   struct Dense {

@@ -237,7 +237,7 @@ def _eval_benchmark(args) -> int:
                              max_people=args.max_people, camera_motions=tuple(args.cameras.split(",")),
                              clip_paths=tuple(str(c) for c in clips),
                              optimizer=OptimizerConfig.from_yaml(Path(args.optimizer_config))
-                             if args.optimizer_config else None)
+                             if args.optimizer_config else None, vposer=args.vposer or "")
     report = run_benchmark(model, config, log)
     print(report.tables())
     if args.json:
@@ -373,6 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "instead of the shipped CMU clips")
     bm.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
     bm.add_argument("--optimizer-config", help="YAML optimizer config (default: the built-in recipe)")
+    bm.add_argument("--vposer", help="exported vposer.safetensors (python -m m3c.models.export) for the optimizer's "
+                    "pose prior (default: none; the pose_prior terms are then reported unavailable)")
     bm.add_argument("--body-model", help="body model file (default: the shipped open model)")
     bm.add_argument("--json", help="also write the figures to this JSON file")
     bm.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -158,3 +158,21 @@ def test_retarget_folder_caches(tmp_path, model, monkeypatch):
     assert RetargetedMotion.load(first[0]).source.endswith("a.bvh")
     with pytest.raises(FileNotFoundError, match="no .bvh"):
         retarget_folder(model, tmp_path / "cache", tmp_path / "cache")
+
+
+def test_local_ground_planes_are_the_world_ground_in_camera_coordinates(model, clips):
+    """The optimizer takes each person's ground in the frame's camera coordinates (metric): with the true
+    cameras the planes must map back to the world ground y = 0."""
+    seq = make_sequence(model, clips, BenchmarkConfig(num_sequences=1, num_frames=30, max_people=1), 0)
+    for track in seq.local_tracks(model):
+        cams = seq.cameras_true.world_from_cam[track.first_frame:track.first_frame + track.num_frames]
+        normal_world = np.einsum("tij,tj->ti", cams[:, :3, :3], track.ground_normal)
+        np.testing.assert_allclose(normal_world, np.tile([0.0, 1.0, 0.0], (track.num_frames, 1)), atol=1e-12)
+        offset_world = track.ground_offset - np.einsum("tj,tj->t", normal_world, cams[:, :3, 3])
+        np.testing.assert_allclose(offset_world, 0.0, atol=1e-9)
+
+
+def test_missing_vposer_weights_are_named(model, tmp_path):
+    config = BenchmarkConfig(num_sequences=1, num_frames=30, max_people=1, vposer=str(tmp_path / "vposer.safetensors"))
+    with pytest.raises(FileNotFoundError, match="vposer.safetensors"):
+        run_benchmark(model, config)

@@ -105,9 +105,85 @@ def test_motion_prior_stage_with_exported_humor(model, tmp_path):
                    fps=scene.fps)
     stage = res.stages[-1]
     assert stage.status == "ok", stage.message
-    assert "unavailable" not in stage.message
+    assert "motion_prior unavailable" not in stage.message
     before, after = stage.terms["motion_prior"]
     assert np.isfinite(before) and np.isfinite(after)
     assert stage.objective_after <= stage.objective_before
     with pytest.raises(FileNotFoundError, match="missing.safetensors"):
         optimize(model, scene.init, scene.cameras_vo, config, motion_prior=tmp_path / "missing.safetensors")
+
+
+def _randomise_batch_norms(model, torch):
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.weight.uniform_(0.5, 1.5)
+                m.bias.uniform_(-0.2, 0.2)
+                m.running_mean.uniform_(-0.3, 0.3)
+                m.running_var.uniform_(0.5, 2.0)
+    return model.requires_grad_(False)
+
+
+@pytest.mark.parametrize("version", ["v1", "v2"])
+def test_vposer_pose_prior_matches_torch(model, tmp_path, version):
+    """VPoser with random weights in the official layout, exported to safetensors: the C++ terms' values equal
+    the torch encoder's 1/2 w |z|^2 and 1/2 w |z_{t+1} - z_t|^2 before and after the solves."""
+    torch = pytest.importorskip("torch")
+    from m3c.models.export import export_weights
+    from m3c.models.vposer import VPoserV1, VPoserV2
+
+    torch.manual_seed(4)
+    vposer = _randomise_batch_norms((VPoserV1 if version == "v1" else VPoserV2)().double().eval(), torch)
+    export_weights(tmp_path, vposer=vposer, dtype="float64")
+    scene = make_scene(model, num_people=1, num_frames=8, seed=5)
+    w_prior, w_smooth = 0.04, 0.5
+    config = OptimizerConfig(stages=[StageSpec("vposer", ["body"], {"reprojection": 1e-3, "pose_prior": w_prior,
+                                                                    "latent_smoothness": w_smooth}, 5),
+                                     StageSpec("prior_alone", ["body"], {"pose_prior": w_prior}, 5)])
+    res = optimize(model, scene.init, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
+    stage = res.stages[0]
+    assert all(s.status == "ok" and "unavailable" not in s.message for s in res.stages), stage.message
+
+    def expected(body_pose):
+        with torch.no_grad():
+            z = vposer.encode(torch.as_tensor(np.asarray(body_pose)[:, :21]))[0].numpy()
+        return 0.5 * w_prior * (z ** 2).sum(), 0.5 * w_smooth * (np.diff(z, axis=0) ** 2).sum()
+
+    prior, smooth = expected(scene.init[0].body_pose)
+    assert stage.terms["pose_prior"][0] == pytest.approx(prior, rel=1e-9)
+    assert stage.terms["latent_smoothness"][0] == pytest.approx(smooth, rel=1e-9)
+    prior, _ = expected(res.tracks[0].body_pose)  # after the last stage
+    assert res.stages[1].terms["pose_prior"][1] == pytest.approx(prior, rel=1e-9)
+    assert stage.objective_after < stage.objective_before
+    # Alone, the prior's gradient drives the latents towards 0.
+    before, after = res.stages[1].terms["pose_prior"]
+    assert after < 0.5 * before
+
+
+def test_pose_anchor_holds_the_initial_pose_not_the_t_pose(model, scene):
+    """Without VPoser the pose prior is unavailable (reported); the anchor's minimum is the initial pose."""
+    config = OptimizerConfig(stages=[StageSpec("anchor", ["body"], {"pose_anchor": 1.0, "pose_prior": 0.04}, 5)])
+    res = optimize(model, scene.init, scene.cameras_vo, config)
+    stage = res.stages[0]
+    assert "pose_prior unavailable" in stage.message
+    assert stage.terms["pose_anchor"] == (0.0, 0.0)
+    for a, b in zip(res.tracks, scene.init):
+        np.testing.assert_array_equal(a.body_pose, b.body_pose)
+
+
+def test_scale_of_a_camera_that_barely_translates_is_frozen(model, scene):
+    """A camera that only turns (its VO centre is still up to millimetre noise) gives the stance-feet scale fit
+    no baseline: the scale is kept at its initial value and frozen, and the stage says why."""
+    rng = np.random.default_rng(0)
+    world_from_cam = np.array(scene.cameras_vo.world_from_cam, copy=True)
+    world_from_cam[:, :3, 3] = world_from_cam[0, :3, 3] + 1e-3 * rng.normal(size=(len(world_from_cam), 3))
+    config = OptimizerConfig.default()
+    config.stages = config.stages[:3]
+    res = optimize(model, scene.init, Cameras(world_from_cam, scene.cameras_vo.intrinsics, initial_scale=1.5),
+                   config)
+    assert "unobservable" in res.stages[2].message, res.stages[2].message
+    assert res.camera_scale == 1.5
+    # With the real (walking) camera the same stages fit it.
+    res = optimize(model, scene.init, scene.cameras_vo, config)
+    assert "scale initialised from" in res.stages[2].message
+    assert abs(res.camera_scale / scene.vo_scale - 1.0) < 0.1

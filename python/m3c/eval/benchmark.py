@@ -17,7 +17,8 @@ the perception stages would give, with their typical errors:
   - foot contact probabilities with label flips.
 Methods evaluated (thesis Table 5.1 rows):
   Local       the camera-local bodies placed in the world with the VO cameras at scale 1;
-  Global Opt  m3c.motion.optimize (its default staged recipe) started from Local;
+  Global Opt  m3c.motion.optimize (its default staged recipe) started from Local, with VPoser's pose prior
+              when exported VPoser weights are configured (BenchmarkConfig.vposer);
   Global Regr and Global Regr + Opt need a world-lift regressor (WHAM weights); they are listed as not run.
 Everything is seeded: the same config gives the same sequences and, up to the optimizer's floating-point
 determinism, the same numbers.
@@ -40,6 +41,7 @@ from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track, pelvis_rest, rigidly_move_body
 from m3c.motion import CONTACT_JOINTS, Cameras, OptimizerConfig, Track, optimize
+from m3c.nn import VPoser
 
 CAMERA_MOTIONS = ("walking", "panning", "orbiting", "static")
 METHODS = ("Local", "Global Regr", "Global Opt", "Global Regr + Opt")
@@ -81,6 +83,7 @@ class BenchmarkConfig:
     # Where the motions come from
     clip_paths: tuple = ()                  # retargeted .npz files; empty: the shipped CMU clips
     optimizer: OptimizerConfig | None = None
+    vposer: str = ""                        # exported vposer.safetensors enabling the optimizer's pose prior
 
     def validate(self) -> None:
         if self.num_sequences < 1 or self.num_frames < 10:
@@ -141,9 +144,13 @@ class BenchmarkSequence:
         for sim in self.simulated:
             vo = self.cameras_vo.world_from_cam[sim.frames]
             root, transl = rigidly_move_body(sim.root_cam, sim.transl_cam, vo, pelvis_rest(model, sim.betas))
-            m = len(sim.frames)
+            # The ground as a camera-local estimate sees it (metric, in each frame's camera, as the optimizer
+            # takes it): the world plane y = 0 in the true cameras.
+            true = self.cameras_true.world_from_cam[sim.frames]
+            normal_in_cam = np.einsum("tji,j->ti", true[:, :3, :3], UP)
+            offset_in_cam = true[:, :3, 3] @ UP
             out.append(Track(int(sim.frames[0]), sim.keypoints.copy(), transl, root, sim.body_pose.copy(),
-                             sim.betas.copy(), np.tile(UP, (m, 1)), np.zeros(m), sim.contacts.copy()))
+                             sim.betas.copy(), normal_in_cam, offset_in_cam, sim.contacts.copy()))
         return out
 
 
@@ -430,7 +437,7 @@ def _camera_errors(pred_world_from_cam, true_world_from_cam, static: bool) -> di
 
 
 def run_sequence(model: BodyModel, seq: BenchmarkSequence, optimizer: OptimizerConfig | None = None,
-                 log=None) -> SequenceReport:
+                 log=None, pose_prior=None) -> SequenceReport:
     report = SequenceReport(seq.name, seq.camera_motion, len(seq.truth), seq.clips, seq.vo_scale)
     gt = _eval_tracks(model, seq.truth, seq.cameras_true.world_from_cam)
     static = seq.cameras_true.static
@@ -445,7 +452,7 @@ def run_sequence(model: BodyModel, seq: BenchmarkSequence, optimizer: OptimizerC
         log(f"{seq.name}: Local done ({report.seconds['Local']:.1f} s)")
 
     start = time.perf_counter()
-    result = optimize(model, local, seq.cameras_vo, optimizer or OptimizerConfig.default())
+    result = optimize(model, local, seq.cameras_vo, optimizer or OptimizerConfig.default(), pose_prior=pose_prior)
     cams = result.world_from_cam(seq.cameras_vo)
     opt_eval = _eval_tracks(model, result.tracks, cams)
     report.results["Global Opt"] = evaluate_sequence(gt, opt_eval, seq.fps, name=seq.name)
@@ -524,13 +531,14 @@ def run_benchmark(model: BodyModel, config: BenchmarkConfig | None = None, log=N
     config = config or BenchmarkConfig()
     config.validate()
     clips = load_clips(config.clip_paths)
+    pose_prior = VPoser(config.vposer) if config.vposer else None  # loaded once, shared by the sequences
     reports = []
     for index in range(config.num_sequences):
         seq = make_sequence(model, clips, config, index)
         if log:
             log(f"{seq.name}: {len(seq.truth)} people ({', '.join(seq.clips)}), {len(seq.simulated)} tracks, "
                 f"VO scale {seq.vo_scale:.3f}")
-        reports.append(run_sequence(model, seq, config.optimizer, log))
+        reports.append(run_sequence(model, seq, config.optimizer, log, pose_prior))
     return BenchmarkReport(config, reports, getattr(model.data, "name", ""))
 
 

@@ -1,17 +1,27 @@
 """Configuration of the staged world-frame optimization, mirrored in YAML. The defaults come from the C++ core
-(one definition of the recipe): the thesis's stages with SLAHMR's weights.
+(one definition of the recipe, DefaultOptimizerConfig in cpp/motion/world_optimizer.cc, which explains each
+choice): the thesis's stages with SLAHMR's weights, except that joints are smoothed by their acceleration
+(also in the root stages) instead of their velocity, and the body pose is held by pose_anchor (plus VPoser's
+pose_prior when VPoser weights are given) instead of an L2 pull towards the T-pose.
 
 Each stage frees some parameter groups (transl, root, body, betas, scale, offset) and minimises
 1/2 * sum over its terms of weight * loss:
   reprojection      sum_k conf_k^2 GM(|pi(x_k) - u_k|^2), GM(s) = sigma^2 s / (sigma^2 + s), pixels
   shape_prior       n_frames * |betas|^2 per person
-  pose_prior        |body pose|^2 per frame (axis-angle; a VPoser latent prior replaces it when configured)
-  pose_smoothness   |body pose_{t+1} - body pose_t|^2 (the latent smoothness of stage (iv) without VPoser)
-  joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis)
+  pose_anchor       |body pose_t - initial body pose_t|^2 per frame (axis-angle): a Gaussian around the
+                    regressed pose, which is per-frame evidence; unlike |body pose|^2 it does not pull
+                    towards the T-pose
+  pose_smoothness   |body pose_{t+1} - body pose_t|^2 (axis-angle)
+  joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis;
+                    it also penalises real motion)
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
-  motion_prior      the HuMoR transition term, when HuMoR weights are configured (otherwise reported unavailable)
+Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
+unavailable otherwise and runs without them):
+  pose_prior        |z_t|^2, z_t the VPoser encoder mean of frame t's body joints 1..21 (SLAHMR's VPoser prior)
+  latent_smoothness |z_{t+1} - z_t|^2 (the thesis's stage (iv) latent smoothness)
+  motion_prior      the HuMoR transition term
 """
 
 from __future__ import annotations
@@ -42,6 +52,9 @@ class OptimizerConfig:
     contact_height_tolerance: float = 0.08
     min_depth: float = 0.05
     optimize_offset: bool = False
+    # Relative standard error of the stance-feet scale fit above which the camera scale is deemed unobservable
+    # (a camera that barely translates, e.g. panning) and frozen at its initial value.
+    max_scale_uncertainty: float = 0.25
     num_threads: int = 2
     stages: list[StageSpec] = field(default_factory=list)
 
@@ -51,10 +64,10 @@ class OptimizerConfig:
         stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
                   for s in core.stages]
         return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
-                   core.min_depth, core.optimize_offset, core.num_threads, stages)
+                   core.min_depth, core.optimize_offset, core.max_scale_uncertainty, core.num_threads, stages)
 
     def validate(self) -> None:
-        known_terms = set(_core.builtin_optimizer_terms()) | {"motion_prior"}
+        known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
         for stage in self.stages:
             unknown = set(stage.free) - set(PARAMETER_GROUPS)
             if unknown:
@@ -68,7 +81,7 @@ class OptimizerConfig:
         self.validate()
         core = _core.OptimizerConfig()
         for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
-                    "optimize_offset", "num_threads"):
+                    "optimize_offset", "max_scale_uncertainty", "num_threads"):
             setattr(core, key, getattr(self, key))
         stages = []
         for spec in self.stages:

@@ -9,7 +9,7 @@ import numpy as np
 from m3c import _core
 from m3c.body import BodyModel
 from m3c.motion.config import OptimizerConfig
-from m3c.nn import HumorPrior
+from m3c.nn import HumorPrior, VPoser
 
 # Contact points: ankles and feet (SMPL joints 7, 8, 10, 11), the joints that touch the ground when walking.
 CONTACT_JOINTS = (7, 8, 10, 11)
@@ -20,8 +20,10 @@ class Track:
     """One person over frames first_frame .. first_frame + n - 1, world frame, metres.
 
     keypoints: n x K x 3 (u, v, confidence; confidence 0 where unseen); transl: n x 3; root_orient: n x 3
-    axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (plane
-    n.x + d = 0, world frame), contacts n x 4 probabilities for CONTACT_JOINTS.
+    axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (the
+    person's ground plane n.x + d = 0 in each frame's CAMERA coordinates, metric, as a camera-local estimate
+    gives it: it moves with the camera scale the optimizer estimates), contacts n x 4 probabilities for
+    CONTACT_JOINTS.
     """
 
     first_frame: int
@@ -103,12 +105,15 @@ def _to_core_track(track: Track, model: BodyModel, num_keypoints: int) -> "_core
 
 
 def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: OptimizerConfig | None = None,
-             keypoint_regressor=None, motion_prior=None, fps: float = 30.0) -> WorldResult:
+             keypoint_regressor=None, motion_prior=None, fps: float = 30.0, pose_prior=None) -> WorldResult:
     """Optimises every track in the world frame with the staged recipe of `config` (default: the thesis's).
 
     keypoint_regressor: the body's keypoints that `Track.keypoints` observe (default COCO-17).
     motion_prior: a HuMoR prior (m3c.nn.HumorPrior, or the path of an exported humor.safetensors, see
     `python -m m3c.models.export`) enabling the "motion_prior" term; fps: the video's frame rate.
+    pose_prior: a VPoser (m3c.nn.VPoser, or the path of an exported vposer.safetensors) enabling the
+    "pose_prior" and "latent_smoothness" terms; without it they are reported unavailable and the body pose is
+    held by "pose_anchor" (a Gaussian around the initial pose).
     """
     config = config or OptimizerConfig.default()
     regressor = keypoint_regressor or model.coco17_regressor()
@@ -135,9 +140,12 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
     core_tracks = [_to_core_track(t, model, K) for t in tracks]
     if motion_prior is not None and not isinstance(motion_prior, HumorPrior):
         motion_prior = HumorPrior(motion_prior)
+    if pose_prior is not None and not isinstance(pose_prior, VPoser):
+        pose_prior = VPoser(pose_prior)
     prior_core = motion_prior._core if motion_prior is not None else None
+    vposer_core = pose_prior._core if pose_prior is not None else None
     result = _core.optimize_world(model._core, regressor, contact_regressor, core_tracks, core_cams, config.to_core(),
-                                  prior_core, float(fps))
+                                  prior_core, float(fps), vposer_core)
 
     out_tracks = []
     for track, res in zip(tracks, result.tracks):
