@@ -140,7 +140,7 @@ class StageObjective:
 
     model: the body model; tracks: the optimizer's inputs (observations, ground planes, contacts, and the
     start values); cameras: as for m3c.motion.optimize; stage: a StageSpec of `config`; motion_prior: a
-    m3c.models.humor.HumorModel (the weights the C++ term loads) or None (the term is then left out, as the C++
+    m3c.models.humor.HumorModel (the weights the C++ term loads; frozen here) or None (the term is then left out, as the C++
     optimizer leaves it out); keypoint_weights: (vertex_weights K x V, joint_weights K x J) of the keypoint
     regressor (default COCO-17); start: the state the stage starts from (default: the tracks' values with
     cameras.initial_scale), which fixes the HuMoR ground frames and levels.
@@ -159,6 +159,8 @@ class StageObjective:
         self.stage, self.config, self.weights, self.dtype = stage, config, active, dtype
         self.free = [g for g in stage.free if not (g == "scale" and cameras.static)
                      and not (g == "offset" and not config.optimize_offset)]
+        if motion_prior is not None:
+            motion_prior.requires_grad_(False)  # the weights are constants here; no gradients to accumulate
         self.model, self.motion_prior, self.fps = model, motion_prior, float(fps)
         J = model.num_joints
         vw, jw = keypoint_weights if keypoint_weights is not None else model.coco17_weights()
@@ -353,7 +355,7 @@ def run_lbfgs(objective: StageObjective, start: TorchState, target: float | None
         loss = objective(state)
         loss.backward()
         evaluations += 1
-        value = float(loss)
+        value = float(loss.detach())
         if value < best:
             best = value
             trace.append((time.perf_counter() - t0, value))
