@@ -373,7 +373,7 @@ def run_lbfgs(objective: StageObjective, start: TorchState, target: float | None
             stopped = f"time limit {time_limit:.0f} s"
         elif max_steps is not None and steps >= max_steps:
             stopped = f"{max_steps} steps"
-        elif not best < previous - 1e-12 * abs(previous):
+        elif math.isfinite(previous) and not best < previous - 1e-12 * abs(previous):
             stopped = "no further progress"
         if stopped:
             break
