@@ -140,10 +140,10 @@ class StageObjective:
 
     model: the body model; tracks: the optimizer's inputs (observations, ground planes, contacts, and the
     start values); cameras: as for m3c.motion.optimize; stage: a StageSpec of `config`; motion_prior: a
-    m3c.models.humor.HumorModel (the weights the C++ term loads; frozen here) or None (the term is then left out, as the C++
-    optimizer leaves it out); keypoint_weights: (vertex_weights K x V, joint_weights K x J) of the keypoint
-    regressor (default COCO-17); start: the state the stage starts from (default: the tracks' values with
-    cameras.initial_scale), which fixes the HuMoR ground frames and levels.
+    m3c.models.humor.HumorModel (the weights the C++ term loads; frozen here) or None (the term is then left
+    out, as the C++ optimizer leaves it out); keypoint_weights: (vertex_weights K x V, joint_weights K x J)
+    of the keypoint regressor (default COCO-17); start: the state the stage starts from (default: the tracks'
+    values with cameras.initial_scale), which fixes the HuMoR ground frames and levels.
     """
 
     def __init__(self, model: BodyModel, tracks: list[Track], cameras: Cameras, config: OptimizerConfig,
