@@ -213,7 +213,7 @@ def main() -> None:
             chain.totals = dict(shared)
             chain.header(f"{label}: the remaining stages")
             end = point
-            for spec in config.stages[first_prior:]:
+            for spec in variant.stages[first_prior:]:
                 end = chain.stage(end, spec)
             chain.summary(f"all stages {label}", end)
 
