@@ -10,8 +10,11 @@ check equals the C++ one. Stages before the first motion-prior stage are shared 
 Both sides use 2 threads.
 
     python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor] [--no-torch]
-    python bench/motion_optimizer.py --frames 20 --max-iterations 3 --torch-limit-max 3   # quick (< 1 min)
-    python bench/motion_optimizer.py --humor-iterations 3 --torch-limit-max 120            # the report's run
+    python bench/motion_optimizer.py --torch-limit-max 120     # the report's run (~40 min on 2 cores)
+    python bench/motion_optimizer.py --frames 20 --max-iterations 3 --humor-iterations 2 \
+        --torch-limit-max 2 --torch-limit-min 1                 # quick: ~1 min
+
+torch's time limit is checked between L-BFGS steps (each up to 20 iterations), so a run can exceed it by a step.
 """
 
 from __future__ import annotations
