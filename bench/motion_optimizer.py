@@ -1,23 +1,38 @@
-"""Staged world optimizer: time per stage on a synthetic multi-person scene (m3c.eval.scenes), with and without
-the HuMoR motion-prior term (random weights of the official size, exported to safetensors: the timing is what a
-real checkpoint costs, the motion it prefers is not).
+"""Staged world optimizer: Ceres per stage against SLAHMR's way (torch L-BFGS, lr 1, max_iter 20, strong Wolfe, on
+the CPU) on the same objective, on a synthetic multi-person scene (m3c.eval.scenes), with and without the HuMoR
+motion-prior term (random weights of the official size, exported to safetensors: the timing is what a real
+checkpoint costs, the motion it prefers is not).
 
-    python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor]
+Each stage runs as its own optimizer call from the previous stage's Ceres result; torch starts from the same state
+(after the scale's closed-form initialisation, for stages that free the scale) and runs until an evaluated state
+reaches the Ceres stage's final cost, or a time limit. The objective is m3c.motion.torch_objective, which the tests
+check equals the C++ one. Stages before the first motion-prior stage are shared by both variants and run once.
+Both sides use 2 threads.
+
+    python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor] [--no-torch]
+    python bench/motion_optimizer.py --torch-limit-max 120     # the report's run (~40 min on 2 cores)
+    python bench/motion_optimizer.py --frames 20 --max-iterations 3 --humor-iterations 2 \
+        --torch-limit-max 2 --torch-limit-min 1                 # quick: ~1 min
+
+torch's time limit is checked between L-BFGS steps (each up to 20 iterations), so a run can exceed it by a step.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from m3c.body import BodyModel
 from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
-from m3c.motion import optimize, track_joints
+from m3c.motion import OptimizerConfig, StageSpec, optimize, track_joints
+from m3c.motion.torch_objective import StageObjective, TorchState, run_lbfgs
 
 
 def world_error_mm(model, tracks, truth) -> float:
@@ -25,7 +40,8 @@ def world_error_mm(model, tracks, truth) -> float:
                                  for a, b in zip(tracks, truth)]))
 
 
-def run(model, scene, label, **kwargs) -> None:
+def full_run(model, scene, label, **kwargs) -> None:
+    """The staged optimizer in one call, as the pipeline runs it."""
     t0 = time.perf_counter()
     res = optimize(model, scene.init, scene.cameras_vo, fps=scene.fps, **kwargs)
     total = time.perf_counter() - t0
@@ -38,27 +54,171 @@ def run(model, scene, label, **kwargs) -> None:
               f"{s.objective_before:>15.3g} -> {s.objective_after:<12.3g}")
 
 
+@dataclasses.dataclass
+class Point:
+    """A state of the chain: tracks and camera scale."""
+
+    tracks: list
+    scale: float
+
+
+class Chain:
+    """Runs stages one call at a time, Ceres then torch from the same start, and prints one row per stage."""
+
+    def __init__(self, model, scene, config, humor_path, humor_net, args):
+        self.model, self.scene, self.config, self.args = model, scene, config, args
+        self.humor_path, self.humor_net = humor_path, humor_net
+        self.totals = {"ceres": 0.0, "torch": 0.0, "capped": False}
+
+    def cameras(self, scale):
+        return dataclasses.replace(self.scene.cameras_vo, initial_scale=scale)
+
+    def call(self, point: Point, spec: StageSpec, iterations: int):
+        config = dataclasses.replace(self.config, stages=[dataclasses.replace(spec, max_iterations=iterations)])
+        prior = self.humor_path if spec.weights.get("motion_prior", 0) > 0 else None
+        res = optimize(self.model, point.tracks, self.cameras(point.scale), config, motion_prior=prior,
+                       fps=self.scene.fps)
+        return res, config
+
+    def stage(self, point: Point, spec: StageSpec) -> Point:
+        args = self.args
+        if "scale" in spec.free and not self.scene.cameras_vo.static:
+            # The stage initialises the scale in closed form before solving (idempotent): start torch there too.
+            res, _ = self.call(point, spec, 0)
+            point = Point(res.tracks, res.camera_scale)
+        res, config = self.call(point, spec, spec.max_iterations)
+        report = res.stages[0]
+        after = Point(res.tracks, res.camera_scale)
+        self.totals["ceres"] += report.seconds
+        ceres_err = world_error_mm(self.model, res.tracks, self.scene.truth)
+        row = (f"  {spec.name:<18}{report.status:<9}{report.iterations:>5}{report.seconds:>9.2f}"
+               f"{report.objective_before:>11.4g}{report.objective_after:>11.4g}{ceres_err:>7.0f}"
+               f"{res.camera_scale:>7.3f}")
+        if args.no_torch or report.status != "ok":
+            print(row + ("" if report.status == "ok" else f"  ({report.message})"), flush=True)
+            return after
+        try:
+            objective = StageObjective(self.model, point.tracks, self.cameras(point.scale), config, config.stages[0],
+                                       motion_prior=self.humor_net, fps=self.scene.fps)
+        except ValueError as err:  # a term without a torch counterpart
+            print(row + f"  torch: {err}", flush=True)
+            return after
+        start = TorchState.from_tracks(point.tracks, point.scale)
+        warm = start.detached()  # one untimed evaluation with gradients: torch's lazy initialisation
+        for g in objective.free:
+            getattr(warm, g).requires_grad_(True)
+        value = objective(warm)
+        value.backward()
+        start_value = float(value.detach())
+        mismatch = abs(start_value - report.objective_before) / max(abs(report.objective_before), 1e-300)
+        limit = min(max(args.torch_limit_factor * report.seconds, args.torch_limit_min), args.torch_limit_max)
+        run = run_lbfgs(objective, start, target=report.objective_after, time_limit=limit)
+        torch_tracks = run.state.to_tracks(point.tracks)
+        torch_err = world_error_mm(self.model, torch_tracks, self.scene.truth)
+        if run.seconds_to_target is not None:
+            self.totals["torch"] += run.seconds_to_target
+            reached = f"{run.seconds_to_target:>9.2f}"
+            ratio = f"{run.seconds_to_target / max(report.seconds, 1e-9):>8.1f}"
+        else:
+            self.totals["torch"] += run.seconds
+            self.totals["capped"] = True
+            reached = f"{'>' + format(run.seconds, '.1f'):>9}"
+            ratio = f"{'>' + format(run.seconds / max(report.seconds, 1e-9), '.1f'):>8}"
+        print(row + f"{run.steps:>6}{run.evaluations:>6}{reached}{run.final:>11.4g}{torch_err:>7.0f}"
+              f"{float(run.state.scale):>7.3f}{ratio}   {mismatch:.0e}", flush=True)
+        return after
+
+    def header(self, label):
+        print(f"\n{label}")
+        print(f"  {'':<18}{'--- Ceres (LM, sparse normal Cholesky)':<66}"
+              f"{'--- torch L-BFGS (lr 1, max_iter 20, strong Wolfe)'}")
+        print(f"  {'stage':<18}{'status':<9}{'iters':>5}{'seconds':>9}{'cost start':>11}{'cost end':>11}"
+              f"{'W-MPJPE':>7}{'scale':>7}{'steps':>6}{'evals':>6}{'s->cost':>9}{'cost end':>11}{'W-MPJPE':>7}"
+              f"{'scale':>7}{'ratio':>8}   start-cost mismatch")
+
+    def summary(self, label, point: Point):
+        t = self.totals
+        ratio = t["torch"] / max(t["ceres"], 1e-9)
+        print(f"  {label}: Ceres {t['ceres']:.1f} s over the stages, torch {'>' if t['capped'] else ''}"
+              f"{t['torch']:.1f} s to the same costs (ratio {'>' if t['capped'] else ''}{ratio:.1f}); final camera "
+              f"scale {point.scale:.3f} (true {self.scene.vo_scale}, error "
+              f"{100 * abs(point.scale / self.scene.vo_scale - 1):.1f}%), world joint error "
+              f"{world_error_mm(self.model, point.tracks, self.scene.truth):.0f} mm")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=600)
     parser.add_argument("--people", type=int, default=2)
-    parser.add_argument("--no-humor", action="store_true")
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--no-humor", action="store_true", help="only the variant without the motion prior")
+    parser.add_argument("--no-torch", action="store_true", help="Ceres stages only")
+    parser.add_argument("--full-run", action="store_true",
+                        help="also time the staged optimizer in one call (as the pipeline runs it)")
+    parser.add_argument("--max-iterations", type=int, default=None, help="cap every stage's Ceres iterations")
+    parser.add_argument("--humor-iterations", type=int, default=None,
+                        help="cap the Ceres iterations of stages with the motion prior (HuMoR variant only)")
+    parser.add_argument("--torch-limit-factor", type=float, default=10.0,
+                        help="torch time limit per stage, as a multiple of the Ceres stage's time")
+    parser.add_argument("--torch-limit-min", type=float, default=5.0, help="seconds")
+    parser.add_argument("--torch-limit-max", type=float, default=300.0, help="seconds")
     args = parser.parse_args()
+    torch.set_num_threads(2)
+    config = OptimizerConfig.default()
+    config.num_threads = 2
+    if args.max_iterations is not None:
+        for spec in config.stages:
+            spec.max_iterations = min(spec.max_iterations, args.max_iterations)
     model = BodyModel(make_synthetic_model())
-    scene = make_scene(model, num_people=args.people, num_frames=args.frames, seed=3)
-    print(f"scene: {args.people} people x {args.frames} frames at {scene.fps:.0f} fps, body V={model.num_vertices}")
-    run(model, scene, "without the motion prior")
-    if args.no_humor:
-        return
-    import torch
+    scene = make_scene(model, num_people=args.people, num_frames=args.frames, seed=args.seed)
+    print(f"scene: {args.people} people x {args.frames} frames at {scene.fps:.0f} fps, body V={model.num_vertices}, "
+          f"initial world joint error {world_error_mm(model, scene.init, scene.truth):.0f} mm, true camera scale "
+          f"{scene.vo_scale}; Ceres and torch {torch.get_num_threads()} threads; torch limit per stage "
+          f"min(max({args.torch_limit_factor:g} x Ceres, {args.torch_limit_min:g} s), {args.torch_limit_max:g} s)")
 
-    from m3c.models.export import export_weights
-    from m3c.models.humor import HumorModel
-
-    torch.manual_seed(0)
     with tempfile.TemporaryDirectory() as tmp:
-        export_weights(tmp, humor=HumorModel().eval(), dtype="float64")
-        run(model, scene, "with the HuMoR term (random weights)", motion_prior=Path(tmp) / "humor.safetensors")
+        humor_path = humor_net = None
+        if not args.no_humor:
+            from m3c.models.export import export_weights
+            from m3c.models.humor import HumorModel
+
+            torch.manual_seed(0)
+            humor_net = HumorModel().eval()
+            export_weights(tmp, humor=humor_net, dtype="float64")
+            humor_net = humor_net.double()
+            humor_path = Path(tmp) / "humor.safetensors"
+
+        if args.full_run:
+            full_run(model, scene, "one call, without the motion prior", config=config)
+            if humor_path is not None:
+                full_run(model, scene, "one call, with the HuMoR term", config=config, motion_prior=humor_path)
+
+        first_prior = next((i for i, s in enumerate(config.stages) if s.weights.get("motion_prior", 0) > 0),
+                           len(config.stages))
+        without = Chain(model, scene, config, None, None, args)
+        without.header("stages before the motion prior (the same with and without it)")
+        point = Point(scene.init, scene.cameras_vo.initial_scale)
+        for spec in config.stages[:first_prior]:
+            point = without.stage(point, spec)
+        shared = dict(without.totals)
+
+        variants = [("without the motion prior", None, None)]
+        if humor_path is not None:
+            variants.append(("with the HuMoR term (random weights)", humor_path, humor_net))
+        for label, path, net in variants:
+            variant = config
+            if path is not None and args.humor_iterations is not None:
+                variant = dataclasses.replace(config, stages=[
+                    dataclasses.replace(s, max_iterations=min(s.max_iterations, args.humor_iterations))
+                    if s.weights.get("motion_prior", 0) > 0 else s for s in config.stages])
+                label += f", motion-prior stages capped at {args.humor_iterations} iterations"
+            chain = Chain(model, scene, variant, path, net, args)
+            chain.totals = dict(shared)
+            chain.header(f"{label}: the remaining stages")
+            end = point
+            for spec in variant.stages[first_prior:]:
+                end = chain.stage(end, spec)
+            chain.summary(f"all stages {label}", end)
 
 
 if __name__ == "__main__":

@@ -300,7 +300,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                             normal.normalized().dot(state.scale * cam.centre_in_world + state.offset);
       Eigen::Matrix3d R;
       Eigen::Vector3d t;
-      GroundFrame(normal, offset, &R, &t);
+      GroundFrame(normal.normalized(), offset, &R, &t);  // offset is already per unit normal
       for (int f = 1; f + 2 < n; ++f) {
         std::vector<double*> blocks;
         for (int g = f - 1; g <= f + 2; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});

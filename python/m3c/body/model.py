@@ -97,6 +97,10 @@ class BodyModel:
 
     def coco17_regressor(self) -> "_core.KeypointRegressor":
         """COCO-17 keypoints: face points from vertices, limbs from SMPL joints (24-joint layout)."""
+        return self.regressor(*self.coco17_weights())
+
+    def coco17_weights(self) -> tuple[np.ndarray, np.ndarray]:
+        """The COCO-17 regressor's (vertex_weights 17 x V, joint_weights 17 x J), for code outside the core."""
         if self.num_joints != 24:
             raise ValueError(f"COCO-17 needs the SMPL 24-joint layout, this model has {self.num_joints} joints; "
                              "load it with smpl_layout=True")
@@ -108,7 +112,7 @@ class BodyModel:
                 vw[k, table[key]] = 1.0
             else:
                 jw[k, key] = 1.0
-        return self.regressor(vw, jw)
+        return vw, jw
 
     def h36m_regressor(self, j_regressor_h36m: np.ndarray, evaluation_joints: bool = False):
         """The H36M-17 regressor (17 x V) users bring; evaluation_joints keeps the 14 evaluation joints."""

@@ -1,0 +1,384 @@
+"""One stage's objective of the world optimizer, written again in torch, independently of the C++ terms.
+
+It serves two purposes: a check of the C++ terms (their costs must equal these at any state, see
+tests/python/test_motion_torch_objective.py) and the SLAHMR-style baseline of bench/motion_optimizer.py
+(torch L-BFGS, lr 1, max_iter 20, strong Wolfe, over the same variables as the Ceres stage).
+
+The objective is the one Ceres minimises, 1/2 sum over the stage's terms of weight * loss (config.py lists the
+losses), over the variables: per frame root translation (3), root orientation (3, axis-angle), body pose
+(3(J-1)); per track betas (B); shared camera scale and offset. Constants the C++ stage fixes when it builds its
+problem are fixed here at the start state in the same way: the HuMoR term's ground frame (the track's plane at
+its middle frame, moved to the world with the start scale) and its per-block level c (NLL at the start - 100;
+the term is weight * max(NLL - c, 0)).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from m3c.body import BodyModel
+from m3c.body.torch_lbs import axis_angle_to_matrix
+from m3c.motion.config import OptimizerConfig, StageSpec
+from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track
+
+TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "pose_smoothness", "joint_smoothness",
+               "joint_acceleration", "contact_velocity", "contact_height", "motion_prior")
+# The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
+MOTION_PRIOR_LEVEL_DROP = 100.0
+
+
+class TorchPoser(torch.nn.Module):
+    """Posed joints and a few posed vertices (the ones a keypoint regressor reads) of an SMPL-layout model.
+
+    Full LBS restricted to the selected vertices: shape and pose blend shapes, forward kinematics, skinning.
+    forward(pose (N, J, 3), betas (N, B), transl (N, 3)) -> (joints (N, J, 3), vertices (N, U, 3)).
+    """
+
+    def __init__(self, model: BodyModel, vertex_ids, dtype: torch.dtype = torch.float64):
+        super().__init__()
+        data = model.data
+        ids = np.asarray(vertex_ids, dtype=np.int64)
+        J = model.num_joints
+        as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)  # noqa: E731
+        self.register_buffer("v_template", as_t(data.v_template[ids]))
+        self.register_buffer("shapedirs", as_t(data.shapedirs[ids]))  # (U, 3, B)
+        # (9(J-1), 3U): row 9(j-1)+3r+c multiplies (R_j - I)[r, c]
+        self.register_buffer("posedirs", as_t(data.posedirs[ids].reshape(3 * len(ids), -1).T))
+        self.register_buffer("weights", as_t(data.weights[ids]))  # (U, J)
+        self.register_buffer("joint_template", as_t(data.J_regressor @ data.v_template))  # (J, 3)
+        self.register_buffer("joint_shapedirs", as_t(np.einsum("jv,vkb->jkb", data.J_regressor, data.shapedirs)))
+        self.parents = [int(p) for p in data.parents]
+        self.num_joints = J
+
+    def forward(self, pose: torch.Tensor, betas: torch.Tensor, transl: torch.Tensor):
+        n, J = pose.shape[0], self.num_joints
+        rest = self.joint_template + torch.einsum("nb,jkb->njk", betas, self.joint_shapedirs)
+        rot = axis_angle_to_matrix(pose)  # (N, J, 3, 3)
+        rel = torch.cat([rest[:, :1], rest[:, 1:] - rest[:, self.parents[1:]]], dim=1)
+        world_R, world_t = [rot[:, 0]], [rel[:, 0]]
+        for j in range(1, J):
+            p = self.parents[j]
+            world_R.append(world_R[p] @ rot[:, j])
+            world_t.append((world_R[p] @ rel[:, j, :, None])[..., 0] + world_t[p])
+        R = torch.stack(world_R, dim=1)
+        joints = torch.stack(world_t, dim=1)
+        if self.v_template.shape[0] == 0:
+            return joints + transl[:, None], joints.new_zeros(n, 0, 3)
+        eye = torch.eye(3, dtype=pose.dtype)
+        shaped = self.v_template + torch.einsum("nb,ukb->nuk", betas, self.shapedirs)
+        posed = shaped + ((rot[:, 1:] - eye).reshape(n, -1) @ self.posedirs).reshape(n, -1, 3)
+        # Skinning transforms: x -> R_j (x - rest_j) + joint_j, blended by the weights.
+        offset = joints - (R @ rest[..., None])[..., 0]
+        blend_R = torch.einsum("uj,njab->nuab", self.weights, R)
+        blend_t = torch.einsum("uj,nja->nua", self.weights, offset)
+        vertices = (blend_R @ posed[..., None])[..., 0] + blend_t
+        return joints + transl[:, None], vertices + transl[:, None]
+
+
+@dataclass
+class TorchState:
+    """All variables, tracks stacked along rows: transl (N, 3), root (N, 3), body (N, 3(J-1)), betas (P, B),
+    scale (), offset (3)."""
+
+    transl: torch.Tensor
+    root: torch.Tensor
+    body: torch.Tensor
+    betas: torch.Tensor
+    scale: torch.Tensor
+    offset: torch.Tensor
+
+    GROUPS = ("transl", "root", "body", "betas", "scale", "offset")
+
+    @classmethod
+    def from_tracks(cls, tracks: list[Track], scale: float = 1.0, offset=None,
+                    dtype: torch.dtype = torch.float64) -> "TorchState":
+        cat = lambda xs: torch.as_tensor(np.concatenate(xs), dtype=dtype)  # noqa: E731
+        return cls(cat([np.asarray(t.transl).reshape(-1, 3) for t in tracks]),
+                   cat([np.asarray(t.root_orient).reshape(-1, 3) for t in tracks]),
+                   cat([np.asarray(t.body_pose).reshape(t.num_frames, -1) for t in tracks]),
+                   torch.as_tensor(np.stack([np.asarray(t.betas, dtype=np.float64) for t in tracks]), dtype=dtype),
+                   torch.tensor(float(scale), dtype=dtype),
+                   torch.as_tensor(np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64),
+                                   dtype=dtype))
+
+    def to_tracks(self, template: list[Track]) -> list[Track]:
+        """Tracks with these values and the template's observations."""
+        out, row = [], 0
+        for i, t in enumerate(template):
+            n = t.num_frames
+            s = slice(row, row + n)
+            out.append(Track(t.first_frame, t.keypoints, self.transl[s].detach().numpy().copy(),
+                             self.root[s].detach().numpy().copy(),
+                             self.body[s].detach().numpy().reshape(n, -1, 3).copy(),
+                             self.betas[i].detach().numpy().copy(), t.ground_normal, t.ground_offset, t.contacts))
+            row += n
+        return out
+
+    def detached(self) -> "TorchState":
+        return TorchState(*(getattr(self, g).detach().clone() for g in self.GROUPS))
+
+
+def ground_frame(normal: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid transform (R, t) into a z-up frame of the world plane n.x + offset = 0 (n unit): rows of R are two
+    in-plane axes and n, t = (0, 0, offset), so z is the height above the plane. The in-plane axes are the
+    world x (or y when n is close to x) projected onto the plane, as the C++ term chooses them; HuMoR's
+    canonical frame removes the heading anyway."""
+    n = normal / np.linalg.norm(normal)
+    seed = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = seed - seed.dot(n) * n
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1), n]), np.array([0.0, 0.0, offset])
+
+
+class StageObjective:
+    """The objective of one optimizer stage as a differentiable function of a TorchState.
+
+    model: the body model; tracks: the optimizer's inputs (observations, ground planes, contacts, and the
+    start values); cameras: as for m3c.motion.optimize; stage: a StageSpec of `config`; motion_prior: a
+    m3c.models.humor.HumorModel (the weights the C++ term loads; frozen here) or None (the term is then left
+    out, as the C++ optimizer leaves it out); keypoint_weights: (vertex_weights K x V, joint_weights K x J)
+    of the keypoint regressor (default COCO-17); start: the state the stage starts from (default: the tracks'
+    values with cameras.initial_scale), which fixes the HuMoR ground frames and levels.
+    """
+
+    def __init__(self, model: BodyModel, tracks: list[Track], cameras: Cameras, config: OptimizerConfig,
+                 stage: StageSpec, motion_prior=None, fps: float = 30.0, keypoint_weights=None,
+                 start: TorchState | None = None, dtype: torch.dtype = torch.float64):
+        active = {term: float(w) for term, w in stage.weights.items() if w > 0}
+        unknown = sorted(set(active) - set(TORCH_TERMS))
+        if unknown:
+            raise ValueError(f"stage {stage.name!r}: no torch counterpart for the terms {unknown}; "
+                             f"supported: {list(TORCH_TERMS)}")
+        if "motion_prior" in active and motion_prior is None:
+            del active["motion_prior"]  # the C++ optimizer reports it unavailable and leaves it out
+        self.stage, self.config, self.weights, self.dtype = stage, config, active, dtype
+        self.free = [g for g in stage.free if not (g == "scale" and cameras.static)
+                     and not (g == "offset" and not config.optimize_offset)]
+        if motion_prior is not None:
+            motion_prior.requires_grad_(False)  # the weights are constants here; no gradients to accumulate
+        self.model, self.motion_prior, self.fps = model, motion_prior, float(fps)
+        J = model.num_joints
+        vw, jw = keypoint_weights if keypoint_weights is not None else model.coco17_weights()
+        self.vertex_ids = np.flatnonzero(np.abs(vw).sum(0) > 0)
+        self.poser = TorchPoser(model, self.vertex_ids, dtype)
+        as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)  # noqa: E731
+        self.kp_vertex_weights = as_t(vw[:, self.vertex_ids])
+        self.kp_joint_weights = as_t(jw)
+
+        world_from_cam = np.asarray(cameras.world_from_cam, dtype=np.float64)
+        T = len(world_from_cam)
+        intrinsics = np.asarray(cameras.intrinsics, dtype=np.float64)
+        intrinsics = np.tile(intrinsics, (T, 1)) if intrinsics.shape == (4,) else intrinsics
+        rows = np.concatenate([t.first_frame + np.arange(t.num_frames) for t in tracks])
+        self.track_of_row = torch.as_tensor(np.concatenate([np.full(t.num_frames, i) for i, t in enumerate(tracks)]))
+        self.cam_from_world = as_t(np.transpose(world_from_cam[rows, :3, :3], (0, 2, 1)))
+        self.centre = as_t(world_from_cam[rows, :3, 3])
+        self.intrinsics = as_t(intrinsics[rows])
+        obs = np.concatenate([np.asarray(t.keypoints, dtype=np.float64).reshape(t.num_frames, -1, 3)
+                              for t in tracks])
+        obs[..., 2] = np.where(obs[..., 2] < config.min_confidence, 0.0, obs[..., 2])
+        self.observations = as_t(obs)
+        self.frames_per_track = as_t([t.num_frames for t in tracks])
+
+        # Consecutive frames within a track: pairs (first rows of each pair) and triples.
+        starts = np.cumsum([0] + [t.num_frames for t in tracks])
+        self.pairs = torch.as_tensor(np.concatenate([np.arange(a, b - 1) for a, b in zip(starts[:-1], starts[1:])]))
+        self.triples = torch.as_tensor(np.concatenate([np.arange(a, b - 2) for a, b in zip(starts[:-1], starts[1:])]))
+
+        # Contact weights (probability where it reaches the threshold) and ground planes in the world.
+        contacts = np.zeros((len(rows), len(CONTACT_JOINTS)))
+        has_ground = np.zeros(len(rows), dtype=bool)
+        normal_cam = np.tile([0.0, 0.0, 1.0], (len(rows), 1))
+        offset_cam = np.zeros(len(rows))
+        for t, a in zip(tracks, starts):
+            s = slice(a, a + t.num_frames)
+            if t.contacts is not None:
+                p = np.asarray(t.contacts, dtype=np.float64).reshape(t.num_frames, -1)
+                contacts[s] = np.where(p >= config.contact_threshold, p, 0.0)
+                if t.ground_normal is not None:
+                    has_ground[s] = True
+                    normal_cam[s] = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)
+                    offset_cam[s] = np.asarray(t.ground_offset, dtype=np.float64).reshape(-1)
+        self.contact_weights = as_t(contacts)
+        norm = np.linalg.norm(normal_cam, axis=1)
+        self.height_weights = as_t(contacts * has_ground[:, None])
+        self.ground_normal = as_t(np.einsum("nij,nj->ni", world_from_cam[rows, :3, :3], normal_cam) / norm[:, None])
+        self.ground_offset_cam = as_t(offset_cam / norm)
+
+        self.tracks = tracks
+        self.track_starts = starts
+        self.start = start if start is not None else TorchState.from_tracks(tracks, cameras.initial_scale,
+                                                                             dtype=dtype)
+        self.motion_blocks = []  # (rows slice, ground R, ground t, levels with NaN where a block is skipped)
+        if "motion_prior" in active:
+            self._fix_motion_prior(tracks, starts)
+
+    # ---- the pieces ------------------------------------------------------------------------------------
+    def posed(self, state: TorchState):
+        n = state.transl.shape[0]
+        pose = torch.cat([state.root[:, None], state.body.reshape(n, -1, 3)], dim=1)
+        return self.poser(pose, state.betas[self.track_of_row], state.transl)
+
+    def keypoints(self, joints: torch.Tensor, vertices: torch.Tensor) -> torch.Tensor:
+        return (torch.einsum("kv,nvc->nkc", self.kp_vertex_weights, vertices)
+                + torch.einsum("kj,njc->nkc", self.kp_joint_weights, joints))
+
+    def _fix_motion_prior(self, tracks, starts):
+        s = self.start
+        for t, a in zip(tracks, starts):
+            n = t.num_frames
+            if t.ground_normal is None or n < 4:
+                continue
+            mid = a + n // 2
+            normal_cam = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)[n // 2]
+            offset_cam = float(np.asarray(t.ground_offset, dtype=np.float64).reshape(-1)[n // 2])
+            R_wc = self.cam_from_world[mid].numpy().T
+            normal = R_wc @ normal_cam / np.linalg.norm(normal_cam)
+            centre = float(s.scale) * self.centre[mid].numpy() + s.offset.numpy()
+            R, tr = ground_frame(normal, offset_cam / np.linalg.norm(normal_cam) - normal.dot(centre))
+            block = (slice(a, a + n), torch.as_tensor(R, dtype=self.dtype), torch.as_tensor(tr, dtype=self.dtype))
+            with torch.no_grad():
+                joints, _ = self.posed(s)
+                nll = self._transition_nll(s, joints, block)
+            levels = nll - MOTION_PRIOR_LEVEL_DROP
+            self.motion_blocks.append(block + (torch.where(torch.isfinite(levels), levels, torch.nan),))
+
+    def _transition_nll(self, state: TorchState, joints: torch.Tensor, block) -> torch.Tensor:
+        from m3c.models import humor_state as hs
+        from m3c.models.humor import transition_nll
+
+        rows, R, t = block
+        n = rows.stop - rows.start
+        states = hs.build_states(state.transl[rows], state.root[rows],
+                                 state.body[rows].reshape(n, -1, 3)[:, :hs.NUM_BODY_JOINTS], joints[rows],
+                                 self.fps, (R, t))
+        return transition_nll(self.motion_prior, states[:-1], states[1:])
+
+    # ---- the objective ---------------------------------------------------------------------------------
+    def terms(self, state: TorchState) -> dict[str, torch.Tensor]:
+        """Cost of every active term (1/2 weight loss), as the C++ stage report gives them."""
+        joints, vertices = self.posed(state)
+        out = {}
+        for term, w in self.weights.items():
+            if term == "reprojection":
+                kp = self.keypoints(joints, vertices)
+                centre = state.scale * self.centre + state.offset
+                xc = torch.einsum("nij,nkj->nki", self.cam_from_world, kp - centre[:, None])
+                fx, fy, cx, cy = self.intrinsics.unbind(-1)
+                u = fx[:, None] * xc[..., 0] / xc[..., 2] + cx[:, None]
+                v = fy[:, None] * xc[..., 1] / xc[..., 2] + cy[:, None]
+                r2 = (u - self.observations[..., 0]) ** 2 + (v - self.observations[..., 1]) ** 2
+                s2 = self.config.robust_sigma ** 2
+                conf = self.observations[..., 2]
+                # Unobserved keypoints have zero weight; keep their (possibly non-finite) projection out of the sum.
+                gm = torch.where(conf > 0, s2 * r2 / (s2 + r2), torch.zeros_like(r2))
+                out[term] = 0.5 * w * (conf ** 2 * gm).sum()
+            elif term == "shape_prior":
+                out[term] = 0.5 * w * (self.frames_per_track * (state.betas ** 2).sum(-1)).sum()
+            elif term == "pose_prior":
+                out[term] = 0.5 * w * (state.body ** 2).sum()
+            elif term == "pose_smoothness":
+                out[term] = 0.5 * w * ((state.body[self.pairs + 1] - state.body[self.pairs]) ** 2).sum()
+            elif term == "joint_smoothness":
+                out[term] = 0.5 * w * ((joints[self.pairs + 1] - joints[self.pairs]) ** 2).sum()
+            elif term == "joint_acceleration":
+                i = self.triples
+                out[term] = 0.5 * w * ((joints[i + 2] - 2 * joints[i + 1] + joints[i]) ** 2).sum()
+            elif term == "contact_velocity":
+                feet = joints[:, list(CONTACT_JOINTS)]
+                step = ((feet[self.pairs + 1] - feet[self.pairs]) ** 2).sum(-1)
+                out[term] = 0.5 * w * (self.contact_weights[self.pairs] * step).sum()
+            elif term == "contact_height":
+                feet = joints[:, list(CONTACT_JOINTS)]
+                centre = state.scale * self.centre + state.offset
+                d = self.ground_offset_cam - (self.ground_normal * centre).sum(-1)
+                height = (feet * self.ground_normal[:, None]).sum(-1) + d[:, None]
+                excess = torch.clamp(height.abs() - self.config.contact_height_tolerance, min=0.0)
+                out[term] = 0.5 * w * (self.height_weights * excess ** 2).sum()
+            elif term == "motion_prior":
+                total = joints.new_zeros(())
+                for rows, R, t, levels in self.motion_blocks:
+                    nll = self._transition_nll(state, joints, (rows, R, t))
+                    keep = torch.isfinite(levels)
+                    total = total + torch.clamp(nll[keep] - levels[keep], min=0.0).sum()
+                out[term] = 0.5 * w * total
+        return out
+
+    def __call__(self, state: TorchState) -> torch.Tensor:
+        values = list(self.terms(state).values())
+        return sum(values[1:], values[0]) if values else torch.zeros((), dtype=self.dtype)
+
+
+@dataclass
+class LbfgsRun:
+    """What a torch L-BFGS run did: final objective, wall time, objective evaluations, L-BFGS steps (each up to
+    max_iter inner iterations), and the first time an evaluated state reached the target (None: never)."""
+
+    state: TorchState
+    final: float
+    seconds: float
+    evaluations: int
+    steps: int
+    seconds_to_target: float | None
+    stopped: str
+    trace: list[tuple[float, float]] = field(default_factory=list)  # (seconds, best objective so far)
+
+
+def run_lbfgs(objective: StageObjective, start: TorchState, target: float | None = None,
+              time_limit: float = 60.0, max_steps: int | None = None, lr: float = 1.0,
+              max_iter: int = 20) -> LbfgsRun:
+    """SLAHMR's optimiser on the stage's free variables: torch.optim.LBFGS(lr 1, max_iter 20, strong Wolfe),
+    step() repeated until an evaluated state reaches `target`, the time limit passes, max_steps steps are done,
+    or a step no longer lowers the objective. Times include building the problem's tensors."""
+    t0 = time.perf_counter()
+    state = start.detached()
+    params = []
+    for g in objective.free:
+        getattr(state, g).requires_grad_(True)
+        params.append(getattr(state, g))
+    if not params:
+        raise ValueError(f"stage {objective.stage.name!r} frees no variables")
+    optimizer = torch.optim.LBFGS(params, lr=lr, max_iter=max_iter, line_search_fn="strong_wolfe")
+    best = math.inf
+    evaluations = 0
+    reached: list[float] = []
+    trace: list[tuple[float, float]] = []
+
+    def closure():
+        nonlocal best, evaluations
+        optimizer.zero_grad()
+        loss = objective(state)
+        loss.backward()
+        evaluations += 1
+        value = float(loss.detach())
+        if value < best:
+            best = value
+            trace.append((time.perf_counter() - t0, value))
+        if target is not None and not reached and value <= target:
+            reached.append(time.perf_counter() - t0)
+        return loss
+
+    steps, stopped, previous = 0, "", math.inf
+    while True:
+        optimizer.step(closure)
+        steps += 1
+        if reached:
+            stopped = "reached the target"
+        elif time.perf_counter() - t0 > time_limit:
+            stopped = f"time limit {time_limit:.0f} s"
+        elif max_steps is not None and steps >= max_steps:
+            stopped = f"{max_steps} steps"
+        elif math.isfinite(previous) and not best < previous - 1e-12 * abs(previous):
+            stopped = "no further progress"
+        if stopped:
+            break
+        previous = best
+    with torch.no_grad():
+        final = float(objective(state))
+    return LbfgsRun(state.detached(), final, time.perf_counter() - t0, evaluations, steps,
+                    reached[0] if reached else None, stopped, trace)

@@ -1,0 +1,175 @@
+"""The C++ optimizer's stage objective against an independent torch implementation (m3c.motion.torch_objective):
+each term's cost at perturbed states, the HuMoR term with its levels after Ceres steps, and the torch L-BFGS
+baseline of the benchmark."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from m3c.body import BodyModel  # noqa: E402
+from m3c.body.reference import lbs  # noqa: E402
+from m3c.body.synthetic import make_synthetic_model  # noqa: E402
+from m3c.eval.scenes import make_scene  # noqa: E402
+from m3c.motion import Cameras, OptimizerConfig, StageSpec, optimize  # noqa: E402
+from m3c.motion.torch_objective import StageObjective, TorchPoser, TorchState, run_lbfgs  # noqa: E402
+
+RTOL = 1e-10
+
+
+@pytest.fixture(scope="module")
+def model():
+    return BodyModel(make_synthetic_model())
+
+
+@pytest.fixture(scope="module")
+def scene(model):
+    return make_scene(model, num_people=2, num_frames=10, seed=3)
+
+
+def perturbed(tracks, seed, ground_scale=1.0):
+    """Tracks moved to a random state around the scene's start; ground planes optionally given with non-unit
+    normals (the same planes)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for t in tracks:
+        out.append(dataclasses.replace(
+            t, transl=t.transl + 0.05 * rng.normal(size=t.transl.shape),
+            root_orient=t.root_orient + 0.05 * rng.normal(size=t.root_orient.shape),
+            body_pose=t.body_pose + 0.1 * rng.normal(size=t.body_pose.shape),
+            betas=t.betas + 0.2 * rng.normal(size=t.betas.shape),
+            ground_normal=ground_scale * t.ground_normal, ground_offset=ground_scale * t.ground_offset))
+    return out
+
+
+def single_stage(spec: StageSpec, iterations: int, **settings) -> OptimizerConfig:
+    config = OptimizerConfig.default()
+    for key, value in settings.items():
+        setattr(config, key, value)
+    # The scale stays fixed: a stage that frees it first re-initialises it from stance feet, moving the state.
+    config.stages = [StageSpec(spec.name, [g for g in spec.free if g != "scale"], dict(spec.weights), iterations)]
+    return config
+
+
+def torch_terms(objective, tracks, scale):
+    with torch.no_grad():
+        return {k: float(v) for k, v in objective.terms(TorchState.from_tracks(tracks, scale)).items()}
+
+
+def test_poser_matches_numpy_lbs(model):
+    rng = np.random.default_rng(0)
+    pose = 0.4 * rng.normal(size=(3, model.num_joints, 3))
+    betas = rng.normal(size=(3, model.num_betas))
+    transl = rng.normal(size=(3, 3))
+    ids = [0, 17, 100, model.num_vertices - 1]
+    verts, joints = lbs(model.data, pose, betas, transl)
+    poser = TorchPoser(model, ids)
+    j, v = poser(*(torch.as_tensor(a) for a in (pose, betas, transl)))
+    np.testing.assert_allclose(j.numpy(), joints, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(v.numpy(), verts[:, ids], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("stage_name", [s.name for s in OptimizerConfig.default().stages])
+def test_default_stage_terms_match_torch(model, scene, stage_name):
+    spec = next(s for s in OptimizerConfig.default().stages if s.name == stage_name)
+    config = single_stage(spec, 0)
+    tracks = perturbed(scene.init, seed=len(stage_name))
+    cameras = dataclasses.replace(scene.cameras_vo, initial_scale=1.7)
+    stage = optimize(model, tracks, cameras, config).stages[0]
+    assert stage.status == "ok" and stage.iterations == 0, stage.message
+    expected = torch_terms(StageObjective(model, tracks, cameras, config, config.stages[0]), tracks, 1.7)
+    # The motion prior has no weights here: both leave it out.
+    assert sorted(stage.terms) == sorted(expected)
+    for term, (before, _) in stage.terms.items():
+        assert before == pytest.approx(expected[term], rel=RTOL, abs=1e-12), term
+        assert before > 0, term  # every term is active at this state, so the comparison says something
+    assert stage.objective_before == pytest.approx(sum(expected.values()), rel=RTOL)
+
+
+def test_every_term_with_other_weights_and_settings(model, scene):
+    """All built-in terms with unequal weights, another robust scale and confidence cut, non-unit ground normals."""
+    weights = {"reprojection": 3e-3, "shape_prior": 0.7, "pose_prior": 0.3, "pose_smoothness": 2.0,
+               "joint_smoothness": 5.0, "joint_acceleration": 7.0, "contact_velocity": 40.0, "contact_height": 30.0}
+    config = single_stage(StageSpec("all", ["transl", "root", "body", "betas"], weights), 0, robust_sigma=20.0,
+                          min_confidence=0.8, contact_threshold=0.3, contact_height_tolerance=0.02)
+    tracks = perturbed(scene.init, seed=11, ground_scale=2.5)
+    cameras = dataclasses.replace(scene.cameras_vo, initial_scale=0.8)
+    stage = optimize(model, tracks, cameras, config).stages[0]
+    expected = torch_terms(StageObjective(model, tracks, cameras, config, config.stages[0]), tracks, 0.8)
+    assert sorted(stage.terms) == sorted(weights)
+    for term, (before, _) in stage.terms.items():
+        assert before == pytest.approx(expected[term], rel=RTOL), term
+    # A change of a setting changes the torch value: the settings are read, not defaults.
+    other = single_stage(config.stages[0], 0, robust_sigma=100.0)
+    assert torch_terms(StageObjective(model, tracks, cameras, other, other.stages[0]), tracks, 0.8)[
+        "reprojection"] > 1.5 * expected["reprojection"]
+
+
+@pytest.fixture(scope="module")
+def humor(tmp_path_factory):
+    from m3c.models.export import export_weights
+    from m3c.models.humor import HumorModel
+
+    torch.manual_seed(0)
+    net = HumorModel().eval()
+    folder = tmp_path_factory.mktemp("humor")
+    export_weights(folder, humor=net, dtype="float64")
+    return net.double(), folder / "humor.safetensors"
+
+
+def test_motion_prior_stage_objective_after_ceres_steps(model, scene, humor):
+    """The HuMoR term's reported cost at the start is its level offset only (weight * 100 / 2 per block), so it is
+    compared where it says something: at the state Ceres reaches, against torch with the start's levels."""
+    net, path = humor
+    spec = next(s for s in OptimizerConfig.default().stages if s.name == "motion_prior")
+    config = single_stage(spec, 10)
+    tracks = perturbed(scene.init, seed=5, ground_scale=2.5)
+    res = optimize(model, tracks, scene.cameras_vo, config, motion_prior=path, fps=scene.fps)
+    stage = res.stages[0]
+    assert stage.status == "ok", stage.message
+    objective = StageObjective(model, tracks, scene.cameras_vo, config, config.stages[0], motion_prior=net,
+                               fps=scene.fps)
+    start = torch_terms(objective, tracks, 1.0)
+    end = torch_terms(objective, res.tracks, 1.0)
+    blocks = 2 * (10 - 3)
+    assert start["motion_prior"] == pytest.approx(0.5 * spec.weights["motion_prior"] * 100.0 * blocks, rel=RTOL)
+    assert stage.objective_before == pytest.approx(sum(start.values()), rel=RTOL)
+    assert stage.objective_after < 0.7 * stage.objective_before  # Ceres moved: the check below is not at the start
+    assert end["motion_prior"] != pytest.approx(start["motion_prior"], rel=1e-4)
+    assert stage.objective_after == pytest.approx(sum(end.values()), rel=RTOL)
+
+
+def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):
+    spec = next(s for s in OptimizerConfig.default().stages if s.name == "root_orientation")
+    config = single_stage(spec, 0)
+    objective = StageObjective(model, scene.init, scene.cameras_vo, config, config.stages[0])
+    assert objective.free == ["transl", "root"]  # the offset is off by default
+    start = TorchState.from_tracks(scene.init)
+    with torch.no_grad():
+        start_value = float(objective(start))
+    run = run_lbfgs(objective, start, target=0.5 * start_value, time_limit=60.0, max_steps=5)
+    assert run.final < 0.5 * start_value
+    assert run.seconds_to_target is not None and run.seconds_to_target <= run.seconds
+    assert run.stopped == "reached the target"
+    # Variables the stage does not free stay where they were.
+    assert torch.equal(run.state.body, start.body) and torch.equal(run.state.betas, start.betas)
+    assert float(run.state.scale) == 1.0
+    # Its result, handed to the C++ objective, has the same value there.
+    tracks = run.state.to_tracks(scene.init)
+    stage = optimize(model, tracks, scene.cameras_vo, config).stages[0]
+    assert stage.objective_before == pytest.approx(run.final, rel=RTOL)
+
+
+def test_unknown_terms_are_refused(model, scene):
+    config = OptimizerConfig.default()
+    with pytest.raises(ValueError, match=r"no torch counterpart for the terms \['vposer'\]"):
+        StageObjective(model, scene.init, scene.cameras_vo, config, StageSpec("x", ["body"], {"vposer": 1.0}))
+
+
+def test_static_camera_keeps_the_scale_fixed(model, scene):
+    spec = next(s for s in OptimizerConfig.default().stages if s.name == "camera_scale")
+    cameras = Cameras(scene.cameras_vo.world_from_cam, scene.cameras_vo.intrinsics, static=True)
+    objective = StageObjective(model, scene.init, cameras, OptimizerConfig.default(), spec)
+    assert "scale" not in objective.free and "transl" in objective.free
