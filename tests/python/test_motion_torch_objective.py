@@ -84,13 +84,15 @@ def test_default_stage_terms_match_torch(model, scene, stage_name):
     assert sorted(stage.terms) == sorted(expected)
     for term, (before, _) in stage.terms.items():
         assert before == pytest.approx(expected[term], rel=RTOL, abs=1e-12), term
-        assert before > 0, term  # every term is active at this state, so the comparison says something
+        # Every term is active at this state, so the comparison says something; the anchor is zero at the start
+        # (its centre is the tracks' pose) and is compared after Ceres steps below.
+        assert before > 0 or term == "pose_anchor", term
     assert stage.objective_before == pytest.approx(sum(expected.values()), rel=RTOL)
 
 
 def test_every_term_with_other_weights_and_settings(model, scene):
     """All built-in terms with unequal weights, another robust scale and confidence cut, non-unit ground normals."""
-    weights = {"reprojection": 3e-3, "shape_prior": 0.7, "pose_prior": 0.3, "pose_smoothness": 2.0,
+    weights = {"reprojection": 3e-3, "shape_prior": 0.7, "pose_anchor": 0.3, "pose_smoothness": 2.0,
                "joint_smoothness": 5.0, "joint_acceleration": 7.0, "contact_velocity": 40.0, "contact_height": 30.0}
     config = single_stage(StageSpec("all", ["transl", "root", "body", "betas"], weights), 0, robust_sigma=20.0,
                           min_confidence=0.8, contact_threshold=0.3, contact_height_tolerance=0.02)
@@ -139,6 +141,31 @@ def test_motion_prior_stage_objective_after_ceres_steps(model, scene, humor):
     assert stage.objective_after < 0.7 * stage.objective_before  # Ceres moved: the check below is not at the start
     assert end["motion_prior"] != pytest.approx(start["motion_prior"], rel=1e-4)
     assert stage.objective_after == pytest.approx(sum(end.values()), rel=RTOL)
+
+
+@pytest.mark.parametrize("version", ["v1", "v2"])
+def test_pose_terms_after_ceres_steps(model, scene, tmp_path, version):
+    """pose_anchor and the VPoser terms (random weights in the official layout, exported) at the state Ceres
+    reaches from a perturbed start: the anchor pulls towards the tracks' own pose, so it is zero at the start."""
+    from m3c.models.export import export_weights
+    from m3c.models.vposer import VPoserV1, VPoserV2
+
+    torch.manual_seed(1)
+    vposer = (VPoserV1 if version == "v1" else VPoserV2)().double().eval()
+    export_weights(tmp_path, vposer=vposer, dtype="float64")
+    weights = {"reprojection": 1e-3, "pose_anchor": 2.0, "pose_prior": 0.3, "latent_smoothness": 0.7}
+    config = single_stage(StageSpec("pose", ["body"], weights), 5)
+    tracks = perturbed(scene.init, seed=2)
+    res = optimize(model, tracks, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
+    stage = res.stages[0]
+    assert stage.status == "ok" and stage.iterations > 0, stage.message
+    objective = StageObjective(model, tracks, scene.cameras_vo, config, config.stages[0], pose_prior=vposer)
+    start, end = torch_terms(objective, tracks, 1.0), torch_terms(objective, res.tracks, 1.0)
+    assert sorted(stage.terms) == sorted(weights) and start["pose_anchor"] == 0.0 < end["pose_anchor"]
+    for term, (before, after) in stage.terms.items():
+        assert before == pytest.approx(start[term], rel=RTOL, abs=1e-12), term
+        assert after == pytest.approx(end[term], rel=1e-8), term
+    assert stage.objective_after == pytest.approx(sum(end.values()), rel=1e-8)
 
 
 def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):

@@ -26,7 +26,8 @@ from m3c.body.torch_lbs import axis_angle_to_matrix
 from m3c.motion.config import OptimizerConfig, StageSpec
 from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track
 
-TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "pose_smoothness", "joint_smoothness",
+TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
+               "joint_smoothness",
                "joint_acceleration", "contact_velocity", "contact_height", "motion_prior")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
@@ -141,14 +142,15 @@ class StageObjective:
     model: the body model; tracks: the optimizer's inputs (observations, ground planes, contacts, and the
     start values); cameras: as for m3c.motion.optimize; stage: a StageSpec of `config`; motion_prior: a
     m3c.models.humor.HumorModel (the weights the C++ term loads; frozen here) or None (the term is then left
-    out, as the C++ optimizer leaves it out); keypoint_weights: (vertex_weights K x V, joint_weights K x J)
+    out, as the C++ optimizer leaves it out); pose_prior: likewise a m3c.models.vposer VPoser module for the
+    pose_prior and latent_smoothness terms, or None; keypoint_weights: (vertex_weights K x V, joint_weights K x J)
     of the keypoint regressor (default COCO-17); start: the state the stage starts from (default: the tracks'
     values with cameras.initial_scale), which fixes the HuMoR ground frames and levels.
     """
 
     def __init__(self, model: BodyModel, tracks: list[Track], cameras: Cameras, config: OptimizerConfig,
                  stage: StageSpec, motion_prior=None, fps: float = 30.0, keypoint_weights=None,
-                 start: TorchState | None = None, dtype: torch.dtype = torch.float64):
+                 start: TorchState | None = None, dtype: torch.dtype = torch.float64, pose_prior=None):
         active = {term: float(w) for term, w in stage.weights.items() if w > 0}
         unknown = sorted(set(active) - set(TORCH_TERMS))
         if unknown:
@@ -156,6 +158,15 @@ class StageObjective:
                              f"supported: {list(TORCH_TERMS)}")
         if "motion_prior" in active and motion_prior is None:
             del active["motion_prior"]  # the C++ optimizer reports it unavailable and leaves it out
+        if pose_prior is None:
+            for term in ("pose_prior", "latent_smoothness"):  # VPoser terms: likewise without its weights
+                active.pop(term, None)
+        else:
+            pose_prior.eval().requires_grad_(False)
+        self.pose_prior = pose_prior
+        # pose_anchor's centre: the tracks' own (regressed) body pose, whatever state a stage starts from.
+        self.anchor = torch.as_tensor(np.concatenate([np.asarray(t.body_pose, dtype=np.float64).reshape(
+            t.num_frames, -1) for t in tracks]), dtype=dtype)
         self.stage, self.config, self.weights, self.dtype = stage, config, active, dtype
         self.free = [g for g in stage.free if not (g == "scale" and cameras.static)
                      and not (g == "offset" and not config.optimize_offset)]
@@ -280,8 +291,16 @@ class StageObjective:
                 out[term] = 0.5 * w * (conf ** 2 * gm).sum()
             elif term == "shape_prior":
                 out[term] = 0.5 * w * (self.frames_per_track * (state.betas ** 2).sum(-1)).sum()
-            elif term == "pose_prior":
-                out[term] = 0.5 * w * (state.body ** 2).sum()
+            elif term == "pose_anchor":
+                out[term] = 0.5 * w * ((state.body - self.anchor) ** 2).sum()
+            elif term in ("pose_prior", "latent_smoothness"):
+                # VPoser's encoder mean of body joints 1..21 (the first 63 body-pose values).
+                dtype = next(self.pose_prior.parameters()).dtype
+                z = self.pose_prior.encode(state.body[:, :63].to(dtype))[0].to(self.dtype)
+                if term == "pose_prior":
+                    out[term] = 0.5 * w * (z ** 2).sum()
+                else:
+                    out[term] = 0.5 * w * ((z[self.pairs + 1] - z[self.pairs]) ** 2).sum()
             elif term == "pose_smoothness":
                 out[term] = 0.5 * w * ((state.body[self.pairs + 1] - state.body[self.pairs]) ** 2).sum()
             elif term == "joint_smoothness":
