@@ -360,10 +360,15 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
     return cost;
   };
-  auto term_cost = [&](const std::string& term, double weight) {
-    ceres::Problem problem;
-    add_term(term, weight, &problem);
-    return cost_of(&problem);
+  // The cost of one term's residual blocks within a stage's problem (its own levels and weights).
+  auto blocks_cost = [&](ceres::Problem* problem, const std::vector<ceres::ResidualBlockId>& ids) {
+    if (ids.empty()) return 0.0;  // an empty list would mean every block to Ceres
+    double cost = 0.0;
+    ceres::Problem::EvaluateOptions options;
+    options.num_threads = config_.num_threads;
+    options.residual_blocks = ids;
+    if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
+    return cost;
   };
 
   // Closed-form scale from stance feet: a foot in contact at t and t+1 is static in the world, and its world
@@ -451,13 +456,18 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     const auto start = std::chrono::steady_clock::now();
     ceres::Problem problem;
     std::vector<std::string> missing;
+    std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks
     for (const auto& [term, weight] : stage.weights) {
       if (weight <= 0) continue;
+      const int first = problem.NumResidualBlocks();
       if (!add_term(term, weight, &problem)) {
         missing.push_back(term);
         continue;
       }
-      report.terms.push_back({term, term_cost(term, weight), 0.0});
+      std::vector<ceres::ResidualBlockId> ids;
+      problem.GetResidualBlocks(&ids);  // in the order they were added
+      term_blocks.emplace_back(ids.begin() + first, ids.end());
+      report.terms.push_back({term, 0.0, 0.0});
     }
     for (const auto& term : missing) report.message += (report.message.empty() ? "" : "; ") + term + " unavailable";
     if (problem.NumResidualBlocks() == 0) {
@@ -485,6 +495,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       if (scale_unobservable && problem.HasParameterBlock(vars.scale)) problem.SetParameterBlockConstant(vars.scale);
     }
     report.objective_before = cost_of(&problem);
+    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = blocks_cost(&problem, term_blocks[k]);
 
     ceres::Solver::Options options;
     options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
@@ -516,7 +527,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     } else {
       report.status = "ok";
     }
-    for (auto& tc : report.terms) tc.after = term_cost(tc.term, stage.weights.at(tc.term));
+    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].after = blocks_cost(&problem, term_blocks[k]);
     report.scale = state.scale;
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     result.stages.push_back(report);

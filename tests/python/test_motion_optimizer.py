@@ -50,6 +50,9 @@ def test_every_stage_lowers_its_objective_and_reports_terms(result):
         assert stage.status == "ok", (stage.name, stage.message)
         assert stage.objective_after <= stage.objective_before + 1e-9, stage.name
         assert stage.terms and all(np.isfinite(v).all() for v in stage.terms.values())
+        # The per-term costs add up to the stage's objective, before (after any scale initialisation) and after.
+        assert sum(b for b, _ in stage.terms.values()) == pytest.approx(stage.objective_before, rel=1e-9)
+        assert sum(a for _, a in stage.terms.values()) == pytest.approx(stage.objective_after, rel=1e-9)
     # The motion prior is not configured: reported, not silently dropped.
     assert "motion_prior unavailable" in result.stages[-2].message
     assert "scale initialised from" in result.stages[2].message

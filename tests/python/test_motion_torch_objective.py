@@ -141,6 +141,10 @@ def test_motion_prior_stage_objective_after_ceres_steps(model, scene, humor):
     assert stage.objective_after < 0.7 * stage.objective_before  # Ceres moved: the check below is not at the start
     assert end["motion_prior"] != pytest.approx(start["motion_prior"], rel=1e-4)
     assert stage.objective_after == pytest.approx(sum(end.values()), rel=RTOL)
+    # The report's per-term costs are those of the stage's own blocks (the start's levels), before and after.
+    for term, (before, after) in stage.terms.items():
+        assert before == pytest.approx(start[term], rel=RTOL, abs=1e-12), term
+        assert after == pytest.approx(end[term], rel=1e-8, abs=1e-12), term
 
 
 @pytest.mark.parametrize("version", ["v1", "v2"])
