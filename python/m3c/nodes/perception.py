@@ -15,7 +15,7 @@ import numpy as np
 
 from m3c.nodes import adapters
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.records import decode_mask, encode_masks, table_length
+from m3c.nodes.records import encode_masks, mask_in_region, table_length
 from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, register_node
 
 
@@ -396,11 +396,7 @@ class VisualOdometryNode(AdapterNode):
                 if masks is not None:
                     mask = np.zeros((height, width), dtype=bool)
                     for n in rows_of_frame.get(i, ()):
-                        person, x0, y0 = decode_mask(masks, n)
-                        h, w = person.shape
-                        x1, y1 = min(x0 + w, width), min(y0 + h, height)
-                        if x1 > max(x0, 0) and y1 > max(y0, 0):
-                            mask[max(y0, 0):y1, max(x0, 0):x1] |= person[max(-y0, 0):y1 - y0, max(-x0, 0):x1 - x0]
+                        mask |= mask_in_region(masks, n, (0, 0, width, height))
                 frame_depth = None
                 if maps is not None:
                     import cv2

@@ -298,24 +298,24 @@ class GroundNode(Node):
         the camera's metric height above the ground in each frame, the odometry's map points on the ground the
         same height in VO units. None when not measured (setting off, static camera, no ground, too little
         support: the scale node's value stands)."""
-        from m3c.vo.scale import scale_from_ground
+        from m3c.vo.scale import ground_in_camera, scale_from_ground
 
         points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
         if not self.config.scale_from_ground or cameras["static"] or dominant is None or scale["source"] == "given":
             return None
         vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
-        by_frame: dict[int, list[np.ndarray]] = {}
+        per_frame: list[list[np.ndarray]] = [[] for _ in range(len(vo))]
         for track, points_cam in zip(tracks, in_camera):
             for i, p in enumerate(points_cam):
-                if len(p):
-                    by_frame.setdefault(track["first_frame"] + i, []).append(p)
-        frames = np.array(sorted(by_frame), dtype=np.int64)
+                per_frame[track["first_frame"] + i].append(p)
+        contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
+        normals = np.einsum("fji,j->fi", vo[:, :3, :3], dominant.normal)  # R_t^T n: the ground up per camera
+        frames, heights = ground_in_camera(contacts, normals)
         if not len(frames) or not len(points):
             ctx.log.info("camera scale not measured against the ground: %s",
                          "the odometry gave no map points" if not len(points) else "no planted feet")
             return None
-        normals = np.einsum("fji,j->fi", vo[frames, :3, :3], dominant.normal)  # R_t^T n: the ground up per camera
-        heights = np.array([np.median(-(np.concatenate(by_frame[f]) @ n)) for f, n in zip(frames, normals)])
+        normals = normals[frames]
         value, info = scale_from_ground(points, vo, normals, heights, frames)
         if value is None:
             ctx.log.info("camera scale not measured against the ground: %s", info.reason)
@@ -328,7 +328,8 @@ class GroundNode(Node):
 
     @staticmethod
     def _body_up(model, tracks, cameras) -> np.ndarray:
-        """Mean unit pelvis-to-neck direction of every visible person-frame, in the metric VO frame."""
+        """Mean unit pelvis-to-neck direction of every visible person-frame in the VO frame (camera rotations
+        only, so the same at any scale)."""
         directions = []
         for track in tracks:
             frames = np.flatnonzero(track["visible"])
