@@ -53,7 +53,7 @@ KeypointReprojectionCost::KeypointReprojectionCost(const body::BodyModel* model,
 bool KeypointReprojectionCost::Evaluate(double const* const* parameters, double* residuals,
                                         double** jacobians) const {
   const int K = regressor_->num_keypoints();
-  thread_local BodyPoints points;
+  thread_local body::BlockPoints points;
   points.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]},
                   jacobians != nullptr);
   ZeroJacobians(*this, jacobians);
@@ -108,7 +108,7 @@ RelativePointsCost::RelativePointsCost(const body::BodyModel* model, const body:
 
 bool RelativePointsCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints();
-  thread_local BodyPoints points;
+  thread_local body::BlockPoints points;
   points.Evaluate(*model_, *regressor_, {nullptr, parameters[0], parameters[1], parameters[2]}, jacobians != nullptr);
   ZeroJacobians(*this, jacobians);
   const double inv_ref = 1.0 / static_cast<double>(reference_.size());
@@ -126,7 +126,7 @@ bool RelativePointsCost::Evaluate(double const* const* parameters, double* resid
     if (!jacobians) continue;
     for (int b = 0; b < 3; ++b) {
       if (!jacobians[b]) continue;
-      const int block = b + 1;  // BodyPoints' blocks start with the translation
+      const int block = b + 1;  // body::BlockPoints' blocks start with the translation
       RowMatrixXd de = points.jacobian(k, block);
       for (int r : reference_) de -= inv_ref * points.jacobian(r, block);
       Eigen::Map<RowMatrixXd> out(jacobians[b], num_residuals(), points.block_size(block));

@@ -9,9 +9,11 @@
 #include <Eigen/Core>
 
 #include "body/body_model.h"
-#include "fit/body_points.h"
+#include "body/block_points.h"
 
 namespace m3c::fit {
+
+using body::RowMatrixXd;
 
 struct Intrinsics {
   double fx = 1.0, fy = 1.0, cx = 0.0, cy = 0.0;

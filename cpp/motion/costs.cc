@@ -9,7 +9,7 @@ namespace m3c::motion {
 namespace {
 // Writes d(residual rows)/d(block) = M (rows x 3) * d points / d block for one point into a row-major block
 // Jacobian with `stride` columns, adding to what is there when accumulate.
-void ChainPointJacobian(const Eigen::Ref<const RowMatrixXd>& M, const FramePoints& points, int point, int block,
+void ChainPointJacobian(const Eigen::Ref<const RowMatrixXd>& M, const body::BlockPoints& points, int point, int block,
                         double* jacobian, int first_row, double sign) {
   const int size = points.block_size(block), offset = points.block_offset(block);
   for (int r = 0; r < M.rows(); ++r) {
@@ -44,7 +44,7 @@ ReprojectionCost::ReprojectionCost(const body::BodyModel* model, const body::Key
 
 bool ReprojectionCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints();
-  thread_local FramePoints points;
+  thread_local body::BlockPoints points;
   points.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]},
                   jacobians != nullptr);
   const double scale = parameters[4][0];
@@ -63,7 +63,7 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
       residuals[2 * k] = residuals[2 * k + 1] = 0.0;
       continue;
     }
-    const Eigen::Vector3d xc = R * (Eigen::Map<const Eigen::Vector3d>(points.point(k)) - centre);
+    const Eigen::Vector3d xc = R * (points.point(k) - centre);
     if (!(xc.z() > min_depth_)) return false;  // behind or too close to the camera: reject the step
     const double iz = 1.0 / xc.z();
     const Eigen::Vector2d r(camera_.fx * xc.x() * iz + camera_.cx - observations_(k, 0),
@@ -112,7 +112,7 @@ PointStencilCost::PointStencilCost(const body::BodyModel* model, const body::Key
 bool PointStencilCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints(), F = static_cast<int>(stencil_.size());
   const int betas_block = 3 * F;
-  thread_local std::vector<FramePoints> frames;
+  thread_local std::vector<body::BlockPoints> frames;
   frames.resize(F);
   for (int f = 0; f < F; ++f) {
     frames[f].Evaluate(*model_, *regressor_,
@@ -161,7 +161,7 @@ ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::K
 
 bool ContactHeightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints();
-  thread_local FramePoints p;
+  thread_local body::BlockPoints p;
   p.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
   const double scale = parameters[4][0];
   const Eigen::Map<const Eigen::Vector3d> offset(parameters[5]);
@@ -173,7 +173,7 @@ bool ContactHeightCost::Evaluate(double const* const* parameters, double* residu
     }
   }
   for (int k = 0; k < K; ++k) {
-    const double height = n.dot(Eigen::Map<const Eigen::Vector3d>(p.point(k))) + d;
+    const double height = n.dot(p.point(k)) + d;
     const double excess = std::abs(height) - tolerance_;
     residuals[k] = excess > 0 ? sqrt_weights_[k] * excess : 0.0;
     if (!jacobians || excess <= 0) continue;

@@ -9,9 +9,11 @@
 #include <Eigen/Core>
 
 #include "body/body_model.h"
-#include "motion/frame_points.h"
+#include "body/block_points.h"
 
 namespace m3c::motion {
+
+using body::RowMatrixXd;
 
 // One frame's camera. The VO trajectory is up to scale: the camera centre in the world is
 // scale * centre + offset, with scale and offset optimised. x_cam = rotation * (x_world - that centre).

@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "body/kinematics.h"
-#include "motion/frame_points.h"
+#include "body/block_points.h"
 #include "nn/humor_state.h"
 #include "util/check.h"
 
@@ -54,12 +54,12 @@ void HumorTransitionCost::States(double const* const* parameters, double* x0, do
   const bool with_jacobian = dx0 != nullptr;
   const double* betas = parameters[12];
   std::vector<std::vector<double>> joints(4, std::vector<double>(3 * kNumStateJoints));
-  FramePoints points;
+  body::BlockPoints points;
   if (joint_jacobians) joint_jacobians->resize(4);
   for (int f = 0; f < 4; ++f) {
     points.Evaluate(*model_, *joints_, {parameters[3 * f], parameters[3 * f + 1], parameters[3 * f + 2], betas},
                     with_jacobian);
-    std::copy(points.point(0), points.point(0) + 3 * kNumStateJoints, joints[f].begin());
+    std::copy(points.data(), points.data() + 3 * kNumStateJoints, joints[f].begin());
     if (with_jacobian) {
       const int cols = body::NumJacobianColumns(*model_);
       Eigen::MatrixXd& J = (*joint_jacobians)[f];

@@ -386,7 +386,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       Eigen::Vector3d dc, dq;
     };
     std::vector<Pair> pairs;
-    FramePoints a, b;
+    body::BlockPoints a, b;
     for (size_t i = 0; i < tracks.size(); ++i) {
       const TrackInput& tr = tracks[i];
       if (tr.contacts.size() == 0) continue;
@@ -402,8 +402,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
             b.Evaluate(*model_, *contact_regressor_, {vars.transl[i][f + 1], vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]}, false);
             evaluated = true;
           }
-          const Eigen::Vector3d dq = (Eigen::Map<const Eigen::Vector3d>(b.point(k)) - state.scale * c1) -
-                                     (Eigen::Map<const Eigen::Vector3d>(a.point(k)) - state.scale * c0);
+          const Eigen::Vector3d dq = (b.point(k) - state.scale * c1) -
+                                     (a.point(k) - state.scale * c0);
           pairs.push_back({w, c1 - c0, dq});
         }
       }

@@ -1,44 +1,19 @@
 #include "fit/costs.h"
 
-#include <ceres/gradient_checker.h>
 #include <gtest/gtest.h>
 
 #include "body/kinematics.h"
-#include "../body/test_model.h"
+#include "../body/cost_checks.h"
 
 namespace m3c::fit {
 namespace {
 
+using body::testing::CheckGradient;
 using body::testing::MakeTestModel;
-using body::testing::RandomVector;
+using body::testing::ThreePointRegressor;
 
-// Three points: a vertex, a vertex average and a joint.
-body::KeypointRegressor ThreePointRegressor(const body::BodyModel& model) {
-  Eigen::SparseMatrix<double, Eigen::RowMajor> vw(3, model.num_vertices()), jw(3, model.num_joints());
-  std::vector<Eigen::Triplet<double>> tv = {{0, 5, 1.0}, {1, 30, 0.5}, {1, 31, 0.5}};
-  std::vector<Eigen::Triplet<double>> tj = {{2, 10, 1.0}};
-  vw.setFromTriplets(tv.begin(), tv.end());
-  jw.setFromTriplets(tj.begin(), tj.end());
-  return body::KeypointRegressor(vw, jw);
-}
-
-bool Check(const ceres::CostFunction& cost, const std::vector<const double*>& params, double precision = 1e-6) {
-  ceres::NumericDiffOptions options;
-  const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
-  ceres::GradientChecker checker(&cost, no_manifolds, options);
-  ceres::GradientChecker::ProbeResults results;
-  const bool ok = checker.Probe(params.data(), precision, &results);
-  if (!ok) ADD_FAILURE() << results.error_log;
-  return ok;
-}
-
-struct Params {
-  std::vector<double> transl, root, body, betas;
-  Params(const body::BodyModel& m, unsigned seed)
-      : transl(RandomVector(3, 0.3, seed)),
-        root(RandomVector(3, 0.4, seed + 1)),
-        body(RandomVector(3 * (m.num_joints() - 1), 0.4, seed + 2)),
-        betas(RandomVector(m.num_betas(), 1.0, seed + 3)) {
+struct Params : body::testing::RandomPoseBlocks {
+  Params(const body::BodyModel& m, unsigned seed) : RandomPoseBlocks(m, seed) {
     transl[2] += 5.0;  // in front of the camera
   }
 };
@@ -67,7 +42,7 @@ TEST(FitCosts, ReprojectionJacobiansAndValue) {
       0.0;
   const double weight = 0.7, sigma = 30.0;
   KeypointReprojectionCost cost(&model, &reg, cam, obs, weight, sigma, 0.05);
-  EXPECT_TRUE(Check(cost, {p.transl.data(), p.root.data(), p.body.data(), p.betas.data()}));
+  EXPECT_TRUE(CheckGradient(cost, {p.transl.data(), p.root.data(), p.body.data(), p.betas.data()}));
 
   // |r_k|^2 = weight conf^2 GM(|e|^2) with the pixel error computed here from the plain keypoints.
   std::vector<double> res(6);
@@ -101,7 +76,7 @@ TEST(FitCosts, RelativePointsJacobiansAndTranslationInvariance) {
   obs << 0.1, -0.2, 0.05, 1.0, -0.3, 0.4, 0.2, 0.6, 0.5, 0.5, 0.5, 0.0;
   const double weight = 2.0, sigma = 0.1;
   RelativePointsCost cost(&model, &reg, obs, {0, 1}, weight, sigma);
-  EXPECT_TRUE(Check(cost, {p.root.data(), p.body.data(), p.betas.data()}));
+  EXPECT_TRUE(CheckGradient(cost, {p.root.data(), p.body.data(), p.betas.data()}));
 
   // The value against the definition, with points from Keypoints<double> at an arbitrary translation.
   const auto x = PointsOf(model, reg, p);

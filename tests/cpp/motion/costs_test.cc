@@ -1,48 +1,22 @@
 #include "motion/costs.h"
 
-#include <ceres/gradient_checker.h>
 #include <gtest/gtest.h>
 
 #include "body/kinematics.h"
-#include "../body/test_model.h"
+#include "../body/cost_checks.h"
 
 namespace m3c::motion {
 namespace {
 
+using body::testing::CheckGradient;
 using body::testing::MakeTestModel;
-using body::testing::RandomVector;
+using body::testing::ThreePointRegressor;
 
-body::KeypointRegressor TwoPointRegressor(const body::BodyModel& model) {
-  Eigen::SparseMatrix<double, Eigen::RowMajor> vw(3, model.num_vertices()), jw(3, model.num_joints());
-  std::vector<Eigen::Triplet<double>> tv = {{0, 5, 1.0}, {1, 30, 0.5}, {1, 31, 0.5}};
-  std::vector<Eigen::Triplet<double>> tj = {{2, 10, 1.0}};
-  vw.setFromTriplets(tv.begin(), tv.end());
-  jw.setFromTriplets(tj.begin(), tj.end());
-  return body::KeypointRegressor(vw, jw);
-}
-
-bool Check(const ceres::CostFunction& cost, const std::vector<const double*>& params, double precision = 1e-6) {
-  ceres::NumericDiffOptions options;
-  const std::vector<const ceres::Manifold*>* no_manifolds = nullptr;
-  ceres::GradientChecker checker(&cost, no_manifolds, options);
-  ceres::GradientChecker::ProbeResults results;
-  const bool ok = checker.Probe(params.data(), precision, &results);
-  if (!ok) ADD_FAILURE() << results.error_log;
-  return ok;
-}
-
-struct Frame {
-  std::vector<double> transl, root, body, betas;
-  explicit Frame(const body::BodyModel& m, unsigned seed)
-      : transl(RandomVector(3, 0.3, seed)),
-        root(RandomVector(3, 0.4, seed + 1)),
-        body(RandomVector(3 * (m.num_joints() - 1), 0.4, seed + 2)),
-        betas(RandomVector(m.num_betas(), 1.0, seed + 3)) {}
-};
+using Frame = body::testing::RandomPoseBlocks;
 
 TEST(Costs, ReprojectionJacobians) {
   const body::BodyModel model = MakeTestModel();
-  const auto reg = TwoPointRegressor(model);
+  const auto reg = ThreePointRegressor(model);
   Frame f(model, 1);
   FrameCamera cam;
   cam.cam_from_world_rotation = Eigen::AngleAxisd(0.2, Eigen::Vector3d(0.3, 1.0, 0.1).normalized()).toRotationMatrix();
@@ -53,7 +27,7 @@ TEST(Costs, ReprojectionJacobians) {
   obs << 480, 270, 0.9, 700, 100, 0.5, 100, 900, 0.0;
   ReprojectionCost cost(&model, &reg, cam, obs, 0.7, 100.0, 0.05);
   double scale = 1.3, offset[3] = {0.1, 0.0, -0.2};
-  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
+  EXPECT_TRUE(CheckGradient(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
 
   // The squared residual equals weight * conf^2 * Geman-McClure of the pixel error.
   std::vector<double> res(6);
@@ -65,7 +39,7 @@ TEST(Costs, ReprojectionJacobians) {
 
 TEST(Costs, ReprojectionRejectsPointsBehindCamera) {
   const body::BodyModel model = MakeTestModel();
-  const auto reg = TwoPointRegressor(model);
+  const auto reg = ThreePointRegressor(model);
   Frame f(model, 2);
   FrameCamera cam{Eigen::Matrix3d::Identity(), Eigen::Vector3d(0, 0, 10.0), 500, 500, 320, 240};
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> obs = Eigen::MatrixXd::Constant(3, 3, 1.0);
@@ -78,19 +52,19 @@ TEST(Costs, ReprojectionRejectsPointsBehindCamera) {
 
 TEST(Costs, PointStencilJacobians) {
   const body::BodyModel model = MakeTestModel();
-  const auto reg = TwoPointRegressor(model);
+  const auto reg = ThreePointRegressor(model);
   Frame a(model, 3), b(model, 7), c(model, 21);
   PointStencilCost velocity(&model, &reg, {-1.0, 1.0}, {1.0, 4.0, 0.5});
-  EXPECT_TRUE(Check(velocity, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
+  EXPECT_TRUE(CheckGradient(velocity, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
                                b.body.data(), a.betas.data()}));
   PointStencilCost acceleration(&model, &reg, {1.0, -2.0, 1.0}, {2.0, 1.0, 3.0});
-  EXPECT_TRUE(Check(acceleration, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
+  EXPECT_TRUE(CheckGradient(acceleration, {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(), b.root.data(),
                                    b.body.data(), c.transl.data(), c.root.data(), c.body.data(), a.betas.data()}));
 }
 
 TEST(Costs, StencilOfAConstantVelocityPathIsZero) {
   const body::BodyModel model = MakeTestModel();
-  const auto reg = TwoPointRegressor(model);
+  const auto reg = ThreePointRegressor(model);
   Frame a(model, 3);
   std::vector<double> t1 = {a.transl[0] + 0.1, a.transl[1], a.transl[2]}, t2 = {a.transl[0] + 0.2, a.transl[1], a.transl[2]};
   PointStencilCost acceleration(&model, &reg, {1.0, -2.0, 1.0}, {1.0, 1.0, 1.0});
@@ -111,12 +85,12 @@ FrameCamera TestCamera() {
 
 TEST(Costs, ContactHeightJacobiansAndDeadZone) {
   const body::BodyModel model = MakeTestModel();
-  const auto reg = TwoPointRegressor(model);
+  const auto reg = ThreePointRegressor(model);
   Frame f(model, 11);
   double scale = 1.4, offset[3] = {0.1, -0.2, 0.3};
   // A plane far below the points: all residuals active.
   ContactHeightCost cost(&model, &reg, {1.0, 2.0, 3.0}, TestCamera(), Eigen::Vector3d(0.1, -1.0, 0.05), 7.0, 0.08);
-  EXPECT_TRUE(Check(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
+  EXPECT_TRUE(CheckGradient(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, offset}));
   // A world plane y = 0 seen from the camera: a point 5 cm above it is inside the tolerance (zero residual), and
   // the same plane moves with the scale (the camera centre's height scales).
   std::vector<double> pts(9), pose(3 * model.num_joints());
@@ -143,9 +117,9 @@ TEST(Costs, ContactHeightJacobiansAndDeadZone) {
 TEST(Costs, PriorsJacobians) {
   GaussianPriorCost prior(Eigen::VectorXd::LinSpaced(4, -1, 1), 0.3);
   std::vector<double> x = {0.1, 0.2, -0.3, 2.0}, y = {1.0, -2.0, 0.5, 0.0};
-  EXPECT_TRUE(Check(prior, {x.data()}));
+  EXPECT_TRUE(CheckGradient(prior, {x.data()}));
   BlockDifferenceCost diff(4, 2.5);
-  EXPECT_TRUE(Check(diff, {x.data(), y.data()}));
+  EXPECT_TRUE(CheckGradient(diff, {x.data(), y.data()}));
 }
 
 }  // namespace
