@@ -287,8 +287,9 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
   };
   // HuMoR transitions over frames t-1..t+2 in each person's ground frame (its plane at the middle of the track,
-  // moved to the world with the current camera scale). The level c sits 100 nats below each block's start.
-  auto add_motion_prior = [&](double weight, ceres::Problem* problem) {
+  // moved to the world with the current camera scale), evaluated together by `batch` (the problem's evaluation
+  // callback). The level c sits 100 nats below each block's start.
+  auto add_motion_prior = [&](double weight, HumorTransitionBatch* batch, ceres::Problem* problem) {
     for (size_t i = 0; i < tracks.size(); ++i) {
       const TrackInput& tr = tracks[i];
       const int n = static_cast<int>(tr.transl.rows());
@@ -301,16 +302,13 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       Eigen::Matrix3d R;
       Eigen::Vector3d t;
       GroundFrame(normal.normalized(), offset, &R, &t);  // offset is already per unit normal
-      for (int f = 1; f + 2 < n; ++f) {
-        std::vector<double*> blocks;
-        for (int g = f - 1; g <= f + 2; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
-        blocks.push_back(vars.betas[i]);
-        HumorTransitionCost probe(model_, motion_prior_, fps_, R, t, weight, 0.0);
-        const double level = probe.Nll(blocks.data()) - 100.0;
-        if (!std::isfinite(level)) continue;
-        problem->AddResidualBlock(new HumorTransitionCost(model_, motion_prior_, fps_, R, t, weight, level), nullptr,
-                                  blocks);
-      }
+      batch->AddTrack(vars.transl[i], vars.root[i], vars.body[i], vars.betas[i], R, t);
+    }
+    const std::vector<double> nll = batch->Nll();
+    for (int k = 0; k < batch->num_transitions(); ++k) {
+      if (!std::isfinite(nll[k])) continue;
+      problem->AddResidualBlock(new HumorTransitionCost(batch, k, weight, nll[k] - 100.0), nullptr,
+                                batch->Parameters(k));
     }
   };
   auto add_pose_prior = [&](const std::string& term, double weight, ceres::Problem* problem) {
@@ -333,7 +331,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return nullptr;
   };
   // Adds a term's blocks; false when the term is unknown here (e.g. a motion prior with no weights loaded).
-  auto add_term = [&](const std::string& term, double weight, ceres::Problem* problem) {
+  auto add_term = [&](const std::string& term, double weight, HumorTransitionBatch* humor_batch,
+                      ceres::Problem* problem) {
     if (is_builtin(term)) {
       add_builtin(term, weight, problem);
       return true;
@@ -342,8 +341,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       add_pose_prior(term, weight, problem);
       return true;
     }
-    if (term == "motion_prior" && motion_prior_ != nullptr) {
-      add_motion_prior(weight, problem);
+    if (term == "motion_prior" && humor_batch != nullptr) {
+      add_motion_prior(weight, humor_batch, problem);
       return true;
     }
     if (const TermBuilder* builder = find_extra(term)) {
@@ -454,13 +453,21 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       continue;
     }
     const auto start = std::chrono::steady_clock::now();
-    ceres::Problem problem;
+    // The motion prior's blocks share one batched evaluation per point (declared before the problem: it must
+    // outlive it).
+    std::unique_ptr<HumorTransitionBatch> humor_batch;
+    ceres::Problem::Options problem_options;
+    if (motion_prior_ != nullptr && stage.weights.count("motion_prior") && stage.weights.at("motion_prior") > 0) {
+      humor_batch = std::make_unique<HumorTransitionBatch>(model_, motion_prior_, fps_, config_.num_threads);
+      problem_options.evaluation_callback = humor_batch.get();
+    }
+    ceres::Problem problem(problem_options);
     std::vector<std::string> missing;
     std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks
     for (const auto& [term, weight] : stage.weights) {
       if (weight <= 0) continue;
       const int first = problem.NumResidualBlocks();
-      if (!add_term(term, weight, &problem)) {
+      if (!add_term(term, weight, humor_batch.get(), &problem)) {
         missing.push_back(term);
         continue;
       }
