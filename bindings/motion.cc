@@ -35,6 +35,7 @@ void BindMotion(py::module_& m) {
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
       .def_readwrite("max_scale_uncertainty", &OptimizerConfig::max_scale_uncertainty)
+      .def_readwrite("latent_pose", &OptimizerConfig::latent_pose)
       .def_readwrite("num_threads", &OptimizerConfig::num_threads)
       .def_readwrite("stages", &OptimizerConfig::stages);
   m.def("default_optimizer_config", &DefaultOptimizerConfig,
@@ -79,7 +80,8 @@ void BindMotion(py::module_& m) {
       .def_readonly("transl", &TrackResult::transl)
       .def_readonly("root", &TrackResult::root)
       .def_readonly("body", &TrackResult::body)
-      .def_readonly("betas", &TrackResult::betas);
+      .def_readonly("betas", &TrackResult::betas)
+      .def_readonly("latent", &TrackResult::latent);
   py::class_<OptimizerResult>(m, "OptimizerResult")
       .def_readonly("tracks", &OptimizerResult::tracks)
       .def_readonly("scale", &OptimizerResult::scale)

@@ -7,6 +7,7 @@
 // Jacobians are exact (nn::VPoser::EncodeMean's reverse pass).
 #pragma once
 
+#include <memory>
 #include <vector>
 
 #include <ceres/ceres.h>
@@ -26,6 +27,63 @@ class VPoserLatentCost : public ceres::CostFunction {
   const nn::VPoser* vposer_;
   std::vector<double> stencil_;
   double sqrt_weight_;
+};
+
+}  // namespace m3c::motion
+
+namespace m3c::motion {
+
+// Body poses as VPoser latents (SLAHMR's pose variables): frame f's body joints 1..21 are the decoded latent
+// z_f (6D rotations -> axis-angle); the rest of its body block (SMPL's hand joints) keeps the values it had
+// when the frame was added. The decoder writes each decoded pose into the frame's body block, so code that reads
+// body blocks sees the pose the latents stand for; costs on body poses see it through LatentBodyCost.
+class LatentPoseDecoder {
+ public:
+  static constexpr int kLatentDim = 32;  // the Jets below are sized for VPoser's latent (v1 and v2)
+
+  LatentPoseDecoder(const nn::VPoser* vposer, int body_size, int num_threads);
+  // Registers a frame: its latent block (kLatentDim) and the body block that receives the decoded pose.
+  // Returns the frame's index.
+  int AddFrame(double* latent, double* body);
+  int num_frames() const { return static_cast<int>(frames_.size()); }
+  int body_size() const { return body_size_; }
+  int decoded_size() const { return 3 * vposer_->num_joints(); }  // body entries that come from the latent
+
+  // Decodes every frame's latent into its body block, with d body / d z when with_jacobian. A no-op when the
+  // latents are those of the last call (and it computed Jacobians if they are wanted).
+  void DecodeAll(bool with_jacobian);
+  // Frame i's decoded body (body_size) and d body / d z (3 J_vposer x kLatentDim, row-major; the hand rows are
+  // zero and left out) for the given latent values: from the last DecodeAll when it was at these values, else
+  // computed into `scratch`. jacobian may be null.
+  void Get(int i, const double* latent, const double** body, const double** jacobian, std::vector<double>* scratch) const;
+
+ private:
+  void Decode(int i, const double* latent, double* body, double* jacobian) const;
+
+  const nn::VPoser* vposer_;
+  int body_size_, num_threads_;
+  struct Frame {
+    double* latent;
+    double* body;
+    std::vector<double> tail;  // body entries after VPoser's joints, fixed
+  };
+  std::vector<Frame> frames_;
+  bool valid_ = false, with_jacobian_ = false;
+  std::vector<double> latents_, bodies_, jacobians_;  // the last DecodeAll, per frame
+};
+
+// A cost on body poses evaluated on latents: the parameter blocks `slots` of `inner` (owned) are the body poses
+// of decoder frames `frames`; this cost takes those frames' latents in their place and chains d body / d z.
+class LatentBodyCost : public ceres::CostFunction {
+ public:
+  LatentBodyCost(ceres::CostFunction* inner, const LatentPoseDecoder* decoder, std::vector<int> slots,
+                 std::vector<int> frames);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  std::unique_ptr<ceres::CostFunction> inner_;
+  const LatentPoseDecoder* decoder_;
+  std::vector<int> slots_, frames_;
 };
 
 }  // namespace m3c::motion

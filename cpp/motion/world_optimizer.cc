@@ -14,22 +14,38 @@ namespace m3c::motion {
 
 namespace {
 
-enum class Group { kTransl, kRoot, kBody, kBetas, kScale, kOffset };
+enum class Group { kTransl, kRoot, kBody, kLatent, kBetas, kScale, kOffset };
 
 bool AllFinite(const RowMatrixXd& m) { return m.allFinite(); }
 
 // Parameter storage: one row per frame, so a row is a Ceres parameter block.
 struct State {
-  std::vector<RowMatrixXd> transl, root, body;
+  std::vector<RowMatrixXd> transl, root, body, latent;  // latent: empty unless poses are VPoser latents
   std::vector<Eigen::VectorXd> betas;
   double scale = 1.0;
   Eigen::Vector3d offset = Eigen::Vector3d::Zero();
   bool AllFinite() const {
     for (size_t i = 0; i < transl.size(); ++i) {
       if (!transl[i].allFinite() || !root[i].allFinite() || !body[i].allFinite() || !betas[i].allFinite()) return false;
+      if (!latent.empty() && !latent[i].allFinite()) return false;
     }
     return std::isfinite(scale) && offset.allFinite();
   }
+};
+
+// A stage's evaluation callback: decodes latent poses first (the motion prior reads the decoded body blocks),
+// then runs the motion prior's batch.
+class StageCallback : public ceres::EvaluationCallback {
+ public:
+  StageCallback(LatentPoseDecoder* decoder, HumorTransitionBatch* humor) : decoder_(decoder), humor_(humor) {}
+  void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) override {
+    if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
+    if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
+  }
+
+ private:
+  LatentPoseDecoder* decoder_;
+  HumorTransitionBatch* humor_;
 };
 
 }  // namespace
@@ -193,6 +209,43 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     vars.betas.push_back(state.betas[i].data());
     groups[vars.betas[i]] = Group::kBetas;
   }
+  // Latent poses: z_t = the encoder mean of the initial pose, and the body blocks hold Decode(z_t) from here on.
+  std::unique_ptr<LatentPoseDecoder> decoder;
+  std::unordered_map<const double*, int> decoder_frame;  // body block -> decoder frame
+  std::vector<double*> latent_of_frame;                  // decoder frame -> latent block
+  if (pose_prior_ != nullptr && config_.latent_pose) {
+    decoder = std::make_unique<LatentPoseDecoder>(pose_prior_, 3 * (J - 1), config_.num_threads);
+    const int L = LatentPoseDecoder::kLatentDim;
+    std::vector<double> scale(L);
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      const int n = static_cast<int>(state.transl[i].rows());
+      state.latent.emplace_back(n, L);
+      for (int f = 0; f < n; ++f) pose_prior_->Encode(state.body[i].row(f).data(), state.latent[i].row(f).data(), scale.data());
+    }
+    for (size_t i = 0; i < tracks.size(); ++i) {
+      vars.latent.emplace_back();
+      for (int f = 0; f < static_cast<int>(state.latent[i].rows()); ++f) {
+        vars.latent[i].push_back(state.latent[i].row(f).data());
+        groups[vars.latent[i][f]] = Group::kLatent;
+        decoder_frame[vars.body[i][f]] = decoder->AddFrame(vars.latent[i][f], vars.body[i][f]);
+        latent_of_frame.push_back(vars.latent[i][f]);
+      }
+    }
+    decoder->DecodeAll(false);
+  }
+  // Adds a residual block; with latent poses, a cost on body blocks is wrapped to take the latents instead.
+  auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
+    std::vector<int> slots, frames;
+    for (size_t k = 0; decoder && k < blocks.size(); ++k) {
+      const auto it = decoder_frame.find(blocks[k]);
+      if (it == decoder_frame.end()) continue;
+      slots.push_back(static_cast<int>(k));
+      frames.push_back(it->second);
+      blocks[k] = latent_of_frame[it->second];
+    }
+    if (!slots.empty()) cost = new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames));
+    return problem->AddResidualBlock(cost, nullptr, blocks);
+  };
   vars.scale = &state.scale;
   vars.offset = state.offset.data();
   groups[vars.scale] = Group::kScale;
@@ -234,24 +287,22 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
             any = any || obs(k, 2) > 0.0;
           }
           if (!any) continue;
-          problem->AddResidualBlock(
-              new ReprojectionCost(model_, keypoint_regressor_, frame_camera(tr.first_frame + f), obs, weight,
-                                   config_.robust_sigma, config_.min_depth),
-              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
+          add_block(problem,
+                    new ReprojectionCost(model_, keypoint_regressor_, frame_camera(tr.first_frame + f), obs, weight,
+                                         config_.robust_sigma, config_.min_depth),
+                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
         }
       } else if (term == "shape_prior") {
         problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(B), weight * n), nullptr,
                                   vars.betas[i]);
       } else if (term == "pose_smoothness") {
         for (int f = 0; f + 1 < n; ++f) {
-          problem->AddResidualBlock(new BlockDifferenceCost(3 * (J - 1), weight), nullptr, vars.body[i][f],
-                                    vars.body[i][f + 1]);
+          add_block(problem, new BlockDifferenceCost(3 * (J - 1), weight), {vars.body[i][f], vars.body[i][f + 1]});
         }
       } else if (term == "pose_anchor") {
         // A Gaussian around the initial (regressed) pose of each frame, not around the T-pose.
         for (int f = 0; f < n; ++f) {
-          problem->AddResidualBlock(new GaussianPriorCost(tr.body.row(f).transpose(), weight), nullptr,
-                                    vars.body[i][f]);
+          add_block(problem, new GaussianPriorCost(tr.body.row(f).transpose(), weight), {vars.body[i][f]});
         }
       } else if (term == "joint_smoothness" || term == "joint_acceleration") {
         const std::vector<double> stencil = term == "joint_smoothness" ? std::vector<double>{-1.0, 1.0}
@@ -261,27 +312,26 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           std::vector<double*> blocks;
           for (int g = f; g < f + F; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
           blocks.push_back(vars.betas[i]);
-          problem->AddResidualBlock(new PointStencilCost(model_, joint_regressor_.get(), stencil,
-                                                         std::vector<double>(J, weight)),
-                                    nullptr, blocks);
+          add_block(problem, new PointStencilCost(model_, joint_regressor_.get(), stencil, std::vector<double>(J, weight)),
+                    blocks);
         }
       } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
         for (int f = 0; f + 1 < n; ++f) {
           const std::vector<double> w = contact_weights(tr, f, weight);
           if (w.empty()) continue;
-          problem->AddResidualBlock(new PointStencilCost(model_, contact_regressor_, {-1.0, 1.0}, w), nullptr,
-                                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1],
-                                     vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]});
+          add_block(problem, new PointStencilCost(model_, contact_regressor_, {-1.0, 1.0}, w),
+                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1], vars.root[i][f + 1],
+                     vars.body[i][f + 1], vars.betas[i]});
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
         for (int f = 0; f < n; ++f) {
           const std::vector<double> w = contact_weights(tr, f, weight);
           if (w.empty()) continue;
-          problem->AddResidualBlock(
-              new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
-                                    tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
-                                    config_.contact_height_tolerance),
-              nullptr, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
+          add_block(problem,
+                    new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
+                                          tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
+                                          config_.contact_height_tolerance),
+                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
         }
       }
     }
@@ -307,8 +357,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     const std::vector<double> nll = batch->Nll();
     for (int k = 0; k < batch->num_transitions(); ++k) {
       if (!std::isfinite(nll[k])) continue;
-      problem->AddResidualBlock(new HumorTransitionCost(batch, k, weight, nll[k] - 100.0), nullptr,
-                                batch->Parameters(k));
+      add_block(problem, new HumorTransitionCost(batch, k, weight, nll[k] - 100.0), batch->Parameters(k));
     }
   };
   auto add_pose_prior = [&](const std::string& term, double weight, ceres::Problem* problem) {
@@ -316,6 +365,15 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     const int F = static_cast<int>(stencil.size());
     for (size_t i = 0; i < tracks.size(); ++i) {
       for (int f = 0; f + F <= static_cast<int>(tracks[i].transl.rows()); ++f) {
+        if (decoder) {  // the latents themselves: |z_t|^2 (a standard-normal prior) or |z_{t+1} - z_t|^2
+          const int L = LatentPoseDecoder::kLatentDim;
+          if (F == 1) {
+            problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(L), weight), nullptr, vars.latent[i][f]);
+          } else {
+            problem->AddResidualBlock(new BlockDifferenceCost(L, weight), nullptr, vars.latent[i][f], vars.latent[i][f + 1]);
+          }
+          continue;
+        }
         problem->AddResidualBlock(new VPoserLatentCost(pose_prior_, 3 * (J - 1), stencil, weight), nullptr,
                                   std::vector<double*>(vars.body[i].begin() + f, vars.body[i].begin() + f + F));
       }
@@ -456,11 +514,12 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     // The motion prior's blocks share one batched evaluation per point (declared before the problem: it must
     // outlive it).
     std::unique_ptr<HumorTransitionBatch> humor_batch;
-    ceres::Problem::Options problem_options;
     if (motion_prior_ != nullptr && stage.weights.count("motion_prior") && stage.weights.at("motion_prior") > 0) {
       humor_batch = std::make_unique<HumorTransitionBatch>(model_, motion_prior_, fps_, config_.num_threads);
-      problem_options.evaluation_callback = humor_batch.get();
     }
+    StageCallback callback(decoder.get(), humor_batch.get());
+    ceres::Problem::Options problem_options;
+    if (decoder || humor_batch) problem_options.evaluation_callback = &callback;
     ceres::Problem problem(problem_options);
     std::vector<std::string> missing;
     std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks
@@ -488,7 +547,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     for (double* block : blocks) {
       const Group g = groups.at(block);
       const bool free = (g == Group::kTransl && stage.transl) || (g == Group::kRoot && stage.root) ||
-                        (g == Group::kBody && stage.body) || (g == Group::kBetas && stage.betas) ||
+                        (g == Group::kBody && stage.body && !decoder) || (g == Group::kLatent && stage.body) ||
+                        (g == Group::kBetas && stage.betas) ||
                         (g == Group::kScale && stage.scale && !cameras.static_camera && !scale_unobservable) ||
                         (g == Group::kOffset && stage.offset && config_.optimize_offset);
       if (!free) problem.SetParameterBlockConstant(block);
@@ -525,6 +585,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         failure = "the objective increased";
       }
     }
+    if (decoder) decoder->DecodeAll(false);  // the body blocks may hold a rejected trial point's pose
     if (!failure.empty()) {
       state = checkpoint;
       report.status = "reverted";
@@ -541,7 +602,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   }
 
   for (size_t i = 0; i < tracks.size(); ++i) {
-    result.tracks.push_back({state.transl[i], state.root[i], state.body[i], state.betas[i]});
+    result.tracks.push_back({state.transl[i], state.root[i], state.body[i], state.betas[i],
+                             state.latent.empty() ? RowMatrixXd() : state.latent[i]});
   }
   result.scale = state.scale;
   result.offset = state.offset;

@@ -57,6 +57,10 @@ struct OptimizerConfig {
   // Relative standard error of the closed-form scale fit from stance feet above which the camera scale is
   // deemed unobservable (a camera that barely translates) and frozen at its initial value.
   double max_scale_uncertainty = 0.25;
+  // With a VPoser (SetPosePrior), the body pose of joints 1..21 is optimised as VPoser latents, SLAHMR's pose
+  // variables (initialised by encoding the initial pose; SMPL's hand joints stay fixed); otherwise as axis-angle
+  // under the VPoser prior on the encoded pose.
+  bool latent_pose = true;
   int num_threads = 2;
   std::vector<StageConfig> stages;
 };
@@ -84,6 +88,7 @@ struct StageReport {
 struct TrackResult {
   RowMatrixXd transl, root, body;
   Eigen::VectorXd betas;
+  RowMatrixXd latent;  // (n, 32) VPoser latents of the body pose when it was optimised as latents, else empty
 };
 
 struct OptimizerResult {
@@ -99,6 +104,9 @@ class WorldOptimizer {
   // The problem's parameter memory, for extra terms: per track and frame pointers into the blocks.
   struct Variables {
     std::vector<std::vector<double*>> transl, root, body;  // [track][frame]
+    // [track][frame] VPoser latents when the pose is latent (then body blocks hold the decoded pose and stay
+    // constant in the solves: an extra term on body poses must use the latents); else empty.
+    std::vector<std::vector<double*>> latent;
     std::vector<double*> betas;                            // [track]
     double* scale;
     double* offset;

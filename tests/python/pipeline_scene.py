@@ -119,7 +119,7 @@ nodes:
              scale: ground.scale, ground: ground.ground}}
     config: {{method: camera}}
   optimize:
-    inputs: {{camera: camera.camera, world: lift.world}}
+    inputs: {{video: frames.video, camera: camera.camera, world: lift.world}}
   results:
     inputs: {{video: frames.video, camera: camera.camera, cameras: vo.cameras, scale: ground.scale,
              ground: ground.ground, world: lift.world, result: optimize.result}}

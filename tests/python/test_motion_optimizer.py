@@ -43,6 +43,18 @@ def test_recovers_world_motion_and_camera_scale(model, scene, result):
     assert np.abs(cams[:, :3, 3] - scene.cameras_true.world_from_cam[:, :3, 3]).max() < 0.05 * 6.0
 
 
+def test_bone_lengths_are_consistent_over_each_track(model, scene, result):
+    """Bone-length consistency holds by construction (one betas per track; SMPL's posed joints move rigidly with
+    their parents), so the optimizer has no residual for it: every bone keeps one length over the frames, while
+    the shape itself was optimised."""
+    parents = model.parents
+    for track, init in zip(result.tracks, scene.init):
+        joints = track_joints(model, track)
+        bones = np.linalg.norm(joints[:, 1:] - joints[:, parents[1:]], axis=-1)  # n x (J-1)
+        np.testing.assert_allclose(bones, np.broadcast_to(bones[0], bones.shape), rtol=0, atol=1e-9)
+        assert np.abs(np.asarray(track.betas) - np.asarray(init.betas)).max() > 1e-6
+
+
 def test_every_stage_lowers_its_objective_and_reports_terms(result):
     assert [s.name for s in result.stages] == [s.name for s in OptimizerConfig.default().stages]
     assert not result.stopped_early
@@ -129,8 +141,8 @@ def _randomise_batch_norms(model, torch):
 
 @pytest.mark.parametrize("version", ["v1", "v2"])
 def test_vposer_pose_prior_matches_torch(model, tmp_path, version):
-    """VPoser with random weights in the official layout, exported to safetensors: the C++ terms' values equal
-    the torch encoder's 1/2 w |z|^2 and 1/2 w |z_{t+1} - z_t|^2 before and after the solves."""
+    """Axis-angle poses under the VPoser prior (random weights in the official layout, exported to safetensors):
+    the C++ terms' values equal the torch encoder's 1/2 w |z|^2 and 1/2 w |z_{t+1} - z_t|^2 before and after."""
     torch = pytest.importorskip("torch")
     from m3c.models.export import export_weights
     from m3c.models.vposer import VPoserV1, VPoserV2
@@ -142,7 +154,8 @@ def test_vposer_pose_prior_matches_torch(model, tmp_path, version):
     w_prior, w_smooth = 0.04, 0.5
     config = OptimizerConfig(stages=[StageSpec("vposer", ["body"], {"reprojection": 1e-3, "pose_prior": w_prior,
                                                                     "latent_smoothness": w_smooth}, 5),
-                                     StageSpec("prior_alone", ["body"], {"pose_prior": w_prior}, 5)])
+                                     StageSpec("prior_alone", ["body"], {"pose_prior": w_prior}, 5)],
+                             latent_pose=False)
     res = optimize(model, scene.init, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
     stage = res.stages[0]
     assert all(s.status == "ok" and "unavailable" not in s.message for s in res.stages), stage.message
@@ -161,6 +174,46 @@ def test_vposer_pose_prior_matches_torch(model, tmp_path, version):
     # Alone, the prior's gradient drives the latents towards 0.
     before, after = res.stages[1].terms["pose_prior"]
     assert after < 0.5 * before
+
+
+@pytest.mark.parametrize("version", ["v1", "v2"])
+def test_latent_pose_variables(model, tmp_path, version):
+    """With VPoser weights the body pose is optimised as VPoser latents (SLAHMR): they start at the encoder mean
+    of the initial pose, the returned pose is their decoding (torch's decode_axis_angle), the hand joints keep
+    their values, and pose_prior / latent_smoothness are |z|^2 and |dz|^2 of the latents themselves."""
+    torch = pytest.importorskip("torch")
+    from m3c.models.export import export_weights
+    from m3c.models.vposer import VPoserV1, VPoserV2
+
+    torch.manual_seed(6)
+    vposer = _randomise_batch_norms((VPoserV1 if version == "v1" else VPoserV2)().double().eval(), torch)
+    export_weights(tmp_path, vposer=vposer, dtype="float64")
+    scene = make_scene(model, num_people=1, num_frames=8, seed=5)
+    w_prior, w_smooth = 0.04, 0.5
+    config = OptimizerConfig(stages=[StageSpec("latent", ["body"], {"reprojection": 1e-3, "pose_prior": w_prior,
+                                                                    "latent_smoothness": w_smooth}, 5)])
+    assert config.latent_pose
+    res = optimize(model, scene.init, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
+    stage = res.stages[0]
+    assert stage.status == "ok" and stage.iterations > 0, stage.message
+    assert stage.objective_after < stage.objective_before
+    z = res.latent_poses[0]
+    assert z.shape == (8, 32)
+    init = np.asarray(scene.init[0].body_pose)
+    with torch.no_grad():
+        z0 = vposer.encode(torch.as_tensor(init[:, :21]))[0].numpy()
+        decoded = vposer.decode_axis_angle(torch.as_tensor(z)).numpy()
+    body = res.tracks[0].body_pose
+    np.testing.assert_allclose(body[:, :21], decoded, atol=1e-9)
+    np.testing.assert_array_equal(body[:, 21:], init[:, 21:])
+    assert stage.terms["pose_prior"][0] == pytest.approx(0.5 * w_prior * (z0 ** 2).sum(), rel=1e-9)
+    assert stage.terms["pose_prior"][1] == pytest.approx(0.5 * w_prior * (z ** 2).sum(), rel=1e-9)
+    assert stage.terms["latent_smoothness"][1] == pytest.approx(0.5 * w_smooth * (np.diff(z, axis=0) ** 2).sum(),
+                                                                rel=1e-9)
+    # Axis-angle variables return no latents.
+    config.latent_pose = False
+    res = optimize(model, scene.init, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
+    assert res.latent_poses == [None]
 
 
 def test_pose_anchor_holds_the_initial_pose_not_the_t_pose(model, scene):

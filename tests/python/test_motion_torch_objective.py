@@ -158,7 +158,7 @@ def test_pose_terms_after_ceres_steps(model, scene, tmp_path, version):
     vposer = (VPoserV1 if version == "v1" else VPoserV2)().double().eval()
     export_weights(tmp_path, vposer=vposer, dtype="float64")
     weights = {"reprojection": 1e-3, "pose_anchor": 2.0, "pose_prior": 0.3, "latent_smoothness": 0.7}
-    config = single_stage(StageSpec("pose", ["body"], weights), 5)
+    config = single_stage(StageSpec("pose", ["body"], weights), 5, latent_pose=False)  # torch: axis-angle poses
     tracks = perturbed(scene.init, seed=2)
     res = optimize(model, tracks, scene.cameras_vo, config, pose_prior=tmp_path / "vposer.safetensors")
     stage = res.stages[0]

@@ -149,3 +149,27 @@ def test_rerun_is_cached_and_identical(scene_run, capsys):
     assert not json.loads((out / "results.json").read_text())["optimization"]["optimized"]
     assert main(["info", str(out)]) == 0
     assert "no optimization" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_exported_priors_are_used_from_the_models_folder(scene_run, tmp_path):
+    """humor.safetensors under $M3C_MODELS/export (here settings.models_dir) switches the motion prior on: the
+    optimization re-runs with the term; an explicit path that does not exist is an error before anything runs."""
+    torch = pytest.importorskip("torch")
+    from m3c.models.export import export_weights
+    from m3c.models.humor import HumorModel
+    from m3c.pipeline import PipelineError
+
+    _, _, folder, out, config_path = scene_run
+    torch.manual_seed(0)
+    export_weights(tmp_path / "export", humor=HumorModel().eval(), dtype="float64")
+    base = PipelineConfig.from_yaml(config_path)
+    missing = base.with_overrides({"optimize.motion_prior": str(tmp_path / "nope.safetensors")})
+    with pytest.raises(PipelineError, match="nope.safetensors does not exist; export it"):
+        run_pipeline(missing, out, {"video": folder / "video.mp4"}, targets=["results"], show_progress=False)
+    with_prior = base.with_overrides({"settings.models_dir": str(tmp_path)})
+    report = run_pipeline(with_prior, out, {"video": folder / "video.mp4"}, targets=["results"], show_progress=False)
+    assert {"optimize", "results"} <= set(report.ran())  # (the lift reads the models folder too)
+    stages = json.loads((out / "results.json").read_text())["optimization"]["stages"]
+    motion = next(s for s in stages if s["name"] == "motion_prior")
+    assert "motion_prior" in motion["terms"] and "motion_prior unavailable" not in motion["message"], motion

@@ -19,9 +19,11 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
 Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
 unavailable otherwise and runs without them):
-  pose_prior        |z_t|^2, z_t the VPoser encoder mean of frame t's body joints 1..21 (SLAHMR's VPoser prior)
+  pose_prior        |z_t|^2, z_t frame t's VPoser latent (latent_pose, SLAHMR's pose variables) or, with
+                    latent_pose False, the VPoser encoder mean of its axis-angle body joints 1..21
   latent_smoothness |z_{t+1} - z_t|^2 (the thesis's stage (iv) latent smoothness)
-  motion_prior      the HuMoR transition term
+  motion_prior      the HuMoR transition term (all transitions evaluated as one batch per evaluation point)
+Bone-length consistency needs no term: one betas per track gives every bone one length over the whole track.
 """
 
 from __future__ import annotations
@@ -55,6 +57,10 @@ class OptimizerConfig:
     # Relative standard error of the stance-feet scale fit above which the camera scale is deemed unobservable
     # (a camera that barely translates, e.g. panning) and frozen at its initial value.
     max_scale_uncertainty: float = 0.25
+    # With VPoser weights (optimize(pose_prior=...)), body joints 1..21 are optimised as VPoser latents
+    # (SLAHMR's pose variables, initialised by encoding the initial pose; the hand joints stay fixed); False keeps
+    # axis-angle poses under the VPoser prior on their encoding.
+    latent_pose: bool = True
     num_threads: int = 2
     stages: list[StageSpec] = field(default_factory=list)
 
@@ -64,7 +70,8 @@ class OptimizerConfig:
         stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
                   for s in core.stages]
         return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
-                   core.min_depth, core.optimize_offset, core.max_scale_uncertainty, core.num_threads, stages)
+                   core.min_depth, core.optimize_offset, core.max_scale_uncertainty, core.latent_pose,
+                   core.num_threads, stages)
 
     def validate(self) -> None:
         known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
@@ -81,7 +88,7 @@ class OptimizerConfig:
         self.validate()
         core = _core.OptimizerConfig()
         for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
-                    "optimize_offset", "max_scale_uncertainty", "num_threads"):
+                    "optimize_offset", "max_scale_uncertainty", "latent_pose", "num_threads"):
             setattr(core, key, getattr(self, key))
         stages = []
         for spec in self.stages:

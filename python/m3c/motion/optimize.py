@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -72,6 +72,9 @@ class WorldResult:
     camera_offset: np.ndarray
     stages: list[StageResult]
     stopped_early: bool
+    # Per track, the (n, 32) VPoser latents the body pose was optimised as (config.latent_pose with VPoser
+    # weights); None otherwise. body_pose[:, :21] is their decoding.
+    latent_poses: list = field(default_factory=list)
 
     def world_from_cam(self, cameras: Cameras) -> np.ndarray:
         """The cameras in the optimised world: VO translations times the recovered scale, plus the offset."""
@@ -156,7 +159,9 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
     stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
                           s.objective_after, s.scale, {t.term: (t.before, t.after) for t in s.terms})
               for s in result.stages]
-    return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early))
+    latents = [res.latent.copy() if res.latent.size else None for res in result.tracks]
+    return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early),
+                       latents)
 
 
 def track_joints(model: BodyModel, track: Track) -> np.ndarray:

@@ -162,6 +162,9 @@ class StageObjective:
             for term in ("pose_prior", "latent_smoothness"):  # VPoser terms: likewise without its weights
                 active.pop(term, None)
         else:
+            if config.latent_pose:
+                raise ValueError("the torch objective optimises axis-angle body poses; VPoser latent poses "
+                                 "(config.latent_pose) have no torch counterpart here: set latent_pose=False")
             pose_prior.eval().requires_grad_(False)
         self.pose_prior = pose_prior
         # pose_anchor's centre: the tracks' own (regressed) body pose, whatever state a stage starts from.

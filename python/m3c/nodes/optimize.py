@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -45,9 +46,9 @@ class OptimizeNode(Node):
 
     type_name = "optimize"
     level = "track"
-    inputs = ("camera", "world")
+    inputs = ("video", "camera", "world")
     outputs = ("result",)
-    settings = ("body_model",)
+    settings = ("body_model", "models_dir")
 
     @dataclass
     class Config:
@@ -57,14 +58,38 @@ class OptimizeNode(Node):
         # it was measured against the ground (the contacts' speed is a weaker cue: leg swing along the view
         # direction is barely seen), free otherwise.
         scale: Literal["auto", "free", "fixed"] = "auto"
+        # Exported weights (python -m m3c.models.export --out DIR): humor.safetensors adds HuMoR's motion prior,
+        # vposer.safetensors VPoser's pose prior (with latent pose variables). None: $M3C_MODELS/export/<file>
+        # when it is there, else the stages run without the term (and report it unavailable).
+        motion_prior: str | None = None
+        pose_prior: str | None = None
+
+    def _weights(self, ctx, setting: str, file_name: str) -> Path | None:
+        value = getattr(self.config, setting)
+        if value is not None:
+            path = Path(value).expanduser()
+            if not path.is_file():
+                raise PipelineError(f"optimize.{setting}: {path} does not exist; export it with "
+                                    f"python -m m3c.models.export --out DIR (it writes DIR/{file_name})")
+            return path
+        folder = ctx.models_dir()
+        path = folder / "export" / file_name if folder is not None else None
+        return path if path is not None and path.is_file() else None
 
     def key_config(self, ctx):
-        # The resolved recipe: a changed default in the core re-runs the optimization.
+        from m3c.pipeline.cache import file_digest
+
+        # The resolved recipe: a changed default in the core re-runs the optimization; so do other weights.
+        priors = {name: self._weights(ctx, name, f"{net}.safetensors")
+                  for name, net in (("motion_prior", "humor"), ("pose_prior", "vposer"))}
         return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer)),
-                "scale": self.config.scale}
+                "scale": self.config.scale,
+                **{name: file_digest(p) if p is not None else None for name, p in priors.items()}}
 
     def check(self, ctx) -> None:
         optimizer_config(self.config.optimizer)
+        self._weights(ctx, "motion_prior", "humor.safetensors")
+        self._weights(ctx, "pose_prior", "vposer.safetensors")
 
     def run(self, ctx, inputs):
         world = inputs["world"]
@@ -84,7 +109,12 @@ class OptimizeNode(Node):
                 stage.free = [v for v in stage.free if v != "scale"]
         metric = _scaled(world_from_cam, cameras.initial_scale)
         motion_tracks = [to_motion_track(t, metric) for t in tracks]
-        result = optimize(ctx.body_model(), motion_tracks, cameras, config)
+        motion_prior = self._weights(ctx, "motion_prior", "humor.safetensors")
+        pose_prior = self._weights(ctx, "pose_prior", "vposer.safetensors")
+        for name, path in (("HuMoR motion prior", motion_prior), ("VPoser pose prior", pose_prior)):
+            ctx.log.info("%s: %s", name, path if path is not None else "no weights (term left out)")
+        result = optimize(ctx.body_model(), motion_tracks, cameras, config, motion_prior=motion_prior,
+                          pose_prior=pose_prior, fps=float(inputs["video"]["fps"]))
         final_cams = result.world_from_cam(cameras)
         lift = _ground_lift(motion_tracks, final_cams)
         final_cams[:, :3, 3] += lift
