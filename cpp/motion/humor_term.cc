@@ -288,8 +288,24 @@ struct HumorTransitionBatch::TrackBlocks {
 
 struct HumorTransitionBatch::Cache {
   bool valid = false, with_gradient = false;
-  std::vector<double> inputs;  // per frame: transl, root, body (PerFrame values)
+  int per_frame = 0, num_betas = 0;
+  std::vector<double> inputs;  // per frame: transl, root, body (per_frame values)
   std::vector<double> betas;   // per track
+
+  // The values of frame k / track i's betas at the last evaluation: store and compare.
+  void StoreFrame(size_t k, const double* transl, const double* root, const double* body) {
+    double* in = inputs.data() + k * per_frame;
+    std::copy(transl, transl + 3, in);
+    std::copy(root, root + 3, in + 3);
+    std::copy(body, body + per_frame - 6, in + 6);
+  }
+  bool FrameMatches(size_t k, const double* transl, const double* root, const double* body) const {
+    const double* in = inputs.data() + k * per_frame;
+    return std::equal(in, in + 3, transl) && std::equal(in + 3, in + 6, root) && std::equal(in + 6, in + per_frame, body);
+  }
+  bool BetasMatch(size_t i, const double* b) const {
+    return std::equal(betas.begin() + i * num_betas, betas.begin() + (i + 1) * num_betas, b);
+  }
   std::vector<FrameJoints> frames;
   std::vector<StateValue> states;
   std::vector<double> nll, grad;  // per transition; grad packed (PackedSize values each)
@@ -305,6 +321,8 @@ HumorTransitionBatch::HumorTransitionBatch(const body::BodyModel* model, const n
       cache_(std::make_unique<Cache>()) {
   CheckModel(*model, fps);
   M3C_CHECK(prior != nullptr) << "no HuMoR prior";
+  cache_->per_frame = PerFrame(*model);
+  cache_->num_betas = model->num_betas();
 }
 
 HumorTransitionBatch::~HumorTransitionBatch() = default;
@@ -356,16 +374,11 @@ void HumorTransitionBatch::PrepareForEvaluation(bool evaluate_jacobians, bool /*
 
 bool HumorTransitionBatch::InputsUnchanged() const {
   const Cache& c = *cache_;
-  const int per_frame = PerFrame(*model_), B = model_->num_betas();
   for (size_t i = 0; i < tracks_.size(); ++i) {
     const TrackBlocks& t = tracks_[i];
-    if (!std::equal(t.betas, t.betas + B, c.betas.begin() + i * B)) return false;
+    if (!c.BetasMatch(i, t.betas)) return false;
     for (size_t f = 0; f < t.transl.size(); ++f) {
-      const double* in = c.inputs.data() + (t.first_frame + f) * per_frame;
-      if (!std::equal(in, in + 3, t.transl[f]) || !std::equal(in + 3, in + 6, t.root[f]) ||
-          !std::equal(in + 6, in + per_frame, t.body[f])) {
-        return false;
-      }
+      if (!c.FrameMatches(t.first_frame + f, t.transl[f], t.root[f], t.body[f])) return false;
     }
   }
   return true;
@@ -389,10 +402,7 @@ void HumorTransitionBatch::Evaluate(bool with_gradient) {
   for (int k = 0; k < num_frames; ++k) {
     const TrackBlocks& t = tracks_[frames[k].first];
     const int f = frames[k].second;
-    double* in = c.inputs.data() + static_cast<size_t>(k) * per_frame;
-    std::copy(t.transl[f], t.transl[f] + 3, in);
-    std::copy(t.root[f], t.root[f] + 3, in + 3);
-    std::copy(t.body[f], t.body[f] + per_frame - 6, in + 6);
+    c.StoreFrame(k, t.transl[f], t.root[f], t.body[f]);
   }
   for (size_t i = 0; i < tracks_.size(); ++i) std::copy(tracks_[i].betas, tracks_[i].betas + B, c.betas.begin() + i * B);
 
@@ -450,15 +460,12 @@ bool HumorTransitionBatch::Lookup(int i, double const* const* parameters, double
   if (!c.valid || (grad != nullptr && !c.with_gradient) || i < 0 || i >= num_transitions()) return false;
   const Transition& tr = transitions_[i];
   const TrackBlocks& t = tracks_[tr.track];
-  const int per_frame = PerFrame(*model_), B = model_->num_betas();
   for (int k = 0; k < 4; ++k) {
-    const double* in = c.inputs.data() + static_cast<size_t>(t.first_frame + tr.frame - 1 + k) * per_frame;
-    if (!std::equal(in, in + 3, parameters[3 * k]) || !std::equal(in + 3, in + 6, parameters[3 * k + 1]) ||
-        !std::equal(in + 6, in + per_frame, parameters[3 * k + 2])) {
+    if (!c.FrameMatches(t.first_frame + tr.frame - 1 + k, parameters[3 * k], parameters[3 * k + 1], parameters[3 * k + 2])) {
       return false;
     }
   }
-  if (!std::equal(c.betas.begin() + tr.track * B, c.betas.begin() + (tr.track + 1) * B, parameters[12])) return false;
+  if (!c.BetasMatch(tr.track, parameters[12])) return false;
   *nll = c.nll[i];
   if (grad) {
     const int packed = PackedSize(*model_);

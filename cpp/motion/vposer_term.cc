@@ -94,12 +94,15 @@ void LatentPoseDecoder::Decode(int i, const double* latent, double* body, double
   std::copy(frames_[i].tail.begin(), frames_[i].tail.end(), body + P);
 }
 
+bool LatentPoseDecoder::Cached(int i, const double* latent, bool with_jacobian) const {
+  return valid_ && (with_jacobian_ || !with_jacobian) &&
+         std::equal(latent, latent + kLatentDim, latents_.begin() + static_cast<size_t>(i) * kLatentDim);
+}
+
 void LatentPoseDecoder::DecodeAll(bool with_jacobian) {
   const int n = num_frames(), P = 3 * vposer_->num_joints();
-  bool unchanged = valid_ && (with_jacobian_ || !with_jacobian);
-  for (int i = 0; i < n && unchanged; ++i) {
-    unchanged = std::equal(frames_[i].latent, frames_[i].latent + kLatentDim, latents_.begin() + static_cast<size_t>(i) * kLatentDim);
-  }
+  bool unchanged = true;
+  for (int i = 0; i < n && unchanged; ++i) unchanged = Cached(i, frames_[i].latent, with_jacobian);
   if (unchanged) return;
   latents_.resize(static_cast<size_t>(n) * kLatentDim);
   bodies_.resize(static_cast<size_t>(n) * body_size_);
@@ -118,9 +121,7 @@ void LatentPoseDecoder::DecodeAll(bool with_jacobian) {
 void LatentPoseDecoder::Get(int i, const double* latent, const double** body, const double** jacobian,
                             std::vector<double>* scratch) const {
   const int P = 3 * vposer_->num_joints();
-  const bool cached = valid_ && (with_jacobian_ || jacobian == nullptr) &&
-                      std::equal(latent, latent + kLatentDim, latents_.begin() + static_cast<size_t>(i) * kLatentDim);
-  if (cached) {
+  if (Cached(i, latent, jacobian != nullptr)) {
     *body = bodies_.data() + static_cast<size_t>(i) * body_size_;
     if (jacobian) *jacobian = jacobians_.data() + static_cast<size_t>(i) * P * kLatentDim;
     return;
@@ -168,11 +169,10 @@ bool LatentBodyCost::Evaluate(double const* const* parameters, double* residuals
   for (size_t k = 0; k < slots_.size(); ++k) {
     if (!decode_jac[k]) continue;
     const int slot = slots_[k];
-    using RowMajor = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-    const Eigen::Map<const RowMajor> d_body(body_jac[k].data(), R, S);
+    const Eigen::Map<const nn::RowMatrixXd> d_body(body_jac[k].data(), R, S);
     const int P = decoder_->decoded_size();
-    const Eigen::Map<const RowMajor> d_decode(decode_jac[k], P, L);
-    Eigen::Map<RowMajor>(jacobians[slot], R, L) = d_body.leftCols(P) * d_decode;
+    const Eigen::Map<const nn::RowMatrixXd> d_decode(decode_jac[k], P, L);
+    Eigen::Map<nn::RowMatrixXd>(jacobians[slot], R, L) = d_body.leftCols(P) * d_decode;
   }
   return true;
 }

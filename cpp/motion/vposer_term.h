@@ -46,6 +46,7 @@ class LatentPoseDecoder {
   // Returns the frame's index.
   int AddFrame(double* latent, double* body);
   int num_frames() const { return static_cast<int>(frames_.size()); }
+  double* latent(int i) const { return frames_[i].latent; }
   int body_size() const { return body_size_; }
   int decoded_size() const { return 3 * vposer_->num_joints(); }  // body entries that come from the latent
 
@@ -59,6 +60,8 @@ class LatentPoseDecoder {
 
  private:
   void Decode(int i, const double* latent, double* body, double* jacobian) const;
+  // The last DecodeAll holds frame i at these latent values (with Jacobians, if wanted).
+  bool Cached(int i, const double* latent, bool with_jacobian) const;
 
   const nn::VPoser* vposer_;
   int body_size_, num_threads_;

@@ -212,23 +212,21 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   // Latent poses: z_t = the encoder mean of the initial pose, and the body blocks hold Decode(z_t) from here on.
   std::unique_ptr<LatentPoseDecoder> decoder;
   std::unordered_map<const double*, int> decoder_frame;  // body block -> decoder frame
-  std::vector<double*> latent_of_frame;                  // decoder frame -> latent block
   if (pose_prior_ != nullptr && config_.latent_pose) {
     decoder = std::make_unique<LatentPoseDecoder>(pose_prior_, 3 * (J - 1), config_.num_threads);
     const int L = LatentPoseDecoder::kLatentDim;
     std::vector<double> scale(L);
+    state.latent.resize(tracks.size());  // sized once: the blocks point into it
     for (size_t i = 0; i < tracks.size(); ++i) {
       const int n = static_cast<int>(state.transl[i].rows());
-      state.latent.emplace_back(n, L);
-      for (int f = 0; f < n; ++f) pose_prior_->Encode(state.body[i].row(f).data(), state.latent[i].row(f).data(), scale.data());
-    }
-    for (size_t i = 0; i < tracks.size(); ++i) {
+      state.latent[i].resize(n, L);
       vars.latent.emplace_back();
-      for (int f = 0; f < static_cast<int>(state.latent[i].rows()); ++f) {
-        vars.latent[i].push_back(state.latent[i].row(f).data());
-        groups[vars.latent[i][f]] = Group::kLatent;
-        decoder_frame[vars.body[i][f]] = decoder->AddFrame(vars.latent[i][f], vars.body[i][f]);
-        latent_of_frame.push_back(vars.latent[i][f]);
+      for (int f = 0; f < n; ++f) {
+        double* z = state.latent[i].row(f).data();
+        pose_prior_->Encode(state.body[i].row(f).data(), z, scale.data());
+        vars.latent[i].push_back(z);
+        groups[z] = Group::kLatent;
+        decoder_frame[vars.body[i][f]] = decoder->AddFrame(z, vars.body[i][f]);
       }
     }
     decoder->DecodeAll(false);
@@ -241,7 +239,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       if (it == decoder_frame.end()) continue;
       slots.push_back(static_cast<int>(k));
       frames.push_back(it->second);
-      blocks[k] = latent_of_frame[it->second];
+      blocks[k] = decoder->latent(it->second);
     }
     if (!slots.empty()) cost = new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames));
     return problem->AddResidualBlock(cost, nullptr, blocks);
