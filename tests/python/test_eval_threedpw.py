@@ -7,7 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from m3c.eval.datasets import OPENPOSE18_TO_COCO17, list_sequences, read_sequence
-from m3c.eval.tracks import body_eval_track, pelvis_rest, rigidly_move_body
+from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.eval.tracks import body_eval_track
 
 
 def random_cameras(rng, n):
@@ -83,16 +84,23 @@ def test_read_sequence_errors(tmp_path):
         list_sequences(tmp_path, "val")
 
 
-def test_rigidly_move_body_matches_moving_the_joints(synthetic_body_model, rng):
+def test_transform_smpl_with_per_frame_cameras_matches_moving_the_joints(synthetic_body_model, rng):
     model = synthetic_body_model
     n = 5
     pose = 0.4 * rng.normal(size=(n, 24, 3))
     betas = rng.normal(size=10)
     transl = rng.normal(size=(n, 3))
     T = random_cameras(rng, n)
-    root, tr = rigidly_move_body(pose[:, 0], transl, T, pelvis_rest(model, betas))
+    root, tr = transform_smpl(T, pose[:, 0], transl, rest_root_joint(model, betas))
     moved = model.joints(np.concatenate([root[:, None], pose[:, 1:]], axis=1), betas, tr)
     world = model.joints(pose, betas, transl)
+    expect = np.einsum("nij,nkj->nki", T[:, :3, :3], world) + T[:, None, :3, 3]
+    np.testing.assert_allclose(moved, expect, atol=1e-10)
+    # Per-frame shapes: one rest root joint per frame.
+    betas_n = rng.normal(size=(n, 10))
+    root, tr = transform_smpl(T, pose[:, 0], transl, rest_root_joint(model, betas_n))
+    moved = model.joints(np.concatenate([root[:, None], pose[:, 1:]], axis=1), betas_n, tr)
+    world = model.joints(pose, betas_n, transl)
     expect = np.einsum("nij,nkj->nki", T[:, :3, :3], world) + T[:, None, :3, 3]
     np.testing.assert_allclose(moved, expect, atol=1e-10)
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from m3c.body.joint_names import H36M_TO_J14, J14_PELVIS
 from m3c.eval import metrics as M
 from m3c.eval.threedpw_eval import evaluate_3dpw, format_3dpw_tables
-from m3c.eval.tracks import pelvis_rest, rigidly_move_body
+from m3c.body.transform import rest_root_joint, transform_smpl
 
 
 def make_dataset(root, model, rng, people_per_seq=(2, 1), n=12):
@@ -80,7 +80,7 @@ def test_evaluate_3dpw(tmp_path, synthetic_body_model, rng, h36m_regressor):
         shift[:3, 3] = [3.0, 0.0, -2.0]
         moved = []
         for frames, pose, betas, transl in noisy_tracks:
-            root, tr = rigidly_move_body(pose[:, 0], transl, shift, pelvis_rest(model, betas))
+            root, tr = transform_smpl(shift, pose[:, 0], transl, rest_root_joint(model, betas))
             moved.append((frames, np.concatenate([root[:, None], pose[:, 1:]], 1), betas, tr))
         write_predictions(noisy, name, moved, shift @ world_from_cam)
     evaluation = evaluate_3dpw(tmp_path / "3DPW", "test", {"Perfect": perfect, "Noisy": noisy,
@@ -100,7 +100,7 @@ def test_evaluate_3dpw(tmp_path, synthetic_body_model, rng, h36m_regressor):
     cam_from_world = np.linalg.inv(world_from_cam[frames])
 
     def j14_cam(pose, betas, transl):
-        root, tr = rigidly_move_body(pose[:, 0], transl, cam_from_world, pelvis_rest(model, betas))
+        root, tr = transform_smpl(cam_from_world, pose[:, 0], transl, rest_root_joint(model, betas))
         verts = model.forward(np.concatenate([root[:, None], pose[:, 1:]], 1), betas, tr).vertices
         return np.einsum("kv,nvc->nkc", reg, verts)
 

@@ -12,14 +12,18 @@ from scipy.spatial.transform import Rotation
 
 
 def rest_root_joint(model, betas) -> np.ndarray:
-    """The root joint (3,) of the rest pose of shape `betas` (no translation), metres."""
-    zero = np.zeros((1, model.num_joints, 3))
-    return model.joints(zero, np.asarray(betas, dtype=np.float64).reshape(-1))[0, 0]
+    """The root joint of the rest pose of shape `betas` (no translation), metres: (3,) for betas (B,), (n, 3) for
+    (n, B). The root rotation turns about it."""
+    betas = np.asarray(betas, dtype=np.float64)
+    if betas.ndim == 1:
+        return model.joints(np.zeros((1, model.num_joints, 3)), betas)[0, 0]
+    return model.joints(np.zeros((len(betas), model.num_joints, 3)), betas)[:, 0]
 
 
 def transform_smpl(target_from_source, root_orient, transl, root_joint) -> tuple[np.ndarray, np.ndarray]:
-    """target_from_source (4, 4) or (n, 4, 4); root_orient (n, 3) axis-angle; transl (n, 3); root_joint (3,).
-    Returns (root_orient (n, 3), transl (n, 3)) of the same bodies in the target frame."""
+    """target_from_source (4, 4) or (n, 4, 4); root_orient (n, 3) axis-angle; transl (n, 3); root_joint (3,) or
+    (n, 3), the rest root joint (rest_root_joint). Returns (root_orient (n, 3), transl (n, 3)) of the same bodies
+    in the target frame: the body rotates about its root joint J0, so J0 + transl' = R (J0 + transl) + t."""
     root_orient = np.asarray(root_orient, dtype=np.float64).reshape(-1, 3)
     transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
     T = np.asarray(target_from_source, dtype=np.float64)
@@ -28,7 +32,7 @@ def transform_smpl(target_from_source, root_orient, transl, root_joint) -> tuple
     if T.shape != (len(root_orient), 4, 4):
         raise ValueError(f"target_from_source must be (4, 4) or ({len(root_orient)}, 4, 4), got {T.shape}")
     R, c = T[:, :3, :3], T[:, :3, 3]
-    j0 = np.asarray(root_joint, dtype=np.float64).reshape(3)
+    j0 = np.broadcast_to(np.asarray(root_joint, dtype=np.float64), (len(root_orient), 3))
     new_root = (Rotation.from_matrix(R) * Rotation.from_rotvec(root_orient)).as_rotvec()
     new_transl = np.einsum("nij,nj->ni", R, j0 + transl) + c - j0
     return new_root, new_transl

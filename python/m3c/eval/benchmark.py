@@ -35,11 +35,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from m3c.body import BodyModel
+from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval import metrics as M
 from m3c.eval.evaluate import aggregate, evaluate_sequence, format_method_table, format_value
 from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
-from m3c.eval.tracks import EvalTrack, body_eval_track, pelvis_rest, rigidly_move_body
+from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.motion import CONTACT_JOINTS, Cameras, OptimizerConfig, Track, optimize
 from m3c.nn import VPoser
 
@@ -143,7 +144,7 @@ class BenchmarkSequence:
         out = []
         for sim in self.simulated:
             vo = self.cameras_vo.world_from_cam[sim.frames]
-            root, transl = rigidly_move_body(sim.root_cam, sim.transl_cam, vo, pelvis_rest(model, sim.betas))
+            root, transl = transform_smpl(vo, sim.root_cam, sim.transl_cam, rest_root_joint(model, sim.betas))
             # The ground as a camera-local estimate sees it (metric, in each frame's camera, as the optimizer
             # takes it): the world plane y = 0 in the true cameras.
             true = self.cameras_true.world_from_cam[sim.frames]
@@ -198,7 +199,7 @@ def _place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n
         T = np.eye(4)
         T[:3, :3] = turn
         T[[0, 2], 3] = spots[k] - (turn @ pelvis0)[[0, 2]]
-        root, transl = rigidly_move_body(root, transl, T, pelvis_rest(model, betas))
+        root, transl = transform_smpl(T, root, transl, rest_root_joint(model, betas))
         # The new shape changes leg length: stand on y = 0 again (as the retargeting did).
         pose = np.concatenate([root[:, None], body], axis=1)
         lowest = model.forward(pose, betas, transl).vertices[:, :, 1].min(axis=1)
@@ -332,13 +333,13 @@ def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_fr
     frames = np.arange(hits[0], hits[-1] + 1)
     m = len(frames)
     cam_from_world = np.linalg.inv(world_from_cam[frames])
-    j0 = pelvis_rest(model, tr.betas)
-    root_gt, transl_gt = rigidly_move_body(tr.root_orient[frames], tr.transl[frames], cam_from_world, j0)
+    j0 = rest_root_joint(model, tr.betas)
+    root_gt, transl_gt = transform_smpl(cam_from_world, tr.root_orient[frames], tr.transl[frames], j0)
     betas = tr.betas + config.shape_error * rng.normal(size=tr.betas.shape)
     # Depth error along the viewing ray of the pelvis: the projection stays right, the distance does not.
     factor = (1 + config.depth_bias * rng.normal()) * (1 + config.depth_jitter * rng.normal(size=m))
     pelvis = (transl_gt + j0) * factor[:, None]
-    transl = pelvis - pelvis_rest(model, betas)
+    transl = pelvis - rest_root_joint(model, betas)
     tilt = np.radians(config.orientation_bias_deg) * _ou(rng, m, 3, 1.0, fps) / np.sqrt(3) + \
         np.radians(config.orientation_jitter_deg) * rng.normal(size=(m, 3)) / np.sqrt(3)
     root = (Rotation.from_rotvec(tilt) * Rotation.from_rotvec(root_gt)).as_rotvec()

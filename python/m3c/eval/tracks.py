@@ -9,43 +9,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
+from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval.matching import JointTrack
 
 # Foot points for foot sliding, by keypoint-vertex name (GVHMR uses SMPL vertices 3216, 3387, 6617, 6787: the
 # big
 # toes and heels, which these names select on SMPL).
 FOOT_VERTEX_NAMES = ("left_big_toe", "left_heel", "right_big_toe", "right_heel")
-
-
-def rigidly_move_body(root_orient, transl, target_from_source, pelvis_rest) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (root_orient, transl) of the same bodies after a rigid motion target_from_source ((n, 4, 4)
-    or (4, 4)). The body model rotates about its rest pelvis joint `pelvis_rest` ((3,) or (n, 3): it depends
-    on betas), so the translation changes by more than the rotated translation:
-    J0 + transl' = R (J0 + transl) + t."""
-    root_orient = np.asarray(root_orient, dtype=np.float64).reshape(-1, 3)
-    transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
-    T = np.asarray(target_from_source, dtype=np.float64)
-    if T.shape == (4, 4):
-        T = np.broadcast_to(T, (len(root_orient), 4, 4))
-    if T.shape != (len(root_orient), 4, 4):
-        raise ValueError(f"target_from_source must have shape (4, 4) or ({len(root_orient)}, 4, 4), got {T.shape}")
-    R, t = T[:, :3, :3], T[:, :3, 3]
-    j0 = np.broadcast_to(np.asarray(pelvis_rest, dtype=np.float64), (len(root_orient), 3))
-    new_root = (Rotation.from_matrix(R) * Rotation.from_rotvec(root_orient)).as_rotvec()
-    new_transl = np.einsum("nij,nj->ni", R, j0 + transl) + t - j0
-    return new_root, new_transl
-
-
-def pelvis_rest(model: BodyModel, betas) -> np.ndarray:
-    """The rest-pose pelvis joint of a shape, (3,) for betas (B,) or (n, 3) for (n, B): the centre the root
-    rotation turns about."""
-    betas = np.asarray(betas, dtype=np.float64)
-    if betas.ndim == 1:
-        return model.joints(np.zeros((1, model.num_joints, 3)), betas)[0, 0]
-    return model.joints(np.zeros((len(betas), model.num_joints, 3)), betas)[:, 0]
 
 
 @dataclass
@@ -91,8 +63,8 @@ def body_eval_track(model: BodyModel, frames, root_orient, body_pose, betas, tra
         raise ValueError(f"world_from_cam must have shape ({n}, 4, 4) for the track's frames, got "
                          f"{world_from_cam.shape}")
     cam_from_world = np.linalg.inv(world_from_cam)
-    j0 = pelvis_rest(model, betas)
-    root_cam, transl_cam = rigidly_move_body(root_orient, transl, cam_from_world, j0)
+    j0 = rest_root_joint(model, betas)
+    root_cam, transl_cam = transform_smpl(cam_from_world, root_orient, transl, j0)
 
     def evaluate(root, tr):
         pose = np.concatenate([root[:, None], body_pose], axis=1)
