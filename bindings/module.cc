@@ -10,6 +10,7 @@ void BindGround(py::module_& m);
 void BindNN(py::module_& m);
 void BindVO(py::module_& m);
 void BindFit(py::module_& m);
+void BindRender(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -20,4 +21,5 @@ PYBIND11_MODULE(_core, m) {
   m3c::bindings::BindNN(m);
   m3c::bindings::BindVO(m);
   m3c::bindings::BindFit(m);
+  m3c::bindings::BindRender(m);
 }

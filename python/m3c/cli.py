@@ -247,6 +247,34 @@ def _eval_benchmark(args) -> int:
     return 0
 
 
+def _eval_video_benchmark(args) -> int:
+    from m3c.body import default_body_model
+    from m3c.eval.benchmark import retarget_folder, shipped_clip_paths
+    from m3c.eval.video_benchmark import VideoBenchmarkConfig, run_video_benchmark, write_json
+
+    model = default_body_model(args.body_model)
+    log = None if args.quiet else _log
+    clips = [str(c) for c in args.clips or []]
+    if not clips or args.mocap:
+        clips = [str(c) for c in shipped_clip_paths()] + clips
+    for folder in args.mocap or []:
+        clips += [str(p) for p in retarget_folder(model, folder, args.cache, log)]
+    config = VideoBenchmarkConfig(num_sequences=args.sequences, num_frames=args.frames,
+                                  cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()),
+                                  max_people=args.people, seed=args.seed, width=args.size[0], height=args.size[1],
+                                  supersample=args.supersample, clip_paths=tuple(clips),
+                                  pipeline_config=args.config, overrides=tuple(args.set or ()),
+                                  known_intrinsics=args.known_intrinsics, render_only=args.render_only)
+    if args.config and not Path(args.config).is_file():
+        raise FileNotFoundError(f"pipeline config not found: {args.config}")
+    report = run_video_benchmark(model, config, args.out, log, show_progress=not args.quiet)
+    print(report.text())
+    if args.json:
+        write_json(report, args.json)
+        print(f"wrote {args.json}")
+    return 0 if not any(s.error for s in report.sequences) else 1
+
+
 def _eval_3dpw(args) -> int:
     import json
 
@@ -276,6 +304,10 @@ def _eval_3dpw(args) -> int:
             tmp.write_text(json.dumps(summary, indent=1))
         print(f"wrote {args.json}")
     return 0
+
+
+# The video benchmark's camera motions (m3c.synth.cameras.CAMERA_KINDS; listed here so --help imports nothing).
+CAMERA_KINDS_TEXT = ("static", "pan", "follow", "tracking", "orbit", "handheld", "high")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -379,6 +411,34 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--json", help="also write the figures to this JSON file")
     bm.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     bm.set_defaults(func=_eval_benchmark)
+
+    vb = ev.add_parser("video-benchmark", help="render mocap people into textured scenes filmed by known moving "
+                       "cameras, run the real pipeline on the videos and score it against the ground truth")
+    vb.add_argument("--sequences", type=int, default=7, help="number of sequences (default 7: one per camera motion)")
+    vb.add_argument("--frames", type=int, default=150, help="frames per sequence at 30 fps (default 150)")
+    vb.add_argument("--cameras", default=",".join(CAMERA_KINDS_TEXT),
+                    help=f"camera motions, used in turn (default {','.join(CAMERA_KINDS_TEXT)})")
+    vb.add_argument("--people", type=int, default=3, choices=(1, 2, 3), help="most people in a sequence (default 3)")
+    vb.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use instead "
+                    "of the shipped CMU clips")
+    vb.add_argument("--mocap", action="append", metavar="DIR", help="also use every BVH under DIR (retargeted once, "
+                    "cached); repeatable")
+    vb.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
+    vb.add_argument("--seed", type=int, default=0)
+    vb.add_argument("--size", type=int, nargs=2, default=(960, 540), metavar=("W", "H"),
+                    help="image size in pixels (default 960 540)")
+    vb.add_argument("--supersample", type=int, default=1, help="samples per pixel along each axis (default 1; "
+                    "textures are mip-mapped either way)")
+    vb.add_argument("--out", default="out/video_benchmark", help="folder for the videos, ground truth and runs "
+                    "(default out/video_benchmark; both are cached there)")
+    vb.add_argument("--render-only", action="store_true", help="write the videos and ground truth only")
+    vb.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the true intrinsics "
+                    "(default: it runs uncalibrated, as on a user's video)")
+    _add_config_options(vb)
+    vb.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    vb.add_argument("--json", help="also write the figures to this JSON file")
+    vb.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    vb.set_defaults(func=_eval_video_benchmark)
 
     pw = ev.add_parser("3dpw", help="evaluate prediction files on 3DPW (users bring the dataset and SMPL)")
     pw.add_argument("root", help="the 3DPW folder that holds sequenceFiles/")

@@ -10,4 +10,5 @@
   retarget       BVH motion capture onto the 24-joint body by inverse kinematics
   scenes         procedural synthetic scenes (tests of the world-frame stages)
   benchmark      the offline benchmark on retargeted motion capture with simulated cameras and perception
+  video_benchmark  the real pipeline on rendered videos of retargeted motion capture (m3c.synth), scored
 """

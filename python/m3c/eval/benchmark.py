@@ -204,14 +204,14 @@ def _place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n
         pose = np.concatenate([root[:, None], body], axis=1)
         lowest = model.forward(pose, betas, transl).vertices[:, :, 1].min(axis=1)
         transl[:, 1] -= np.quantile(lowest, 0.1)
-        contacts = _true_contacts(model, pose, betas, transl)
+        contacts = true_contacts(model, pose, betas, transl)
         truth.append(Track(0, np.zeros((n, 17, 3)), transl, root, body.copy(), betas,
                            np.tile(UP, (n, 1)), np.zeros(n), contacts))
         names.append(f"{clip.info.get('name', 'clip')}@{start}")
     return truth, names
 
 
-def _true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
+def true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
     """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per
     frame."""
     joints = model.joints(pose, betas, transl)[:, list(CONTACT_JOINTS)]

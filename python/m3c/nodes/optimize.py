@@ -10,6 +10,7 @@ import numpy as np
 import yaml
 
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.nodes.world import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
 
 
@@ -100,14 +101,15 @@ class OptimizeNode(Node):
         if not self.config.enabled or not tracks:
             if tracks:
                 ctx.log.warning("optimization disabled: results are the world lift")
-            return {"result": {"tracks": tracks, "world_from_cam": _scaled(world_from_cam, cameras.initial_scale),
-                               "camera_scale": cameras.initial_scale, "camera_offset": np.zeros(3), "stages": [],
+            metric = metric_cameras(world_from_cam, cameras.initial_scale)
+            return {"result": {"tracks": tracks, "world_from_cam": metric, "camera_scale": cameras.initial_scale,
+                               "camera_offset": np.zeros(3), "stages": [],
                                "stopped_early": False, "optimized": False}}
         config = optimizer_config(self.config.optimizer)
         if self.config.scale == "fixed" or (self.config.scale == "auto" and world.get("scale_source") == "ground"):
             for stage in config.stages:
                 stage.free = [v for v in stage.free if v != "scale"]
-        metric = _scaled(world_from_cam, cameras.initial_scale)
+        metric = metric_cameras(world_from_cam, cameras.initial_scale)
         motion_tracks = [to_motion_track(t, metric) for t in tracks]
         motion_prior = self._weights(ctx, "motion_prior", "humor.safetensors")
         pose_prior = self._weights(ctx, "pose_prior", "vposer.safetensors")
@@ -157,9 +159,3 @@ def _ground_lift(motion_tracks: list[Track], final_world_from_cam: np.ndarray) -
     normal = np.concatenate(normals).mean(axis=0)
     normal /= np.linalg.norm(normal)
     return float(np.median(np.concatenate(offsets))) * normal
-
-
-def _scaled(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
-    out = world_from_cam.copy()
-    out[:, :3, 3] *= scale
-    return out

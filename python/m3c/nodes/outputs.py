@@ -14,6 +14,7 @@ from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays
 from m3c.io.video import VideoWriter
 from m3c.nodes.frames import stream_frames
+from m3c.nodes.world import metric_cameras
 from m3c.pipeline import ComponentUnavailable, FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
@@ -59,10 +60,13 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         "valid": np.zeros((P, T), bool),
         "visible": np.zeros((P, T), bool),
         "betas": np.full((P, B), nan),
+        "lift_betas": np.full((P, B), nan),
+        "lift_world_from_cam": metric_cameras(world["world_from_cam"], world["initial_scale"]).astype(np.float32),
     }
     for name, shape in (("world_root_orient", (3,)), ("world_transl", (3,)), ("body_pose", (J - 1, 3)),
                         ("world_joints", (J, 3)), ("cam_root_orient", (3,)), ("cam_transl", (3,)),
-                        ("lift_world_root_orient", (3,)), ("lift_world_transl", (3,)), ("keypoints_2d", (17, 3)),
+                        ("lift_world_root_orient", (3,)), ("lift_world_transl", (3,)),
+                        ("lift_body_pose", (J - 1, 3)), ("keypoints_2d", (17, 3)),
                         ("contacts", (4,)), ("ground_normal", (3,)), ("ground_offset", ()),
                         ("reprojection_error", ())):
         arrays[name] = np.full((P, T) + shape, nan)
@@ -88,6 +92,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         arrays["cam_transl"][p, frames] = cam_transl
         arrays["lift_world_root_orient"][p, frames] = lifted["root_orient"]
         arrays["lift_world_transl"][p, frames] = lifted["transl"]
+        arrays["lift_body_pose"][p, frames] = lifted["body_pose"]
+        arrays["lift_betas"][p] = lifted["betas"]
         keypoints = np.asarray(track["keypoints"], dtype=np.float64)
         arrays["keypoints_2d"][p, frames] = keypoints
         if track.get("contacts") is not None:

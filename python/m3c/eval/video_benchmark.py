@@ -1,0 +1,415 @@
+"""The ground-truth video benchmark: rendered videos of retargeted motion-capture people (m3c.synth), the real
+`m3c run` pipeline on each video, and the field's metrics against the truth.
+
+Each sequence is scored twice from the same run: the world lift before optimization (results' lift_* arrays)
+and the final result (Global Opt). Beside the body metrics of m3c.eval.evaluate (PA-MPJPE, MPJPE, W-MPJPE100,
+WA-MPJPE100, RTE, jitter, foot sliding of truly planted feet), it measures what a moving camera gets wrong:
+  recall       detected person-frames among those where the person is in view and mostly unoccluded (%)
+  ID switches  changes of the predicted track id that a ground-truth person is matched to, frame by frame
+  ATE          camera centres after a Sim(3) alignment (mm), moving cameras only
+  scale error  metric camera path length against the true one (%), cameras that travel at least 0.5 m
+  speed error  mean horizontal pelvis speed against the true one (%), people moving at least 0.2 m/s
+  ground error camera height above the ground (m) and camera tilt to gravity (degrees) against the truth
+The pipeline runs uncalibrated (its default intrinsics) unless asked to use the true ones.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from m3c.body import BodyModel
+from m3c.eval import metrics as M
+from m3c.eval.evaluate import SequenceResult, aggregate, evaluate_sequence
+from m3c.eval.matching import common_frames
+from m3c.eval.retarget import RetargetedMotion
+from m3c.eval.tracks import EvalTrack, body_eval_track
+from m3c.synth.cameras import CAMERA_KINDS
+from m3c.synth.sequence import SequenceSpec, SyntheticVideo, make_video
+
+LOG = logging.getLogger("m3c.eval.video_benchmark")
+METHODS = ("Lift", "Global Opt")
+PEOPLE_PATTERN = (1, 3, 2)           # people in sequence i: PEOPLE_PATTERN[i % 3], capped by max_people
+PELVIS = (1, 2)                      # the hips: the evaluation pelvis (as m3c eval)
+# A person counts as visible (for recall) when this many COCO keypoints are in the image and at most this share
+# of its silhouette is hidden by others; a detection matches when its keypoints lie within this share of the
+# person's image height on average.
+VISIBLE_KEYPOINTS = 12
+MAX_OCCLUSION = 0.3
+MATCH_DISTANCE = 0.2
+MIN_CAMERA_PATH = 0.5                # metres: shorter true camera paths get no scale error
+MIN_PERSON_SPEED = 0.2               # m/s: slower true people get no speed error
+SPEED_SMOOTHING = 0.5                # seconds: pelvis smoothing before speeds (removes the gait's sway)
+
+
+@dataclass
+class VideoBenchmarkConfig:
+    num_sequences: int = 7
+    num_frames: int = 150
+    cameras: tuple = CAMERA_KINDS
+    max_people: int = 3
+    seed: int = 0
+    width: int = 960
+    height: int = 540
+    fps: float = 30.0
+    supersample: int = 1
+    clip_paths: tuple = ()            # retargeted .npz motions; empty: the shipped CMU clips
+    pipeline_config: str | None = None
+    overrides: tuple = ()             # NODE.KEY=VALUE settings for every run
+    known_intrinsics: bool = False    # give the pipeline the true intrinsics (else it runs uncalibrated)
+    render_only: bool = False
+
+    def validate(self) -> None:
+        if self.num_sequences < 1:
+            raise ValueError(f"the video benchmark needs at least 1 sequence, got {self.num_sequences}")
+        if self.num_frames < 10:
+            raise ValueError(f"sequences need at least 10 frames, got {self.num_frames}")
+        if not 1 <= self.max_people <= 3:
+            raise ValueError(f"max_people must be 1, 2 or 3, got {self.max_people}")
+        unknown = [c for c in self.cameras if c not in CAMERA_KINDS]
+        if unknown or not self.cameras:
+            raise ValueError(f"camera motions must be among {', '.join(CAMERA_KINDS)}, got {list(self.cameras)}")
+
+    def specs(self) -> list[SequenceSpec]:
+        return [SequenceSpec(i, self.cameras[i % len(self.cameras)], min(PEOPLE_PATTERN[i % 3], self.max_people),
+                             self.num_frames, self.fps, self.width, self.height, self.seed, self.supersample)
+                for i in range(self.num_sequences)]
+
+
+@dataclass
+class MethodScore:
+    body: SequenceResult
+    camera: dict = field(default_factory=dict)     # ate_mm, scale_error_pct, ground_height_error_m, tilt_error_deg
+    speed_error_pct: list = field(default_factory=list)   # per matched moving person
+
+
+@dataclass
+class SequenceScore:
+    name: str
+    camera_motion: str
+    num_people: int
+    folder: str
+    render_seconds: float = 0.0
+    node_seconds: dict = field(default_factory=dict)
+    detection: dict = field(default_factory=dict)  # visible, detected, id_switches, person_frames
+    methods: dict = field(default_factory=dict)    # method -> MethodScore
+    error: str = ""
+
+
+# Scoring --------------------------------------------------------------------------------------------------------
+def truth_tracks(model: BodyModel, truth: dict) -> list[EvalTrack]:
+    n = truth["world_from_cam"].shape[0]
+    return [body_eval_track(model, np.arange(n), truth["root_orient"][p], truth["body_pose"][p], truth["betas"][p],
+                            truth["transl"][p], truth["world_from_cam"]) for p in range(len(truth["betas"]))]
+
+
+def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTrack]:
+    """EvalTracks (indexed by truth frame ids) of every result track for one method."""
+    lift = method == "Lift"
+    root = arrays["lift_world_root_orient" if lift else "world_root_orient"]
+    transl = arrays["lift_world_transl" if lift else "world_transl"]
+    body = arrays["lift_body_pose" if lift else "body_pose"]
+    betas = arrays["lift_betas" if lift else "betas"]
+    cams = arrays["lift_world_from_cam" if lift else "world_from_cam"].astype(np.float64)
+    frame_ids = arrays["frame_ids"]
+    out = []
+    for p in range(len(arrays["track_ids"])):
+        t = np.flatnonzero(arrays["valid"][p])
+        out.append(body_eval_track(model, frame_ids[t], root[p, t], body[p, t], betas[p], transl[p, t], cams[t]))
+    return out
+
+
+def detection_scores(truth: dict, arrays: dict) -> dict:
+    """Frame-by-frame matching of detections (results' keypoints where a track was detected) to the true
+    people: recall over visible people and identity switches."""
+    n_true = truth["keypoints_2d"].shape[0]
+    silhouette = truth["silhouette_pixels"]
+    occlusion = 1.0 - truth["visible_pixels"] / np.maximum(silhouette, 1)
+    visible = (truth["keypoints_in_image"].sum(-1) >= VISIBLE_KEYPOINTS) & (silhouette > 0) & \
+        (occlusion <= MAX_OCCLUSION)
+    ids = arrays["track_ids"]
+    last = [None] * n_true
+    switches = detected = matched_frames = 0
+    for t, frame in enumerate(arrays["frame_ids"]):
+        tracks = np.flatnonzero(arrays["visible"][:, t])
+        if len(tracks) == 0:
+            continue
+        cost = np.full((n_true, len(tracks)), np.inf)
+        for p in range(n_true):
+            inside = truth["keypoints_in_image"][p, frame]
+            if inside.sum() < 3:
+                continue
+            gt = truth["keypoints_2d"][p, frame]
+            height = max(float(np.ptp(gt[inside, 1])), 20.0)
+            for k, track in enumerate(tracks):
+                kp = arrays["keypoints_2d"][track, t]
+                use = inside & (kp[:, 2] >= 0.3)
+                if use.sum() >= 3:
+                    cost[p, k] = np.linalg.norm(kp[use, :2] - gt[use], axis=-1).mean() / height
+        rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e6))
+        for p, k in zip(rows, cols):
+            if cost[p, k] > MATCH_DISTANCE:
+                continue
+            matched_frames += 1
+            detected += int(visible[p, frame])
+            if last[p] is not None and last[p] != ids[tracks[k]]:
+                switches += 1
+            last[p] = ids[tracks[k]]
+    frames = arrays["frame_ids"]
+    return {"visible": int(visible[:, frames].sum()), "detected": int(detected), "id_switches": int(switches),
+            "matched_person_frames": int(matched_frames), "person_frames": int(visible.shape[0] * len(frames))}
+
+
+def _mean_speed(pelvis: np.ndarray, fps: float) -> float:
+    from scipy.ndimage import uniform_filter1d
+
+    xz = uniform_filter1d(pelvis[:, [0, 2]], size=max(1, int(round(SPEED_SMOOTHING * fps))), axis=0, mode="nearest")
+    duration = (len(xz) - 1) / fps
+    return float(np.linalg.norm(np.diff(xz, axis=0), axis=-1).sum() / duration) if duration > 0 else 0.0
+
+
+def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarray) -> dict:
+    """Camera errors of one method: ATE after Sim(3) (moving cameras), scale error of the path length, camera
+    height above the ground (y = 0 in both worlds) and tilt of the camera to gravity (world y)."""
+    out = {}
+    true_path = float(np.linalg.norm(np.diff(true_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
+    pred_path = float(np.linalg.norm(np.diff(pred_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
+    if true_path >= MIN_CAMERA_PATH:
+        out["ate_mm"] = float(np.sqrt((M.camera_ate(pred_world_from_cam, true_world_from_cam) ** 2).mean()))
+        out["scale_error_pct"] = 100.0 * (pred_path / true_path - 1.0)
+    out["camera_path_m"] = pred_path
+    out["ground_height_error_m"] = float(np.abs(pred_world_from_cam[:, 1, 3] - true_world_from_cam[:, 1, 3]).mean())
+    up_pred = pred_world_from_cam[:, 1, :3]  # world y in camera coordinates: row 1 of R
+    up_true = true_world_from_cam[:, 1, :3]
+    cos = np.clip((up_pred * up_true).sum(-1) / np.linalg.norm(up_pred, axis=-1), -1.0, 1.0)
+    out["tilt_error_deg"] = float(np.degrees(np.arccos(cos)).mean())
+    return out
+
+
+def score_method(model: BodyModel, truth: dict, gt: list[EvalTrack], arrays: dict, method: str,
+                 name: str) -> MethodScore:
+    fps = float(truth["fps"])
+    pred = predicted_tracks(model, arrays, method)
+    body = evaluate_sequence(gt, pred, fps, pelvis=PELVIS, name=name)
+    cams = arrays["lift_world_from_cam" if method == "Lift" else "world_from_cam"].astype(np.float64)
+    camera = camera_scores(cams, truth["world_from_cam"][arrays["frame_ids"]])
+    speeds = []
+    for match in body.matching.matches:
+        ig, ip = common_frames(gt[match.gt].frames, pred[match.pred].frames)
+        if len(ig) < fps:  # under a second: no meaningful speed
+            continue
+        true_speed = _mean_speed(M.pelvis_of(gt[match.gt].joints_world[ig], PELVIS), fps)
+        if true_speed >= MIN_PERSON_SPEED:
+            pred_speed = _mean_speed(M.pelvis_of(pred[match.pred].joints_world[ip], PELVIS), fps)
+            speeds.append(100.0 * (pred_speed / true_speed - 1.0))
+    return MethodScore(body, camera, speeds)
+
+
+def score_results(model: BodyModel, truth: dict, arrays: dict, name: str) -> tuple[dict, dict]:
+    """(detection scores, method -> MethodScore) of one run's results against the truth."""
+    gt = truth_tracks(model, truth)
+    return detection_scores(truth, arrays), {m: score_method(model, truth, gt, arrays, m, name) for m in METHODS}
+
+
+# Running ----------------------------------------------------------------------------------------------------------
+def pipeline_config(config: VideoBenchmarkConfig, video: SyntheticVideo):
+    from m3c.pipeline import PipelineConfig, parse_override
+
+    pipeline = PipelineConfig.from_yaml(Path(config.pipeline_config)) if config.pipeline_config \
+        else PipelineConfig.default()
+    overrides = dict(parse_override(item) for item in config.overrides)
+    if config.known_intrinsics:
+        overrides["camera.intrinsics"] = [float(v) for v in video.truth()["intrinsics"]]
+    return pipeline.with_overrides(overrides) if overrides else pipeline
+
+
+def run_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, config: VideoBenchmarkConfig,
+                 out_dir: Path, show_progress: bool = True, log=None) -> SequenceScore:
+    from m3c.io.results import load_results
+    from m3c.pipeline import Runner
+    from m3c.pipeline.progress import Progress
+
+    with Progress(f"{spec.name}: render", spec.num_frames, LOG, enabled=show_progress) as progress:
+        video = make_video(model, clips, spec, out_dir / "videos", log, progress)
+    score = SequenceScore(spec.name, spec.camera, spec.num_people, str(video.folder), video.render_seconds)
+    if config.render_only:
+        return score
+    run_dir = out_dir / "runs" / video.folder.name
+    report = Runner(pipeline_config(config, video), run_dir, {"video": video.video},
+                    show_progress=show_progress).run(["results"])
+    score.node_seconds = {r.name: r.seconds for r in report.records if r.status == "ran"}
+    _, arrays = load_results(run_dir)
+    score.detection, score.methods = score_results(model, video.truth(), arrays, spec.name)
+    if log:
+        opt = score.methods["Global Opt"]
+        log(f"{spec.name}: {len(arrays['track_ids'])} tracks for {spec.num_people} people, W-MPJPE100 "
+            f"{_fmt(opt.body.mean('w_mpjpe'))} mm, scale error {_fmt(opt.camera.get('scale_error_pct'))} %")
+    return score
+
+
+def _fmt(value, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+@dataclass
+class VideoBenchmarkReport:
+    config: VideoBenchmarkConfig
+    sequences: list[SequenceScore]
+    body_model: str
+    seconds: float = 0.0
+
+    def scored(self) -> list[SequenceScore]:
+        return [s for s in self.sequences if s.methods]
+
+    def overall(self, method: str) -> dict:
+        seqs = self.scored()
+        out = aggregate([s.methods[method].body for s in seqs])
+        visible = sum(s.detection["visible"] for s in seqs)
+        out["recall_pct"] = 100.0 * sum(s.detection["detected"] for s in seqs) / visible if visible else None
+        frames = sum(s.detection["person_frames"] for s in seqs)
+        out["id_switches"] = sum(s.detection["id_switches"] for s in seqs) if seqs else None
+        out["id_switches_per_1000"] = 1000.0 * out["id_switches"] / frames if frames else None
+        for key in ("ate_mm", "scale_error_pct", "ground_height_error_m", "tilt_error_deg"):
+            values = [abs(s.methods[method].camera[key]) if key == "scale_error_pct" else s.methods[method].camera[key]
+                      for s in seqs if key in s.methods[method].camera]
+            out[key if key != "scale_error_pct" else "abs_scale_error_pct"] = float(np.mean(values)) if values else None
+        speeds = [abs(v) for s in seqs for v in s.methods[method].speed_error_pct]
+        out["abs_speed_error_pct"] = float(np.mean(speeds)) if speeds else None
+        return out
+
+    def row(self, seq: SequenceScore, method: str) -> dict:
+        score = seq.methods[method]
+        det = seq.detection
+        row = {k: score.body.mean(k) for k in ("pa_mpjpe", "mpjpe", "w_mpjpe", "wa_mpjpe", "rte", "jitter",
+                                                 "foot_sliding")}
+        row["recall_pct"] = 100.0 * det["detected"] / det["visible"] if det["visible"] else None
+        row["id_switches"] = det["id_switches"]
+        row.update(score.camera)
+        row["speed_error_pct"] = float(np.mean(score.speed_error_pct)) if score.speed_error_pct else None
+        row["matched"] = len(score.body.matching.matches)
+        return row
+
+    def table(self) -> str:
+        cols = [("Recall%", "recall_pct", 8, 1), ("IDsw", "id_switches", 5, 0), ("PA-MPJPE", "pa_mpjpe", 9, 1),
+                ("MPJPE", "mpjpe", 7, 1), ("W-MPJPE", "w_mpjpe", 8, 0), ("WA-MPJPE", "wa_mpjpe", 9, 0),
+                ("RTE%", "rte", 6, 1), ("ATE mm", "ate_mm", 7, 0), ("Scale%", "scale_error_pct", 7, 1),
+                ("Speed%", "speed_error_pct", 7, 1), ("FS mm", "foot_sliding", 6, 1),
+                ("Jitter", "jitter", 7, 1), ("Gnd m", "ground_height_error_m", 6, 2),
+                ("Tilt°", "tilt_error_deg", 6, 1)]
+        name_w = max([len("Sequence / method")] + [len(s.name) + 3 for s in self.sequences]) + 2
+        head = "Sequence / method".ljust(name_w) + "".join(t.rjust(w) for t, _, w, _ in cols)
+        lines = [head, "-" * len(head)]
+
+        def cells(values: dict) -> str:
+            out = ""
+            for _, key, width, digits in cols:
+                v = values.get(key)
+                if key == "jitter" and v is not None:
+                    v = v / 10.0  # tables: 10 m/s^3
+                out += ("-" if v is None else f"{v:.{digits}f}").rjust(width)
+            return out
+
+        for seq in self.sequences:
+            if not seq.methods:
+                lines.append(f"{seq.name}^{seq.num_people}".ljust(name_w) +
+                             (f"  FAILED: {seq.error.splitlines()[-1] if seq.error else ''}" if seq.error
+                              else "  rendered only"))
+                continue
+            for method in METHODS:
+                label = f"{seq.name}^{seq.num_people}" if method == METHODS[0] else f"  {method}"
+                if method == METHODS[0]:
+                    label += " Lift"
+                lines.append(label.ljust(name_w) + cells(self.row(seq, method)))
+        if self.scored():
+            lines.append("-" * len(head))
+            for method in METHODS:
+                o = self.overall(method)
+                o["scale_error_pct"], o["speed_error_pct"] = o["abs_scale_error_pct"], o["abs_speed_error_pct"]
+                lines.append(f"All: {method}".ljust(name_w) + cells(o))
+        return "\n".join(lines)
+
+    def text(self) -> str:
+        c = self.config
+        scored = self.scored()
+        frames = sum(s.detection.get("person_frames", 0) for s in scored)
+        lines = [f"M3C video benchmark: {len(self.sequences)} sequences x {c.num_frames} frames at {c.fps:g} fps, "
+                 f"{c.width} x {c.height}, seed {c.seed}, {'true' if c.known_intrinsics else 'default (uncalibrated)'}"
+                 f" intrinsics; body model {self.body_model}, 24 joints, pelvis = mean of the hips.",
+                 "mm unless stated (^: people). Lift: the world lift before optimization; Global Opt: the final "
+                 "result. Jitter in 10 m/s^3; 'All' rows: per-frame means, camera and speed errors as mean "
+                 "absolute values, IDsw summed.", "", self.table(), ""]
+        if scored:
+            o = self.overall("Global Opt")
+            lines.append(f"detection recall {_fmt(o['recall_pct'])} % of visible person-frames; identity switches "
+                         f"{o['id_switches']} ({_fmt(o['id_switches_per_1000'], 2)} per 1000 person-frames over "
+                         f"{frames}).")
+        failed = [s for s in self.sequences if s.error]
+        if failed:
+            lines.append(f"failed: {', '.join(s.name for s in failed)}")
+        stage = self.stage_seconds()
+        lines.append("time: " + ", ".join(f"{k} {v:.0f} s" for k, v in stage.items()) + f"; total {self.seconds:.0f} s")
+        return "\n".join(lines)
+
+    def stage_seconds(self) -> dict:
+        out = {"render": sum(s.render_seconds for s in self.sequences)}
+        for s in self.sequences:
+            for name, sec in s.node_seconds.items():
+                out[name] = out.get(name, 0.0) + sec
+        return out
+
+    def summary(self) -> dict:
+        def sequence(s: SequenceScore) -> dict:
+            out = {"name": s.name, "camera_motion": s.camera_motion, "people": s.num_people, "folder": s.folder,
+                   "render_seconds": s.render_seconds, "node_seconds": s.node_seconds, "detection": s.detection,
+                   "error": s.error or None}
+            if s.methods:
+                out["methods"] = {m: self.row(s, m) for m in METHODS}
+                out["speed_error_pct"] = {m: s.methods[m].speed_error_pct for m in METHODS}
+            return out
+
+        return {"config": asdict(self.config), "body_model": self.body_model, "seconds": self.seconds,
+                "stage_seconds": self.stage_seconds(),
+                "overall": {m: self.overall(m) for m in METHODS} if self.scored() else {},
+                "sequences": [sequence(s) for s in self.sequences]}
+
+
+def run_video_benchmark(model: BodyModel, config: VideoBenchmarkConfig, out_dir: str | Path, log=None,
+                        show_progress: bool = True) -> VideoBenchmarkReport:
+    """Renders (once, cached under out_dir/videos) and runs (cached under out_dir/runs) every sequence; a sequence
+    that fails is reported and the others go on."""
+    from m3c.eval.benchmark import load_clips
+
+    config.validate()
+    clips = load_clips(config.clip_paths)
+    out_dir = Path(out_dir)
+    start = time.perf_counter()
+    scores = []
+    for spec in config.specs():
+        try:
+            scores.append(run_sequence(model, clips, spec, config, out_dir, show_progress, log))
+        except KeyboardInterrupt:
+            raise
+        except Exception as err:  # a failed sequence is reported; the others go on
+            if log:
+                log(f"{spec.name}: FAILED: {type(err).__name__}: {err}")
+            scores.append(SequenceScore(spec.name, spec.camera, spec.num_people, "",
+                                        error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}"))
+    return VideoBenchmarkReport(config, scores, getattr(model.data, "name", ""), time.perf_counter() - start)
+
+
+def write_json(report: VideoBenchmarkReport, path: str | Path) -> None:
+    from m3c.io.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(report.summary(), indent=1, default=float) + "\n")
+
+
+__all__ = ["VideoBenchmarkConfig", "VideoBenchmarkReport", "SequenceScore", "MethodScore", "run_video_benchmark",
+           "score_results", "detection_scores", "camera_scores", "truth_tracks", "predicted_tracks", "write_json"]
