@@ -43,7 +43,7 @@ class SequenceSpec:
     width: int = 960
     height: int = 540
     seed: int = 0
-    supersample: int = 2
+    supersample: int = 1
 
     @property
     def name(self) -> str:
@@ -174,7 +174,7 @@ def render_video(model: BodyModel, clips: list[RetargetedMotion], spec: Sequence
     setup = setup_sequence(model, clips, spec)
     people, world_from_cam, intrinsics = setup.people, setup.world_from_cam, setup.intrinsics
     n, P, W, H = spec.num_frames, spec.num_people, spec.width, spec.height
-    alone = Renderer([], W, H, 1)
+    alone = Renderer([], W, H, spec.supersample)  # ids sampled where the full frame samples them
     faces = np.asarray(model.faces, dtype=np.int32)
     regressor = model.coco17_regressor()
     truth = {"keypoints_2d": np.zeros((P, n, 17, 2), np.float32),
