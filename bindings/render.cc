@@ -40,7 +40,7 @@ std::shared_ptr<Texture> MakeTexture(const py::handle& obj) {
 
 void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices, const py::handle& faces,
           const py::handle& light, double ambient, int id, bool cull, double near, const py::handle& normals,
-          const Texture* texture, const py::handle& uv, const py::handle& face_rgb) {
+          const std::shared_ptr<Texture>& texture, const py::handle& uv, const py::handle& face_rgb) {
   const render::Intrinsics K = ParseIntrinsics(intrinsics);
   auto v = ParseRows(vertices, "vertices", 3);
   auto f_raw = py::array::ensure(faces);
@@ -61,7 +61,7 @@ void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices
     n = ParseRows(normals, "normals", 3, v.shape(0));
     m.normals = n.data();
   }
-  if (texture != nullptr) {
+  if (texture) {
     t = ParseRows(uv, "uv", 2, v.shape(0));
     m.texture = texture;
     m.uv = t.data();
@@ -74,6 +74,11 @@ void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices
   }
   py::gil_scoped_release release;
   frame.Draw(K, near, v.data(), static_cast<int>(v.shape(0)), f.data(), static_cast<int>(f.shape(0)), m);
+}
+
+void Resolve(Frame& frame) {
+  py::gil_scoped_release release;
+  frame.Resolve();
 }
 
 }  // namespace
@@ -107,9 +112,9 @@ void BindRender(py::module_& m) {
       .def(
           "draw_textured",
           [](Frame& frame, const py::handle& intrinsics, const py::handle& vertices, const py::handle& faces,
-             const Texture& texture, const py::handle& uv, const py::handle& light, double ambient, int id, bool cull,
-             double near, const py::handle& normals) {
-            Draw(frame, intrinsics, vertices, faces, light, ambient, id, cull, near, normals, &texture, uv,
+             const std::shared_ptr<Texture>& texture, const py::handle& uv, const py::handle& light,
+             double ambient, int id, bool cull, double near, const py::handle& normals) {
+            Draw(frame, intrinsics, vertices, faces, light, ambient, id, cull, near, normals, texture, uv,
                  py::none());
           },
           py::arg("intrinsics"), py::arg("vertices"), py::arg("faces"), py::arg("texture"), py::arg("uv"),
@@ -129,19 +134,24 @@ void BindRender(py::module_& m) {
           py::arg("ambient") = 0.4, py::arg("id") = 0, py::arg("cull") = false, py::arg("near") = 0.05,
           py::arg("normals") = py::none(),
           "Draws a mesh with one albedo per face (F, 3); normals (V, 3) give smooth shading.")
+      .def("resolve", &Frame::Resolve, py::call_guard<py::gil_scoped_release>(),
+           "Rasterises everything drawn so far (reading rgb, depth or ids does it too).")
       .def_property_readonly("rgb",
-                             [](const Frame& f) {
+                             [](Frame& f) {
+                               Resolve(f);
                                py::array_t<float> out({f.height(), f.width(), 3});
                                std::copy(f.rgb().begin(), f.rgb().end(), out.mutable_data());
                                return out;
                              })
       .def_property_readonly("depth",
-                             [](const Frame& f) {
+                             [](Frame& f) {
+                               Resolve(f);
                                py::array_t<float> out({f.height(), f.width()});
                                std::copy(f.depth().begin(), f.depth().end(), out.mutable_data());
                                return out;
                              })
-      .def_property_readonly("ids", [](const Frame& f) {
+      .def_property_readonly("ids", [](Frame& f) {
+        Resolve(f);
         py::array_t<int32_t> out({f.height(), f.width()});
         std::copy(f.ids().begin(), f.ids().end(), out.mutable_data());
         return out;

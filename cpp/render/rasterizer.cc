@@ -24,18 +24,6 @@ ClipVertex Lerp(const ClipVertex& a, const ClipVertex& b, double t) {
   return {a.p + t * (b.p - a.p), a.uv + t * (b.uv - a.uv), a.n + t * (b.n - a.n)};
 }
 
-// A triangle ready to scan: screen positions, 1/z and attributes over z at its corners (so that their
-// interpolation with screen-space barycentrics is perspective-correct), and its pixel bounding box.
-struct ScreenTriangle {
-  std::array<Eigen::Vector2d, 3> s;
-  std::array<double, 3> w;                // 1 / z
-  std::array<Eigen::Vector2d, 3> uv_w;    // uv / z
-  std::array<Eigen::Vector3d, 3> n_w;     // normal / z
-  Eigen::Vector3d face_normal;
-  int face;
-  int x0, x1, y0, y1;                     // inclusive pixel bounds, inside the image
-};
-
 // Sutherland-Hodgman against the plane z = near: at most 4 vertices out of 3.
 int ClipNear(const std::array<ClipVertex, 3>& in, double near, std::array<ClipVertex, 4>& out) {
   int count = 0;
@@ -50,6 +38,19 @@ int ClipNear(const std::array<ClipVertex, 3>& in, double near, std::array<ClipVe
 }
 
 }  // namespace
+
+// Screen positions, 1/z and attributes over z at the corners (so that their interpolation with screen-space
+// barycentrics is perspective-correct), the pixel bounding box, and what shades it.
+struct ScreenTriangle {
+  std::array<Eigen::Vector2d, 3> s;
+  std::array<double, 3> w;                // 1 / z
+  std::array<Eigen::Vector2d, 3> uv_w;    // uv / z
+  std::array<Eigen::Vector3d, 3> n_w;     // normal / z
+  Eigen::Vector3d face_normal;
+  std::array<float, 3> albedo;            // meshes with face colours
+  int shading;
+  int x0, x1, y0, y1;                     // inclusive pixel bounds, inside the image
+};
 
 Texture::Texture(const float* rgb, int width, int height) {
   M3C_CHECK(IsPowerOfTwo(width) && IsPowerOfTwo(height))
@@ -119,6 +120,8 @@ Frame::Frame(int width, int height, const float background[3])
   ids_.assign(n, -1);
 }
 
+Frame::~Frame() = default;
+
 void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int num_vertices, const int32_t* faces,
                  int num_faces, const Material& m) {
   M3C_CHECK(near > 0.0) << "near must be positive, got " << near;
@@ -132,9 +135,9 @@ void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int n
     }
   }
 
-  // Set-up: clip, project, cull; one list for all threads.
-  std::vector<ScreenTriangle> tris;
-  tris.reserve(num_faces);
+  const int shading = static_cast<int>(shadings_.size());
+  shadings_.push_back({m.texture, m.light, m.ambient, m.id, m.normals != nullptr});
+  intrinsics_.push_back(K);
   for (int f = 0; f < num_faces; ++f) {
     std::array<ClipVertex, 3> corner;
     bool finite = true;
@@ -174,17 +177,35 @@ void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int n
       t.y1 = std::min(height_ - 1, static_cast<int>(std::floor(ymax)));
       if (t.x0 > t.x1 || t.y0 > t.y1) continue;
       t.face_normal = face_normal;
-      t.face = f;
-      tris.push_back(t);
+      t.albedo = {0.0f, 0.0f, 0.0f};
+      if (m.face_rgb) std::copy(m.face_rgb + 3 * f, m.face_rgb + 3 * f + 3, t.albedo.begin());
+      t.shading = shading;
+      queued_.push_back(t);
     }
   }
+}
 
+void Frame::Resolve() {
+  if (queued_.empty()) return;
+  const std::vector<ScreenTriangle>& tris = queued_;
+  // Bands of rows, one thread each at a time; every triangle is listed in the bands it touches (in drawing
+  // order), so that a band reads only its own triangles.
   const int bands = std::min(height_, 32);
+  std::vector<int> band_of_row(height_);
+  for (int band = 0; band < bands; ++band) {
+    for (int y = band * height_ / bands; y < (band + 1) * height_ / bands; ++y) band_of_row[y] = band;
+  }
+  std::vector<std::vector<int>> bins(bands);
+  for (int i = 0; i < static_cast<int>(tris.size()); ++i) {
+    for (int band = band_of_row[tris[i].y0]; band <= band_of_row[tris[i].y1]; ++band) bins[band].push_back(i);
+  }
 #pragma omp parallel for schedule(dynamic, 1)
   for (int band = 0; band < bands; ++band) {
     const int row0 = band * height_ / bands, row1 = (band + 1) * height_ / bands - 1;
-    for (const ScreenTriangle& t : tris) {
-      if (t.y1 < row0 || t.y0 > row1) continue;
+    for (const int index : bins[band]) {
+      const ScreenTriangle& t = tris[index];
+      const Shading& m = shadings_[t.shading];
+      const Intrinsics& K = intrinsics_[t.shading];
       // Edge functions made positive inside whatever the winding; edge k is opposite vertex k.
       const Eigen::Vector2d e1 = t.s[1] - t.s[0], e2 = t.s[2] - t.s[0];
       const double sign = (e1.x() * e2.y() - e1.y() * e2.x()) < 0 ? -1.0 : 1.0;
@@ -253,9 +274,9 @@ void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int n
             const Eigen::Vector2d du_dx = z * (duvw_dx - uv * dw_dx), du_dy = z * (duvw_dy - uv * dw_dy);
             m.texture->Sample(uv.x(), uv.y(), std::max(du_dx.norm(), du_dy.norm()), albedo);
           } else {
-            std::copy(m.face_rgb + 3 * t.face, m.face_rgb + 3 * t.face + 3, albedo);
+            std::copy(t.albedo.begin(), t.albedo.end(), albedo);
           }
-          Eigen::Vector3d n = m.normals ? Eigen::Vector3d((b0 * t.n_w[0] + b1 * t.n_w[1] + b2 * t.n_w[2]) * z)
+          Eigen::Vector3d n = m.smooth ? Eigen::Vector3d((b0 * t.n_w[0] + b1 * t.n_w[1] + b2 * t.n_w[2]) * z)
                                         : t.face_normal;
           const Eigen::Vector3d position((px - K.cx) / K.fx * z, (py - K.cy) / K.fy * z, z);
           if (n.dot(position) > 0) n = -n;  // two-sided: the side facing the camera
@@ -269,6 +290,9 @@ void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int n
       }
     }
   }
+  queued_.clear();
+  shadings_.clear();
+  intrinsics_.clear();
 }
 
 }  // namespace m3c::render

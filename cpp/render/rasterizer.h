@@ -12,6 +12,7 @@
 #include <Eigen/Geometry>
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 namespace m3c::render {
@@ -45,9 +46,10 @@ class Texture {
   std::vector<Level> levels_;
 };
 
-// What one draw call paints. Exactly one of `texture` (with per-vertex uv) or `face_rgb` is set.
+// What one draw call paints. Exactly one of `texture` (with per-vertex uv) or `face_rgb` is set. The arrays are
+// read during Draw(); the texture must outlive the frame's Resolve().
 struct Material {
-  const Texture* texture = nullptr;
+  std::shared_ptr<const Texture> texture;
   const double* uv = nullptr;         // V x 2, in level-0 texels
   const float* face_rgb = nullptr;    // F x 3, albedo in [0, 1]
   const double* normals = nullptr;    // V x 3 camera-frame vertex normals for smooth shading; null: face normals
@@ -57,26 +59,44 @@ struct Material {
   bool cull = false;                  // skip triangles seen from behind (closed meshes wound counter-clockwise)
 };
 
-// Colour (float RGB), depth (camera z, +inf where empty) and id (-1 where empty) buffers.
+// A triangle ready to scan, with what shades it.
+struct ScreenTriangle;
+
+// Colour (float RGB), depth (camera z, +inf where empty) and id (-1 where empty) buffers. Draw() clips, projects
+// and queues triangles; the first read of a buffer rasterises everything queued in one pass, its rows split
+// between threads (OpenMP), so that a frame costs one parallel region however many meshes it has.
 class Frame {
  public:
   Frame(int width, int height, const float background[3]);
+  ~Frame();
   int width() const { return width_; }
   int height() const { return height_; }
-  const std::vector<float>& rgb() const { return rgb_; }
-  const std::vector<float>& depth() const { return depth_; }
-  const std::vector<int32_t>& ids() const { return ids_; }
+  const std::vector<float>& rgb() { Resolve(); return rgb_; }
+  const std::vector<float>& depth() { Resolve(); return depth_; }
+  const std::vector<int32_t>& ids() { Resolve(); return ids_; }
 
-  // Draws triangles `faces` (F x 3 vertex ids) of `vertices` (V x 3, camera frame, metres) with a depth test
-  // against what is already drawn. Rows are split between threads (OpenMP).
+  // Queues triangles `faces` (F x 3 vertex ids) of `vertices` (V x 3, camera frame, metres), depth-tested against
+  // everything drawn before and after (ties go to the earlier draw).
   void Draw(const Intrinsics& intrinsics, double near, const double* vertices, int num_vertices,
             const int32_t* faces, int num_faces, const Material& material);
+  // Rasterises what is queued.
+  void Resolve();
 
  private:
+  struct Shading {
+    std::shared_ptr<const Texture> texture;
+    Eigen::Vector3d light;
+    double ambient;
+    int32_t id;
+    bool smooth;
+  };
   int width_, height_;
   std::vector<float> rgb_;
   std::vector<float> depth_;
   std::vector<int32_t> ids_;
+  std::vector<Shading> shadings_;
+  std::vector<Intrinsics> intrinsics_;  // per shading (a pixel's camera ray for two-sided lighting)
+  std::vector<ScreenTriangle> queued_;
 };
 
 }  // namespace m3c::render

@@ -275,6 +275,24 @@ def _eval_video_benchmark(args) -> int:
     return 0 if not any(s.error for s in report.sequences) else 1
 
 
+def _eval_multiview(args) -> int:
+    import json
+
+    from m3c.body import default_body_model
+    from m3c.eval.multiview import run_multiview
+    from m3c.io.atomic import atomic_path
+
+    model = default_body_model(args.body_model)
+    report = run_multiview(model, args.folder, args.out, args.config, tuple(args.set or ()), args.known_intrinsics,
+                           args.cameras, None if args.quiet else _log, show_progress=not args.quiet)
+    print(report.text())
+    if args.json:
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(json.dumps(report.summary(), indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0 if not any(v.error for v in report.views) else 1
+
+
 def _eval_3dpw(args) -> int:
     import json
 
@@ -439,6 +457,20 @@ def build_parser() -> argparse.ArgumentParser:
     vb.add_argument("--json", help="also write the figures to this JSON file")
     vb.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     vb.set_defaults(func=_eval_video_benchmark)
+
+    mv = ev.add_parser("multiview", help="run M3C on each video of a calibrated multi-camera recording alone and "
+                       "compare with the calibration and the triangulated 3D keypoints")
+    mv.add_argument("folder", nargs="?", default="examples/pose2sim_single_person",
+                    help="Pose2Sim-layout folder: Calib_qualisys.toml, a .trc, videos/ (default: the repository's "
+                    "examples/pose2sim_single_person)")
+    mv.add_argument("--out", default="out/multiview", help="folder for the runs (cached; default out/multiview)")
+    mv.add_argument("--cameras", nargs="+", metavar="NAME", help="only these cameras (e.g. cam_01)")
+    mv.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the calibrated intrinsics")
+    _add_config_options(mv)
+    mv.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mv.add_argument("--json", help="also write the figures to this JSON file")
+    mv.add_argument("--quiet", action="store_true")
+    mv.set_defaults(func=_eval_multiview)
 
     pw = ev.add_parser("3dpw", help="evaluate prediction files on 3DPW (users bring the dataset and SMPL)")
     pw.add_argument("root", help="the 3DPW folder that holds sequenceFiles/")
