@@ -13,7 +13,6 @@ import sys
 import time
 
 import numpy as np
-
 from m3c.body import default_body_model
 from m3c.eval.benchmark import load_clips
 from m3c.eval.video_benchmark import VideoBenchmarkConfig, run_video_benchmark, write_json
@@ -36,8 +35,10 @@ def render_speed(model, clips, frames: int = 30) -> None:
         meshes = [Mesh(camera_from_world_points(v[i], setup.world_from_cam[i]), model.faces) for v in verts]
         render(meshes, setup.intrinsics, 960, 540)
     numpy_people = (time.perf_counter() - start) / reference_frames
-    print(f"renderer, 960 x 540, 3 people + textured world: {1 / cpp:.1f} frames/s ({1000 * cpp:.0f} ms/frame); "
-          f"numpy rasteriser, the same people only: {1000 * numpy_people:.0f} ms/frame; ratio {numpy_people / cpp:.1f}x")
+    print(
+        f"renderer, 960 x 540, 3 people + textured world: {1 / cpp:.1f} frames/s ({1000 * cpp:.0f} ms/frame); "
+        f"numpy rasteriser, the same people only: {1000 * numpy_people:.0f} ms/frame; ratio {numpy_people / cpp:.1f}x"
+    )
 
 
 def main() -> None:
@@ -58,14 +59,21 @@ def main() -> None:
     render_speed(model, clips)
     if args.render_speed_only:
         return
-    config = VideoBenchmarkConfig(num_sequences=args.sequences, num_frames=args.frames,
-                                  cameras=tuple(args.cameras.split(",")), seed=args.seed,
-                                  pipeline_config=args.config, overrides=tuple(args.set))
+    config = VideoBenchmarkConfig(
+        num_sequences=args.sequences,
+        num_frames=args.frames,
+        cameras=tuple(args.cameras.split(",")),
+        seed=args.seed,
+        pipeline_config=args.config,
+        overrides=tuple(args.set),
+    )
     report = run_video_benchmark(model, config, args.out, log=lambda t: print(t, file=sys.stderr, flush=True))
     print(report.text())
-    per_frame = {k: v / max(1, sum(s.num_people for s in report.sequences) and
-                            len(report.sequences) * config.num_frames)
-                 for k, v in report.stage_seconds().items()}
+    per_frame = {
+        k: v
+        / max(1, sum(s.num_people for s in report.sequences) and len(report.sequences) * config.num_frames)
+        for k, v in report.stage_seconds().items()
+    }
     print("per frame: " + ", ".join(f"{k} {1000 * v:.0f} ms" for k, v in per_frame.items() if v > 0.0005))
     if args.json:
         write_json(report, args.json)

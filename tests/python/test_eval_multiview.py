@@ -6,7 +6,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-
 from m3c.eval import multiview as mv
 
 FOLDER = Path(__file__).resolve().parents[2] / "examples" / "pose2sim_single_person"
@@ -26,8 +25,9 @@ def test_reads_cameras_and_keypoints_that_reproject(seq):
     for cam in seq.cameras:
         assert 1.5 < cam.centre[2] < 2.5  # cameras at head height
         rvec, _ = cv2.Rodrigues(cam.cam_from_world[:3, :3])
-        uv, _ = cv2.projectPoints(seq.keypoints.reshape(-1, 3), rvec, cam.cam_from_world[:3, 3], cam.K,
-                                  np.r_[cam.distortion, 0.0])
+        uv, _ = cv2.projectPoints(
+            seq.keypoints.reshape(-1, 3), rvec, cam.cam_from_world[:3, 3], cam.K, np.r_[cam.distortion, 0.0]
+        )
         uv = uv.reshape(-1, 2)
         inside = (uv[:, 0] > 0) & (uv[:, 0] < cam.size[0]) & (uv[:, 1] > 0) & (uv[:, 1] < cam.size[1])
         assert inside.mean() > 0.99, cam.name
@@ -38,8 +38,13 @@ def _perfect_results(seq, cam) -> dict:
     world_from_cam = Y_UP @ np.linalg.inv(cam.cam_from_world)
     joints = np.zeros((1, T, 24, 3))
     joints[0][:, list(mv.TRC_TO_SMPL.values())] = seq.joints() @ Y_UP[:3, :3].T
-    return {"track_ids": np.array([4]), "valid": np.ones((1, T), bool), "frame_ids": np.arange(T),
-            "world_from_cam": np.repeat(world_from_cam[None], T, 0), "world_joints": joints}
+    return {
+        "track_ids": np.array([4]),
+        "valid": np.ones((1, T), bool),
+        "frame_ids": np.arange(T),
+        "world_from_cam": np.repeat(world_from_cam[None], T, 0),
+        "world_joints": joints,
+    }
 
 
 def test_a_perfect_result_scores_zero(seq):
@@ -47,8 +52,14 @@ def test_a_perfect_result_scores_zero(seq):
     for cam in seq.cameras[:2]:
         score = mv.score_view(None, seq, cam, _perfect_results(seq, cam))
         v = score.values
-        for key in ("camera_height_error_m", "tilt_error_deg", "ground_at_feet_error_m", "mpjpe", "pa_mpjpe",
-                    "pelvis_depth_error_m"):
+        for key in (
+            "camera_height_error_m",
+            "tilt_error_deg",
+            "ground_at_feet_error_m",
+            "mpjpe",
+            "pa_mpjpe",
+            "pelvis_depth_error_m",
+        ):
             assert v[key] == pytest.approx(0.0, abs=1e-6), key
         assert v["camera_height_pred_m"] == pytest.approx(cam.centre[2])
         views.append(score)
@@ -73,11 +84,20 @@ def test_bad_folder_is_a_clear_error(tmp_path):
 
 
 def test_one_camera_through_the_pipeline(tmp_path):
-    pytest.importorskip("mediapipe", reason="the default perception backend (the perception extra) is not installed")
+    pytest.importorskip(
+        "mediapipe", reason="the default perception backend (the perception extra) is not installed"
+    )
     from m3c.body import default_body_model
 
-    report = mv.run_multiview(default_body_model(), FOLDER, tmp_path, overrides=("frames.stop=24",),
-                              known_intrinsics=True, cameras=["cam_03"], show_progress=False)
+    report = mv.run_multiview(
+        default_body_model(),
+        FOLDER,
+        tmp_path,
+        overrides=("frames.stop=24",),
+        known_intrinsics=True,
+        cameras=["cam_03"],
+        show_progress=False,
+    )
     view = report.views[0]
     assert not view.error, view.error
     assert view.values["frames"] >= 18

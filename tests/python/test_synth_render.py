@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from m3c import _core
 from m3c.body import default_body_model
 from m3c.viz.raster import Buffers, rasterize
@@ -34,7 +33,7 @@ def _trilinear(levels, u, v, footprint):
     lod = np.clip(np.log2(max(footprint, 1.0)), 0, len(levels) - 1)
     l0 = int(np.floor(lod))
     t = lod - l0
-    a = _bilinear(levels[l0], u / 2 ** l0, v / 2 ** l0)
+    a = _bilinear(levels[l0], u / 2**l0, v / 2**l0)
     if t > 0 and l0 + 1 < len(levels):
         a = (1 - t) * a + t * _bilinear(levels[l0 + 1], u / 2 ** (l0 + 1), v / 2 ** (l0 + 1))
     return a
@@ -49,7 +48,9 @@ def test_texture_trilinear_matches_numpy():
     for _ in range(300):
         u, v = rng.uniform(-100, 100, size=2)
         footprint = float(np.exp(rng.uniform(-1, 5)))
-        np.testing.assert_allclose(texture.sample(u, v, footprint), _trilinear(levels, u, v, footprint), atol=1e-5)
+        np.testing.assert_allclose(
+            texture.sample(u, v, footprint), _trilinear(levels, u, v, footprint), atol=1e-5
+        )
 
 
 def test_texture_rejects_sides_that_are_not_powers_of_two():
@@ -67,8 +68,9 @@ def test_coverage_and_depth_match_the_numpy_rasteriser():
     K = np.array([300.0, 310.0, 159.5, 119.5])
     for cull in (True, False):
         frame = _core.RenderFrame(320, 240, np.zeros(3, np.float32))
-        frame.draw_coloured(K, verts, faces, np.ones((len(faces), 3), np.float32), np.array([0, 0, -1.0]),
-                            id=7, cull=cull)
+        frame.draw_coloured(
+            K, verts, faces, np.ones((len(faces), 3), np.float32), np.array([0, 0, -1.0]), id=7, cull=cull
+        )
         ref = Buffers.empty(320, 240)
         rasterize(ref, 0, verts, faces, K, cull=cull)
         assert (ref.mesh >= 0).sum() > 500
@@ -110,8 +112,15 @@ def test_fronto_parallel_texture_at_one_texel_per_pixel():
     corners = np.array([[-half, -half, z], [half, -half, z], [-half, half, z], [half, half, z]])
     uv = np.array([[0, 0], [64, 0], [0, 64], [64, 64]], dtype=np.float64)
     frame = _core.RenderFrame(64, 64, np.zeros(3, np.float32))
-    frame.draw_textured(K, corners, np.array([[0, 2, 1], [1, 2, 3]], np.int32), _core.Texture(image), uv,
-                        np.array([0, 0, -1.0]), ambient=0.3)
+    frame.draw_textured(
+        K,
+        corners,
+        np.array([[0, 2, 1], [1, 2, 3]], np.int32),
+        _core.Texture(image),
+        uv,
+        np.array([0, 0, -1.0]),
+        ambient=0.3,
+    )
     np.testing.assert_allclose(frame.rgb, image, atol=1e-4)
 
 
@@ -120,11 +129,18 @@ def test_bad_input_is_a_clear_error():
     K = np.array([10.0, 10.0, 8.0, 8.0])
     verts = np.array([[0, 0, 1.0], [1, 0, 1], [0, 1, 1]])
     with pytest.raises(ValueError, match="outside"):
-        frame.draw_coloured(K, verts, np.array([[0, 1, 5]], np.int32), np.ones((1, 3), np.float32),
-                            np.array([0, 0, -1.0]))
+        frame.draw_coloured(
+            K, verts, np.array([[0, 1, 5]], np.int32), np.ones((1, 3), np.float32), np.array([0, 0, -1.0])
+        )
     with pytest.raises(ValueError, match="face_rgb"):
-        frame.draw_coloured(K, verts, np.array([[0, 1, 2]], np.int32), np.ones((2, 3), np.float32),
-                            np.array([0, 0, -1.0]))
+        frame.draw_coloured(
+            K, verts, np.array([[0, 1, 2]], np.int32), np.ones((2, 3), np.float32), np.array([0, 0, -1.0])
+        )
     with pytest.raises(ValueError, match="vertices"):
-        frame.draw_coloured(K, verts[:, :2], np.array([[0, 1, 2]], np.int32), np.ones((1, 3), np.float32),
-                            np.array([0, 0, -1.0]))
+        frame.draw_coloured(
+            K,
+            verts[:, :2],
+            np.array([[0, 1, 2]], np.int32),
+            np.ones((1, 3), np.float32),
+            np.array([0, 0, -1.0]),
+        )

@@ -6,7 +6,6 @@ import json
 import cv2
 import numpy as np
 import pytest
-
 from m3c.body import default_body_model
 from m3c.eval import video_benchmark as vb
 from m3c.eval.benchmark import load_clips
@@ -44,8 +43,9 @@ def test_truth_is_self_consistent(model, clips, follow_video):
     regressor = model.coco17_regressor()
     for p in range(P):
         pose = np.concatenate([truth["root_orient"][p][:, None], truth["body_pose"][p]], axis=1)
-        np.testing.assert_allclose(model.joints(pose, truth["betas"][p], truth["transl"][p]), truth["joints"][p],
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            model.joints(pose, truth["betas"][p], truth["transl"][p]), truth["joints"][p], atol=1e-9
+        )
         kps = model.keypoints(regressor, pose, truth["betas"][p], truth["transl"][p])
         for i in range(n):
             uv, depth = project(kps[i], truth["world_from_cam"][i], truth["intrinsics"])
@@ -69,8 +69,8 @@ def test_truth_is_self_consistent(model, clips, follow_video):
             pix = np.round(uv).astype(int)
             inside = (pix[:, 0] >= 1) & (pix[:, 0] < 319) & (pix[:, 1] >= 1) & (pix[:, 1] < 179)
             for (x, y), z in zip(pix[inside], depth[inside]):
-                window = frame.ids[y - 1:y + 2, x - 1:x + 2]
-                nearer = frame.depth[y - 1:y + 2, x - 1:x + 2] < z
+                window = frame.ids[y - 1 : y + 2, x - 1 : x + 2]
+                nearer = frame.depth[y - 1 : y + 2, x - 1 : x + 2] < z
                 assert (window == p).any() or nearer.all(), (i, p, x, y)
                 checked += 1
     assert checked > 200
@@ -82,10 +82,16 @@ def test_truth_is_self_consistent(model, clips, follow_video):
 def _results_from_truth(truth: dict) -> dict:
     """A results.npz-like dict holding the ground truth itself: every track detected in every frame."""
     P, n = truth["betas"].shape[0], truth["world_from_cam"].shape[0]
-    keypoints = np.concatenate([truth["keypoints_2d"], truth["keypoints_in_image"][..., None].astype(np.float32)],
-                               axis=-1)
-    arrays = {"frame_ids": np.arange(n), "track_ids": np.arange(P) + 10, "valid": np.ones((P, n), bool),
-              "visible": np.ones((P, n), bool), "keypoints_2d": keypoints}
+    keypoints = np.concatenate(
+        [truth["keypoints_2d"], truth["keypoints_in_image"][..., None].astype(np.float32)], axis=-1
+    )
+    arrays = {
+        "frame_ids": np.arange(n),
+        "track_ids": np.arange(P) + 10,
+        "valid": np.ones((P, n), bool),
+        "visible": np.ones((P, n), bool),
+        "keypoints_2d": keypoints,
+    }
     for prefix in ("", "lift_"):
         arrays[f"{prefix}world_root_orient" if prefix else "world_root_orient"] = truth["root_orient"]
         arrays[f"{prefix}world_transl"] = truth["transl"]
@@ -156,7 +162,9 @@ def test_rendering_is_deterministic(model, clips, tmp_path):
         cap = cv2.VideoCapture(str(video.video))
         frames.append(np.stack([cap.read()[1] for _ in range(6)]))
     np.testing.assert_array_equal(frames[0], frames[1])
-    other = make_video(model, clips, SequenceSpec(3, "handheld", 2, 6, width=160, height=96, seed=1), tmp_path / "c")
+    other = make_video(
+        model, clips, SequenceSpec(3, "handheld", 2, 6, width=160, height=96, seed=1), tmp_path / "c"
+    )
     assert not np.array_equal(other.truth()["world_from_cam"], ta["world_from_cam"])
     # The cache: asking again renders nothing.
     assert make_video(model, clips, spec, tmp_path / "a").render_seconds == 0.0
@@ -171,9 +179,12 @@ def test_every_camera_kind_keeps_its_people_in_view(model, clips):
         assert heights.min() > 1.0 and heights.max() < 6.0, kind
         people = [0] if kind in ("follow", "tracking") else range(spec.num_people)
         for p in people:
-            uv, depth = project(setup.joints[p, :, 0], setup.world_from_cam[0], setup.intrinsics)
-            pel = np.stack([project(setup.joints[p, i, 0], setup.world_from_cam[i], setup.intrinsics)[0]
-                            for i in range(60)])
+            pel = np.stack(
+                [
+                    project(setup.joints[p, i, 0], setup.world_from_cam[i], setup.intrinsics)[0]
+                    for i in range(60)
+                ]
+            )
             inside = (pel[:, 0] > 0) & (pel[:, 0] < 320) & (pel[:, 1] > 0) & (pel[:, 1] < 180)
             assert inside.mean() > 0.95, (kind, p)
         path = np.linalg.norm(np.diff(setup.world_from_cam[:, :3, 3], axis=0), axis=-1).sum()
@@ -189,8 +200,9 @@ def test_a_failed_sequence_is_reported_and_the_others_go_on(model, tmp_path, mon
         return real(model, clips, spec, out_dir, log, progress)
 
     monkeypatch.setattr(vb, "make_video", flaky)
-    config = vb.VideoBenchmarkConfig(num_sequences=2, num_frames=10, cameras=("static",), width=160, height=96,
-                                     render_only=True)
+    config = vb.VideoBenchmarkConfig(
+        num_sequences=2, num_frames=10, cameras=("static",), width=160, height=96, render_only=True
+    )
     report = vb.run_video_benchmark(model, config, tmp_path, show_progress=False)
     assert "renderer exploded" in report.sequences[0].error
     assert not report.sequences[1].error and report.sequences[1].folder
@@ -198,9 +210,12 @@ def test_a_failed_sequence_is_reported_and_the_others_go_on(model, tmp_path, mon
 
 
 def test_short_sequence_through_the_whole_harness(model, tmp_path):
-    pytest.importorskip("mediapipe", reason="the default perception backend (the perception extra) is not installed")
-    config = vb.VideoBenchmarkConfig(num_sequences=1, num_frames=30, cameras=("follow",), max_people=1,
-                                     width=480, height=270)
+    pytest.importorskip(
+        "mediapipe", reason="the default perception backend (the perception extra) is not installed"
+    )
+    config = vb.VideoBenchmarkConfig(
+        num_sequences=1, num_frames=30, cameras=("follow",), max_people=1, width=480, height=270
+    )
     report = vb.run_video_benchmark(model, config, tmp_path, show_progress=False)
     seq = report.sequences[0]
     assert not seq.error, seq.error

@@ -41,8 +41,10 @@ from m3c.eval.evaluate import aggregate, evaluate_sequence, format_method_table,
 from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track
-from m3c.motion import CONTACT_JOINTS, Cameras, OptimizerConfig, Track, optimize
+from m3c.motion import Cameras, OptimizerConfig, Track, optimize
 from m3c.nn import VPoser
+from m3c.synth.cameras import ou_noise
+from m3c.synth.people import true_contacts
 
 CAMERA_MOTIONS = ("walking", "panning", "orbiting", "static")
 METHODS = ("Local", "Global Regr", "Global Opt", "Global Regr + Opt")
@@ -165,16 +167,6 @@ def _smooth(x: np.ndarray, window: int) -> np.ndarray:
     return np.stack([np.convolve(padded[:, k], kernel, mode="valid")[: len(x)] for k in range(x.shape[1])], 1)
 
 
-def _ou(rng, n: int, dim: int, std: float, tau_frames: float) -> np.ndarray:
-    """Ornstein-Uhlenbeck noise (n, dim) with stationary std `std` and correlation time tau (frames)."""
-    a = np.exp(-1.0 / max(tau_frames, 1e-6))
-    out = np.zeros((n, dim))
-    out[0] = std * rng.normal(size=dim)
-    for i in range(1, n):
-        out[i] = a * out[i - 1] + std * np.sqrt(1 - a * a) * rng.normal(size=dim)
-    return out
-
-
 def _place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n: int, rng):
     """Ground-truth tracks: clip segments turned and moved to spread-out starting spots on the ground."""
     usable = [c for c in clips if c.num_frames >= n]
@@ -211,15 +203,6 @@ def _place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n
     return truth, names
 
 
-def true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
-    """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per
-    frame."""
-    joints = model.joints(pose, betas, transl)[:, list(CONTACT_JOINTS)]
-    step = np.linalg.norm(np.diff(joints, axis=0), axis=-1)
-    step = np.concatenate([step, step[-1:]], axis=0)
-    return ((joints[..., 1] < height) & (step < speed)).astype(np.float64)
-
-
 def _camera_path(motion: str, truth: list[Track], model: BodyModel, n: int, fps: float, config: BenchmarkConfig,
                  intrinsics: np.ndarray, rng) -> np.ndarray:
     """world_from_cam (n, 4, 4) for one of CAMERA_MOTIONS, aimed at the group."""
@@ -234,8 +217,8 @@ def _camera_path(motion: str, truth: list[Track], model: BodyModel, n: int, fps:
     def ring(phi, dist):
         return np.stack([dist * np.sin(phi), np.full_like(phi, height - 0.9), dist * np.cos(phi)], axis=-1)
 
-    shake = _ou(rng, n, 3, 0.005, 0.3 * fps)
-    aim_shake = _ou(rng, n, 3, 0.02, 0.5 * fps)
+    shake = ou_noise(rng, n, 3, 0.005, 0.3 * fps)
+    aim_shake = ou_noise(rng, n, 3, 0.02, 0.5 * fps)
     if motion == "walking":
         phi = phi0 + 0.15 * np.sin(2 * np.pi * t / max(t[-1], 1.0))
         bob = np.stack([0.015 * np.sin(2 * np.pi * 0.9 * t), 0.02 * np.sin(2 * np.pi * 1.8 * t), 0 * t], 1)
@@ -340,7 +323,7 @@ def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_fr
     factor = (1 + config.depth_bias * rng.normal()) * (1 + config.depth_jitter * rng.normal(size=m))
     pelvis = (transl_gt + j0) * factor[:, None]
     transl = pelvis - rest_root_joint(model, betas)
-    tilt = np.radians(config.orientation_bias_deg) * _ou(rng, m, 3, 1.0, fps) / np.sqrt(3) + \
+    tilt = np.radians(config.orientation_bias_deg) * ou_noise(rng, m, 3, 1.0, fps) / np.sqrt(3) + \
         np.radians(config.orientation_jitter_deg) * rng.normal(size=(m, 3)) / np.sqrt(3)
     root = (Rotation.from_rotvec(tilt) * Rotation.from_rotvec(root_gt)).as_rotvec()
     body = tr.body_pose[frames] + config.pose_bias * rng.normal(size=tr.body_pose.shape[1:]) + \

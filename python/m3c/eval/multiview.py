@@ -27,8 +27,21 @@ from m3c.eval import metrics as M
 
 LOG = logging.getLogger("m3c.eval.multiview")
 # TRC keypoint name -> SMPL joint index.
-TRC_TO_SMPL = {"LHip": 1, "RHip": 2, "LKnee": 4, "RKnee": 5, "LAnkle": 7, "RAnkle": 8, "Neck": 12,
-               "LShoulder": 16, "RShoulder": 17, "LElbow": 18, "RElbow": 19, "LWrist": 20, "RWrist": 21}
+TRC_TO_SMPL = {
+    "LHip": 1,
+    "RHip": 2,
+    "LKnee": 4,
+    "RKnee": 5,
+    "LAnkle": 7,
+    "RAnkle": 8,
+    "Neck": 12,
+    "LShoulder": 16,
+    "RShoulder": 17,
+    "LElbow": 18,
+    "RElbow": 19,
+    "LWrist": 20,
+    "RWrist": 21,
+}
 FEET = ("LHeel", "RHeel", "LBigToe", "RBigToe")
 PELVIS = (0, 1)  # LHip, RHip in TRC_TO_SMPL's order
 
@@ -36,10 +49,10 @@ PELVIS = (0, 1)  # LHip, RHip in TRC_TO_SMPL's order
 @dataclass
 class CalibratedCamera:
     name: str
-    K: np.ndarray                 # (3, 3)
-    distortion: np.ndarray        # (4,) k1, k2, p1, p2
-    cam_from_world: np.ndarray    # (4, 4), metres, world Z up
-    size: tuple                   # (W, H) per the calibration
+    K: np.ndarray  # (3, 3)
+    distortion: np.ndarray  # (4,) k1, k2, p1, p2
+    cam_from_world: np.ndarray  # (4, 4), metres, world Z up
+    size: tuple  # (W, H) per the calibration
 
     @property
     def intrinsics(self) -> np.ndarray:
@@ -55,10 +68,10 @@ class CalibratedCamera:
 class MultiviewSequence:
     folder: Path
     cameras: list[CalibratedCamera]
-    videos: dict                  # camera name -> video path
+    videos: dict  # camera name -> video path
     fps: float
-    names: list[str]              # TRC keypoint names
-    keypoints: np.ndarray         # (T, K, 3) calibrated world (Z up), metres
+    names: list[str]  # TRC keypoint names
+    keypoints: np.ndarray  # (T, K, 3) calibrated world (Z up), metres
 
     def joints(self) -> np.ndarray:
         """(T, 13, 3) the keypoints that map onto SMPL joints, in TRC_TO_SMPL's order."""
@@ -76,7 +89,9 @@ def _toml(path: Path) -> dict:
         try:
             import tomli as tomllib
         except ImportError as err:
-            raise ImportError("reading the calibration needs Python 3.11, or `pip install tomli` on 3.10") from err
+            raise ImportError(
+                "reading the calibration needs Python 3.11, or `pip install tomli` on 3.10"
+            ) from err
     return tomllib.loads(path.read_text())
 
 
@@ -89,7 +104,11 @@ def read_trc(path: str | Path) -> tuple[list[str], np.ndarray, float]:
     if header.get("Units", "m") != "m":
         raise ValueError(f"{path}: units {header.get('Units')!r}, expected metres")
     names = [n for n in lines[3].split("\t")[2:] if n.strip()]
-    rows = [np.array(line.split("\t")[2:2 + 3 * len(names)], dtype=np.float64) for line in lines[5:] if line.strip()]
+    rows = [
+        np.array(line.split("\t")[2 : 2 + 3 * len(names)], dtype=np.float64)
+        for line in lines[5:]
+        if line.strip()
+    ]
     return names, np.stack(rows).reshape(len(rows), len(names), 3), float(header["DataRate"])
 
 
@@ -100,8 +119,10 @@ def load_multiview(folder: str | Path) -> MultiviewSequence:
     folder = Path(folder)
     calib, trcs = folder / "Calib_qualisys.toml", sorted(folder.glob("*.trc"))
     if not calib.is_file() or not trcs:
-        raise FileNotFoundError(f"{folder} is not a multiview reference folder (needs Calib_qualisys.toml, a .trc "
-                                "and videos/); the repository ships one in examples/pose2sim_single_person")
+        raise FileNotFoundError(
+            f"{folder} is not a multiview reference folder (needs Calib_qualisys.toml, a .trc "
+            "and videos/); the repository ships one in examples/pose2sim_single_person"
+        )
     cameras, videos = [], {}
     for name, entry in _toml(calib).items():
         if not isinstance(entry, dict) or "matrix" not in entry:
@@ -109,9 +130,13 @@ def load_multiview(folder: str | Path) -> MultiviewSequence:
         R, _ = cv2.Rodrigues(np.asarray(entry["rotation"], dtype=np.float64))
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = R, np.asarray(entry["translation"], dtype=np.float64)
-        cam = CalibratedCamera(name, np.asarray(entry["matrix"], dtype=np.float64),
-                               np.asarray(entry["distortions"], dtype=np.float64), pose,
-                               tuple(int(v) for v in entry["size"]))
+        cam = CalibratedCamera(
+            name,
+            np.asarray(entry["matrix"], dtype=np.float64),
+            np.asarray(entry["distortions"], dtype=np.float64),
+            pose,
+            tuple(int(v) for v in entry["size"]),
+        )
         video = folder / "videos" / f"{name.replace('_', '')}.mp4"
         if not video.is_file():
             raise FileNotFoundError(f"no video for camera {name}: expected {video}")
@@ -129,7 +154,7 @@ class ViewScore:
     seconds: float = 0.0
     frames: int = 0
     values: dict = field(default_factory=dict)
-    joints_in_world: np.ndarray | None = None     # (T, 13, 3) NaN where not tracked
+    joints_in_world: np.ndarray | None = None  # (T, 13, 3) NaN where not tracked
     error: str = ""
 
 
@@ -164,14 +189,16 @@ def score_view(model, seq: MultiviewSequence, cam: CalibratedCamera, arrays: dic
     feet_to_pred = (feet_cam * up_pred).sum(-1) / np.linalg.norm(up_pred, axis=-1) + height_pred
     pelvis_true, pelvis_pred = M.pelvis_of(true_cam, PELVIS), M.pelvis_of(pred_cam, PELVIS)
     score.values = {
-        "camera_height_m": float(height_true), "camera_height_pred_m": float(np.mean(height_pred)),
+        "camera_height_m": float(height_true),
+        "camera_height_pred_m": float(np.mean(height_pred)),
         "camera_height_error_m": float(np.mean(np.abs(height_pred - height_true))),
         "tilt_error_deg": float(np.degrees(np.arccos(cos)).mean()),
         "ground_at_feet_error_m": float(np.mean(np.abs(feet_to_pred - feet_to_true))),
         "mpjpe": float(M.mpjpe(pred_cam, true_cam, PELVIS).mean()),
         "pa_mpjpe": float(M.pa_mpjpe(pred_cam, true_cam).mean()),
         "pelvis_depth_error_m": float(np.mean(np.abs(pelvis_pred[:, 2] - pelvis_true[:, 2]))),
-        "frames": int(len(frames)), "tracks": int(len(arrays["track_ids"])),
+        "frames": len(frames),
+        "tracks": len(arrays["track_ids"]),
     }
     joints = np.full((T, len(TRC_TO_SMPL), 3), np.nan)
     world_from_true = np.linalg.inv(cam.cam_from_world)
@@ -203,35 +230,75 @@ class MultiviewReport:
     seconds: float
 
     def text(self) -> str:
-        cols = [("Camera", None, 8, 0), ("Height m", "camera_height_m", 9, 2), ("M3C m", "camera_height_pred_m", 7, 2),
-                ("Height err", "camera_height_error_m", 11, 2), ("Tilt°", "tilt_error_deg", 7, 1),
-                ("Ground@feet m", "ground_at_feet_error_m", 14, 2), ("MPJPE", "mpjpe", 7, 0),
-                ("PA-MPJPE", "pa_mpjpe", 9, 0), ("Depth m", "pelvis_depth_error_m", 8, 2),
-                ("Frames", "frames", 7, 0)]
+        cols = [
+            ("Camera", None, 8, 0),
+            ("Height m", "camera_height_m", 9, 2),
+            ("M3C m", "camera_height_pred_m", 7, 2),
+            ("Height err", "camera_height_error_m", 11, 2),
+            ("Tilt°", "tilt_error_deg", 7, 1),
+            ("Ground@feet m", "ground_at_feet_error_m", 14, 2),
+            ("MPJPE", "mpjpe", 7, 0),
+            ("PA-MPJPE", "pa_mpjpe", 9, 0),
+            ("Depth m", "pelvis_depth_error_m", 8, 2),
+            ("Frames", "frames", 7, 0),
+        ]
         head = "".join(t.rjust(w) if key else t.ljust(w) for t, key, w, _ in cols)
-        lines = [f"M3C multiview reference: {self.folder}; each camera's video alone, "
-                 f"{'calibrated' if self.known_intrinsics else 'default (uncalibrated)'} intrinsics; mm unless "
-                 "stated; truth: calibration and triangulated keypoints (13 joints).", "", head, "-" * len(head)]
+        lines = [
+            f"M3C multiview reference: {self.folder}; each camera's video alone, "
+            f"{'calibrated' if self.known_intrinsics else 'default (uncalibrated)'} intrinsics; mm unless "
+            "stated; truth: calibration and triangulated keypoints (13 joints).",
+            "",
+            head,
+            "-" * len(head),
+        ]
         for v in self.views:
             if v.error:
                 lines.append(v.camera.ljust(8) + f"  FAILED: {v.error.splitlines()[0]}")
                 continue
-            lines.append("".join(v.camera.ljust(w) if key is None else
-                                 (f"{v.values[key]:.{d}f}").rjust(w) for _, key, w, d in cols))
-        lines += ["", f"disagreement of the single-view results in the calibrated world: "
-                      f"{'-' if self.disagreement_mm is None else f'{self.disagreement_mm:.0f}'} mm "
-                      f"(mean pairwise joint distance); time {self.seconds:.0f} s"]
+            lines.append(
+                "".join(
+                    v.camera.ljust(w) if key is None else (f"{v.values[key]:.{d}f}").rjust(w)
+                    for _, key, w, d in cols
+                )
+            )
+        lines += [
+            "",
+            f"disagreement of the single-view results in the calibrated world: "
+            f"{'-' if self.disagreement_mm is None else f'{self.disagreement_mm:.0f}'} mm "
+            f"(mean pairwise joint distance); time {self.seconds:.0f} s",
+        ]
         return "\n".join(lines)
 
     def summary(self) -> dict:
-        return {"folder": self.folder, "known_intrinsics": self.known_intrinsics, "seconds": self.seconds,
-                "disagreement_mm": self.disagreement_mm,
-                "views": [{"camera": v.camera, "folder": v.folder, "seconds": v.seconds, "error": v.error or None,
-                           **v.values} for v in self.views]}
+        return {
+            "folder": self.folder,
+            "known_intrinsics": self.known_intrinsics,
+            "seconds": self.seconds,
+            "disagreement_mm": self.disagreement_mm,
+            "views": [
+                {
+                    "camera": v.camera,
+                    "folder": v.folder,
+                    "seconds": v.seconds,
+                    "error": v.error or None,
+                    **v.values,
+                }
+                for v in self.views
+            ],
+        }
 
 
-def run_multiview(model, folder: str | Path, out_dir: str | Path, pipeline_config=None, overrides=(),
-                  known_intrinsics: bool = False, cameras=None, log=None, show_progress: bool = True) -> MultiviewReport:
+def run_multiview(
+    model,
+    folder: str | Path,
+    out_dir: str | Path,
+    pipeline_config=None,
+    overrides=(),
+    known_intrinsics: bool = False,
+    cameras=None,
+    log=None,
+    show_progress: bool = True,
+) -> MultiviewReport:
     """Runs M3C on each camera's video (cached under out_dir/<camera>) and scores it; a failed camera is
     reported and the others go on."""
     from m3c.io.results import load_results
@@ -252,13 +319,17 @@ def run_multiview(model, folder: str | Path, out_dir: str | Path, pipeline_confi
             config = base.with_overrides(settings) if settings else base
             run_dir = Path(out_dir) / cam.name
             t0 = time.perf_counter()
-            Runner(config, run_dir, {"video": seq.videos[cam.name]}, show_progress=show_progress).run(["results"])
+            Runner(config, run_dir, {"video": seq.videos[cam.name]}, show_progress=show_progress).run(
+                ["results"]
+            )
             _, arrays = load_results(run_dir)
             score = score_view(model, seq, cam, arrays)
             score.folder, score.seconds = str(run_dir), time.perf_counter() - t0
             if log:
-                log(f"{cam.name}: camera height {score.values['camera_height_pred_m']:.2f} m (true "
-                    f"{score.values['camera_height_m']:.2f}), MPJPE {score.values['mpjpe']:.0f} mm")
+                log(
+                    f"{cam.name}: camera height {score.values['camera_height_pred_m']:.2f} m (true "
+                    f"{score.values['camera_height_m']:.2f}), MPJPE {score.values['mpjpe']:.0f} mm"
+                )
         except KeyboardInterrupt:
             raise
         except Exception as err:  # one camera failing does not stop the others
@@ -266,5 +337,6 @@ def run_multiview(model, folder: str | Path, out_dir: str | Path, pipeline_confi
             if log:
                 log(f"{cam.name}: FAILED: {type(err).__name__}: {err}")
         views.append(score)
-    return MultiviewReport(str(folder), views, disagreement_mm(views), known_intrinsics,
-                           time.perf_counter() - start)
+    return MultiviewReport(
+        str(folder), views, disagreement_mm(views), known_intrinsics, time.perf_counter() - start
+    )

@@ -36,17 +36,17 @@ from m3c.synth.sequence import SequenceSpec, SyntheticVideo, make_video
 
 LOG = logging.getLogger("m3c.eval.video_benchmark")
 METHODS = ("Lift", "Global Opt")
-PEOPLE_PATTERN = (1, 3, 2)           # people in sequence i: PEOPLE_PATTERN[i % 3], capped by max_people
-PELVIS = (1, 2)                      # the hips: the evaluation pelvis (as m3c eval)
+PEOPLE_PATTERN = (1, 3, 2)  # people in sequence i: PEOPLE_PATTERN[i % 3], capped by max_people
+PELVIS = (1, 2)  # the hips: the evaluation pelvis (as m3c eval)
 # A person counts as visible (for recall) when this many COCO keypoints are in the image and at most this share
 # of its silhouette is hidden by others; a detection matches when its keypoints lie within this share of the
 # person's image height on average.
 VISIBLE_KEYPOINTS = 12
 MAX_OCCLUSION = 0.3
 MATCH_DISTANCE = 0.2
-MIN_CAMERA_PATH = 0.5                # metres: shorter true camera paths get no scale error
-MIN_PERSON_SPEED = 0.2               # m/s: slower true people get no speed error
-SPEED_SMOOTHING = 0.5                # seconds: pelvis smoothing before speeds (removes the gait's sway)
+MIN_CAMERA_PATH = 0.5  # metres: shorter true camera paths get no scale error
+MIN_PERSON_SPEED = 0.2  # m/s: slower true people get no speed error
+SPEED_SMOOTHING = 0.5  # seconds: pelvis smoothing before speeds (removes the gait's sway)
 
 
 @dataclass
@@ -60,10 +60,10 @@ class VideoBenchmarkConfig:
     height: int = 540
     fps: float = 30.0
     supersample: int = 1
-    clip_paths: tuple = ()            # retargeted .npz motions; empty: the shipped CMU clips
+    clip_paths: tuple = ()  # retargeted .npz motions; empty: the shipped CMU clips
     pipeline_config: str | None = None
-    overrides: tuple = ()             # NODE.KEY=VALUE settings for every run
-    known_intrinsics: bool = False    # give the pipeline the true intrinsics (else it runs uncalibrated)
+    overrides: tuple = ()  # NODE.KEY=VALUE settings for every run
+    known_intrinsics: bool = False  # give the pipeline the true intrinsics (else it runs uncalibrated)
     render_only: bool = False
 
     def validate(self) -> None:
@@ -75,19 +75,34 @@ class VideoBenchmarkConfig:
             raise ValueError(f"max_people must be 1, 2 or 3, got {self.max_people}")
         unknown = [c for c in self.cameras if c not in CAMERA_KINDS]
         if unknown or not self.cameras:
-            raise ValueError(f"camera motions must be among {', '.join(CAMERA_KINDS)}, got {list(self.cameras)}")
+            raise ValueError(
+                f"camera motions must be among {', '.join(CAMERA_KINDS)}, got {list(self.cameras)}"
+            )
 
     def specs(self) -> list[SequenceSpec]:
-        return [SequenceSpec(i, self.cameras[i % len(self.cameras)], min(PEOPLE_PATTERN[i % 3], self.max_people),
-                             self.num_frames, self.fps, self.width, self.height, self.seed, self.supersample)
-                for i in range(self.num_sequences)]
+        return [
+            SequenceSpec(
+                i,
+                self.cameras[i % len(self.cameras)],
+                min(PEOPLE_PATTERN[i % 3], self.max_people),
+                self.num_frames,
+                self.fps,
+                self.width,
+                self.height,
+                self.seed,
+                self.supersample,
+            )
+            for i in range(self.num_sequences)
+        ]
 
 
 @dataclass
 class MethodScore:
     body: SequenceResult
-    camera: dict = field(default_factory=dict)     # ate_mm, scale_error_pct, ground_height_error_m, tilt_error_deg
-    speed_error_pct: list = field(default_factory=list)   # per matched moving person
+    camera: dict = field(
+        default_factory=dict
+    )  # ate_mm, scale_error_pct, ground_height_error_m, tilt_error_deg
+    speed_error_pct: list = field(default_factory=list)  # per matched moving person
 
 
 @dataclass
@@ -99,15 +114,25 @@ class SequenceScore:
     render_seconds: float = 0.0
     node_seconds: dict = field(default_factory=dict)
     detection: dict = field(default_factory=dict)  # visible, detected, id_switches, person_frames
-    methods: dict = field(default_factory=dict)    # method -> MethodScore
+    methods: dict = field(default_factory=dict)  # method -> MethodScore
     error: str = ""
 
 
 # Scoring --------------------------------------------------------------------------------------------------------
 def truth_tracks(model: BodyModel, truth: dict) -> list[EvalTrack]:
     n = truth["world_from_cam"].shape[0]
-    return [body_eval_track(model, np.arange(n), truth["root_orient"][p], truth["body_pose"][p], truth["betas"][p],
-                            truth["transl"][p], truth["world_from_cam"]) for p in range(len(truth["betas"]))]
+    return [
+        body_eval_track(
+            model,
+            np.arange(n),
+            truth["root_orient"][p],
+            truth["body_pose"][p],
+            truth["betas"][p],
+            truth["transl"][p],
+            truth["world_from_cam"],
+        )
+        for p in range(len(truth["betas"]))
+    ]
 
 
 def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTrack]:
@@ -122,7 +147,9 @@ def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTr
     out = []
     for p in range(len(arrays["track_ids"])):
         t = np.flatnonzero(arrays["valid"][p])
-        out.append(body_eval_track(model, frame_ids[t], root[p, t], body[p, t], betas[p], transl[p, t], cams[t]))
+        out.append(
+            body_eval_track(model, frame_ids[t], root[p, t], body[p, t], betas[p], transl[p, t], cams[t])
+        )
     return out
 
 
@@ -132,8 +159,11 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
     n_true = truth["keypoints_2d"].shape[0]
     silhouette = truth["silhouette_pixels"]
     occlusion = 1.0 - truth["visible_pixels"] / np.maximum(silhouette, 1)
-    visible = (truth["keypoints_in_image"].sum(-1) >= VISIBLE_KEYPOINTS) & (silhouette > 0) & \
-        (occlusion <= MAX_OCCLUSION)
+    visible = (
+        (truth["keypoints_in_image"].sum(-1) >= VISIBLE_KEYPOINTS)
+        & (silhouette > 0)
+        & (occlusion <= MAX_OCCLUSION)
+    )
     ids = arrays["track_ids"]
     last = [None] * n_true
     switches = detected = matched_frames = 0
@@ -163,14 +193,21 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
                 switches += 1
             last[p] = ids[tracks[k]]
     frames = arrays["frame_ids"]
-    return {"visible": int(visible[:, frames].sum()), "detected": int(detected), "id_switches": int(switches),
-            "matched_person_frames": int(matched_frames), "person_frames": int(visible.shape[0] * len(frames))}
+    return {
+        "visible": int(visible[:, frames].sum()),
+        "detected": int(detected),
+        "id_switches": int(switches),
+        "matched_person_frames": int(matched_frames),
+        "person_frames": int(visible.shape[0] * len(frames)),
+    }
 
 
 def _mean_speed(pelvis: np.ndarray, fps: float) -> float:
     from scipy.ndimage import uniform_filter1d
 
-    xz = uniform_filter1d(pelvis[:, [0, 2]], size=max(1, int(round(SPEED_SMOOTHING * fps))), axis=0, mode="nearest")
+    xz = uniform_filter1d(
+        pelvis[:, [0, 2]], size=max(1, round(SPEED_SMOOTHING * fps)), axis=0, mode="nearest"
+    )
     duration = (len(xz) - 1) / fps
     return float(np.linalg.norm(np.diff(xz, axis=0), axis=-1).sum() / duration) if duration > 0 else 0.0
 
@@ -185,7 +222,9 @@ def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarr
         out["ate_mm"] = float(np.sqrt((M.camera_ate(pred_world_from_cam, true_world_from_cam) ** 2).mean()))
         out["scale_error_pct"] = 100.0 * (pred_path / true_path - 1.0)
     out["camera_path_m"] = pred_path
-    out["ground_height_error_m"] = float(np.abs(pred_world_from_cam[:, 1, 3] - true_world_from_cam[:, 1, 3]).mean())
+    out["ground_height_error_m"] = float(
+        np.abs(pred_world_from_cam[:, 1, 3] - true_world_from_cam[:, 1, 3]).mean()
+    )
     up_pred = pred_world_from_cam[:, 1, :3]  # world y in camera coordinates: row 1 of R
     up_true = true_world_from_cam[:, 1, :3]
     cos = np.clip((up_pred * up_true).sum(-1) / np.linalg.norm(up_pred, axis=-1), -1.0, 1.0)
@@ -193,8 +232,9 @@ def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarr
     return out
 
 
-def score_method(model: BodyModel, truth: dict, gt: list[EvalTrack], arrays: dict, method: str,
-                 name: str) -> MethodScore:
+def score_method(
+    model: BodyModel, truth: dict, gt: list[EvalTrack], arrays: dict, method: str, name: str
+) -> MethodScore:
     fps = float(truth["fps"])
     pred = predicted_tracks(model, arrays, method)
     body = evaluate_sequence(gt, pred, fps, pelvis=PELVIS, name=name)
@@ -215,23 +255,35 @@ def score_method(model: BodyModel, truth: dict, gt: list[EvalTrack], arrays: dic
 def score_results(model: BodyModel, truth: dict, arrays: dict, name: str) -> tuple[dict, dict]:
     """(detection scores, method -> MethodScore) of one run's results against the truth."""
     gt = truth_tracks(model, truth)
-    return detection_scores(truth, arrays), {m: score_method(model, truth, gt, arrays, m, name) for m in METHODS}
+    return detection_scores(truth, arrays), {
+        m: score_method(model, truth, gt, arrays, m, name) for m in METHODS
+    }
 
 
 # Running ----------------------------------------------------------------------------------------------------------
 def pipeline_config(config: VideoBenchmarkConfig, video: SyntheticVideo):
     from m3c.pipeline import PipelineConfig, parse_override
 
-    pipeline = PipelineConfig.from_yaml(Path(config.pipeline_config)) if config.pipeline_config \
+    pipeline = (
+        PipelineConfig.from_yaml(Path(config.pipeline_config))
+        if config.pipeline_config
         else PipelineConfig.default()
+    )
     overrides = dict(parse_override(item) for item in config.overrides)
     if config.known_intrinsics:
         overrides["camera.intrinsics"] = [float(v) for v in video.truth()["intrinsics"]]
     return pipeline.with_overrides(overrides) if overrides else pipeline
 
 
-def run_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, config: VideoBenchmarkConfig,
-                 out_dir: Path, show_progress: bool = True, log=None) -> SequenceScore:
+def run_sequence(
+    model: BodyModel,
+    clips: list[RetargetedMotion],
+    spec: SequenceSpec,
+    config: VideoBenchmarkConfig,
+    out_dir: Path,
+    show_progress: bool = True,
+    log=None,
+) -> SequenceScore:
     from m3c.io.results import load_results
     from m3c.pipeline import Runner
     from m3c.pipeline.progress import Progress
@@ -242,15 +294,18 @@ def run_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequence
     if config.render_only:
         return score
     run_dir = out_dir / "runs" / video.folder.name
-    report = Runner(pipeline_config(config, video), run_dir, {"video": video.video},
-                    show_progress=show_progress).run(["results"])
+    report = Runner(
+        pipeline_config(config, video), run_dir, {"video": video.video}, show_progress=show_progress
+    ).run(["results"])
     score.node_seconds = {r.name: r.seconds for r in report.records if r.status == "ran"}
     _, arrays = load_results(run_dir)
     score.detection, score.methods = score_results(model, video.truth(), arrays, spec.name)
     if log:
         opt = score.methods["Global Opt"]
-        log(f"{spec.name}: {len(arrays['track_ids'])} tracks for {spec.num_people} people, W-MPJPE100 "
-            f"{_fmt(opt.body.mean('w_mpjpe'))} mm, scale error {_fmt(opt.camera.get('scale_error_pct'))} %")
+        log(
+            f"{spec.name}: {len(arrays['track_ids'])} tracks for {spec.num_people} people, W-MPJPE100 "
+            f"{_fmt(opt.body.mean('w_mpjpe'))} mm, scale error {_fmt(opt.camera.get('scale_error_pct'))} %"
+        )
     return score
 
 
@@ -277,9 +332,16 @@ class VideoBenchmarkReport:
         out["id_switches"] = sum(s.detection["id_switches"] for s in seqs) if seqs else None
         out["id_switches_per_1000"] = 1000.0 * out["id_switches"] / frames if frames else None
         for key in ("ate_mm", "scale_error_pct", "ground_height_error_m", "tilt_error_deg"):
-            values = [abs(s.methods[method].camera[key]) if key == "scale_error_pct" else s.methods[method].camera[key]
-                      for s in seqs if key in s.methods[method].camera]
-            out[key if key != "scale_error_pct" else "abs_scale_error_pct"] = float(np.mean(values)) if values else None
+            values = [
+                abs(s.methods[method].camera[key])
+                if key == "scale_error_pct"
+                else s.methods[method].camera[key]
+                for s in seqs
+                if key in s.methods[method].camera
+            ]
+            out[key if key != "scale_error_pct" else "abs_scale_error_pct"] = (
+                float(np.mean(values)) if values else None
+            )
         speeds = [abs(v) for s in seqs for v in s.methods[method].speed_error_pct]
         out["abs_speed_error_pct"] = float(np.mean(speeds)) if speeds else None
         return out
@@ -287,8 +349,10 @@ class VideoBenchmarkReport:
     def row(self, seq: SequenceScore, method: str) -> dict:
         score = seq.methods[method]
         det = seq.detection
-        row = {k: score.body.mean(k) for k in ("pa_mpjpe", "mpjpe", "w_mpjpe", "wa_mpjpe", "rte", "jitter",
-                                                 "foot_sliding")}
+        row = {
+            k: score.body.mean(k)
+            for k in ("pa_mpjpe", "mpjpe", "w_mpjpe", "wa_mpjpe", "rte", "jitter", "foot_sliding")
+        }
         row["recall_pct"] = 100.0 * det["detected"] / det["visible"] if det["visible"] else None
         row["id_switches"] = det["id_switches"]
         row.update(score.camera)
@@ -297,12 +361,22 @@ class VideoBenchmarkReport:
         return row
 
     def table(self) -> str:
-        cols = [("Recall%", "recall_pct", 8, 1), ("IDsw", "id_switches", 5, 0), ("PA-MPJPE", "pa_mpjpe", 9, 1),
-                ("MPJPE", "mpjpe", 7, 1), ("W-MPJPE", "w_mpjpe", 8, 0), ("WA-MPJPE", "wa_mpjpe", 9, 0),
-                ("RTE%", "rte", 6, 1), ("ATE mm", "ate_mm", 7, 0), ("Scale%", "scale_error_pct", 7, 1),
-                ("Speed%", "speed_error_pct", 7, 1), ("FS mm", "foot_sliding", 6, 1),
-                ("Jitter", "jitter", 7, 1), ("Gnd m", "ground_height_error_m", 6, 2),
-                ("Tilt°", "tilt_error_deg", 6, 1)]
+        cols = [
+            ("Recall%", "recall_pct", 8, 1),
+            ("IDsw", "id_switches", 5, 0),
+            ("PA-MPJPE", "pa_mpjpe", 9, 1),
+            ("MPJPE", "mpjpe", 7, 1),
+            ("W-MPJPE", "w_mpjpe", 8, 0),
+            ("WA-MPJPE", "wa_mpjpe", 9, 0),
+            ("RTE%", "rte", 6, 1),
+            ("ATE mm", "ate_mm", 7, 0),
+            ("Scale%", "scale_error_pct", 7, 1),
+            ("Speed%", "speed_error_pct", 7, 1),
+            ("FS mm", "foot_sliding", 6, 1),
+            ("Jitter", "jitter", 7, 1),
+            ("Gnd m", "ground_height_error_m", 6, 2),
+            ("Tilt°", "tilt_error_deg", 6, 1),
+        ]
         name_w = max([len("Sequence / method")] + [len(s.name) + 3 for s in self.sequences]) + 2
         head = "Sequence / method".ljust(name_w) + "".join(t.rjust(w) for t, _, w, _ in cols)
         lines = [head, "-" * len(head)]
@@ -318,9 +392,14 @@ class VideoBenchmarkReport:
 
         for seq in self.sequences:
             if not seq.methods:
-                lines.append(f"{seq.name}^{seq.num_people}".ljust(name_w) +
-                             (f"  FAILED: {seq.error.splitlines()[-1] if seq.error else ''}" if seq.error
-                              else "  rendered only"))
+                lines.append(
+                    f"{seq.name}^{seq.num_people}".ljust(name_w)
+                    + (
+                        f"  FAILED: {seq.error.splitlines()[-1] if seq.error else ''}"
+                        if seq.error
+                        else "  rendered only"
+                    )
+                )
                 continue
             for method in METHODS:
                 label = f"{seq.name}^{seq.num_people}" if method == METHODS[0] else f"  {method}"
@@ -331,7 +410,10 @@ class VideoBenchmarkReport:
             lines.append("-" * len(head))
             for method in METHODS:
                 o = self.overall(method)
-                o["scale_error_pct"], o["speed_error_pct"] = o["abs_scale_error_pct"], o["abs_speed_error_pct"]
+                o["scale_error_pct"], o["speed_error_pct"] = (
+                    o["abs_scale_error_pct"],
+                    o["abs_speed_error_pct"],
+                )
                 lines.append(f"All: {method}".ljust(name_w) + cells(o))
         return "\n".join(lines)
 
@@ -339,22 +421,31 @@ class VideoBenchmarkReport:
         c = self.config
         scored = self.scored()
         frames = sum(s.detection.get("person_frames", 0) for s in scored)
-        lines = [f"M3C video benchmark: {len(self.sequences)} sequences x {c.num_frames} frames at {c.fps:g} fps, "
-                 f"{c.width} x {c.height}, seed {c.seed}, {'true' if c.known_intrinsics else 'default (uncalibrated)'}"
-                 f" intrinsics; body model {self.body_model}, 24 joints, pelvis = mean of the hips.",
-                 "mm unless stated (^: people). Lift: the world lift before optimization; Global Opt: the final "
-                 "result. Jitter in 10 m/s^3; 'All' rows: per-frame means, camera and speed errors as mean "
-                 "absolute values, IDsw summed.", "", self.table(), ""]
+        lines = [
+            f"M3C video benchmark: {len(self.sequences)} sequences x {c.num_frames} frames at {c.fps:g} fps, "
+            f"{c.width} x {c.height}, seed {c.seed}, {'true' if c.known_intrinsics else 'default (uncalibrated)'}"
+            f" intrinsics; body model {self.body_model}, 24 joints, pelvis = mean of the hips.",
+            "mm unless stated (^: people). Lift: the world lift before optimization; Global Opt: the final "
+            "result. Jitter in 10 m/s^3; 'All' rows: per-frame means, camera and speed errors as mean "
+            "absolute values, IDsw summed.",
+            "",
+            self.table(),
+            "",
+        ]
         if scored:
             o = self.overall("Global Opt")
-            lines.append(f"detection recall {_fmt(o['recall_pct'])} % of visible person-frames; identity switches "
-                         f"{o['id_switches']} ({_fmt(o['id_switches_per_1000'], 2)} per 1000 person-frames over "
-                         f"{frames}).")
+            lines.append(
+                f"detection recall {_fmt(o['recall_pct'])} % of visible person-frames; identity switches "
+                f"{o['id_switches']} ({_fmt(o['id_switches_per_1000'], 2)} per 1000 person-frames over "
+                f"{frames})."
+            )
         failed = [s for s in self.sequences if s.error]
         if failed:
             lines.append(f"failed: {', '.join(s.name for s in failed)}")
         stage = self.stage_seconds()
-        lines.append("time: " + ", ".join(f"{k} {v:.0f} s" for k, v in stage.items()) + f"; total {self.seconds:.0f} s")
+        lines.append(
+            "time: " + ", ".join(f"{k} {v:.0f} s" for k, v in stage.items()) + f"; total {self.seconds:.0f} s"
+        )
         return "\n".join(lines)
 
     def stage_seconds(self) -> dict:
@@ -366,22 +457,34 @@ class VideoBenchmarkReport:
 
     def summary(self) -> dict:
         def sequence(s: SequenceScore) -> dict:
-            out = {"name": s.name, "camera_motion": s.camera_motion, "people": s.num_people, "folder": s.folder,
-                   "render_seconds": s.render_seconds, "node_seconds": s.node_seconds, "detection": s.detection,
-                   "error": s.error or None}
+            out = {
+                "name": s.name,
+                "camera_motion": s.camera_motion,
+                "people": s.num_people,
+                "folder": s.folder,
+                "render_seconds": s.render_seconds,
+                "node_seconds": s.node_seconds,
+                "detection": s.detection,
+                "error": s.error or None,
+            }
             if s.methods:
                 out["methods"] = {m: self.row(s, m) for m in METHODS}
                 out["speed_error_pct"] = {m: s.methods[m].speed_error_pct for m in METHODS}
             return out
 
-        return {"config": asdict(self.config), "body_model": self.body_model, "seconds": self.seconds,
-                "stage_seconds": self.stage_seconds(),
-                "overall": {m: self.overall(m) for m in METHODS} if self.scored() else {},
-                "sequences": [sequence(s) for s in self.sequences]}
+        return {
+            "config": asdict(self.config),
+            "body_model": self.body_model,
+            "seconds": self.seconds,
+            "stage_seconds": self.stage_seconds(),
+            "overall": {m: self.overall(m) for m in METHODS} if self.scored() else {},
+            "sequences": [sequence(s) for s in self.sequences],
+        }
 
 
-def run_video_benchmark(model: BodyModel, config: VideoBenchmarkConfig, out_dir: str | Path, log=None,
-                        show_progress: bool = True) -> VideoBenchmarkReport:
+def run_video_benchmark(
+    model: BodyModel, config: VideoBenchmarkConfig, out_dir: str | Path, log=None, show_progress: bool = True
+) -> VideoBenchmarkReport:
     """Renders (once, cached under out_dir/videos) and runs (cached under out_dir/runs) every sequence; a sequence
     that fails is reported and the others go on."""
     from m3c.eval.benchmark import load_clips
@@ -399,8 +502,15 @@ def run_video_benchmark(model: BodyModel, config: VideoBenchmarkConfig, out_dir:
         except Exception as err:  # a failed sequence is reported; the others go on
             if log:
                 log(f"{spec.name}: FAILED: {type(err).__name__}: {err}")
-            scores.append(SequenceScore(spec.name, spec.camera, spec.num_people, "",
-                                        error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}"))
+            scores.append(
+                SequenceScore(
+                    spec.name,
+                    spec.camera,
+                    spec.num_people,
+                    "",
+                    error=f"{type(err).__name__}: {err}\n{traceback.format_exc()}",
+                )
+            )
     return VideoBenchmarkReport(config, scores, getattr(model.data, "name", ""), time.perf_counter() - start)
 
 
@@ -411,5 +521,16 @@ def write_json(report: VideoBenchmarkReport, path: str | Path) -> None:
         tmp.write_text(json.dumps(report.summary(), indent=1, default=float) + "\n")
 
 
-__all__ = ["VideoBenchmarkConfig", "VideoBenchmarkReport", "SequenceScore", "MethodScore", "run_video_benchmark",
-           "score_results", "detection_scores", "camera_scores", "truth_tracks", "predicted_tracks", "write_json"]
+__all__ = [
+    "MethodScore",
+    "SequenceScore",
+    "VideoBenchmarkConfig",
+    "VideoBenchmarkReport",
+    "camera_scores",
+    "detection_scores",
+    "predicted_tracks",
+    "run_video_benchmark",
+    "score_results",
+    "truth_tracks",
+    "write_json",
+]

@@ -20,7 +20,7 @@ AIM_HEIGHT = 0.9
 FRAMING_JOINTS = (15, 20, 21, 7, 8, 10, 11)
 
 
-def _ou(rng, n: int, dim: int, std: float, tau_frames: float) -> np.ndarray:
+def ou_noise(rng, n: int, dim: int, std: float, tau_frames: float) -> np.ndarray:
     """Ornstein-Uhlenbeck noise (n, dim) with stationary std `std` and correlation time tau (frames)."""
     a = np.exp(-1.0 / max(tau_frames, 1e-6))
     out = np.zeros((n, dim))
@@ -55,18 +55,25 @@ def _in_view(world_from_cam, intrinsics, points, width, height, margin=0.04) -> 
     z = cam[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         u, v = fx * cam[..., 0] / z + cx, fy * cam[..., 1] / z + cy
-    ok = (z > 0.3) & (u > margin * width) & (u < (1 - margin) * width) & (v > margin * height) & \
-        (v < (1 - margin) * height)
+    ok = (
+        (z > 0.3)
+        & (u > margin * width)
+        & (u < (1 - margin) * width)
+        & (v > margin * height)
+        & (v < (1 - margin) * height)
+    )
     return float(ok.mean())
 
 
-def camera_path(kind: str, joints: np.ndarray, fps: float, image_size, rng) -> tuple[np.ndarray, np.ndarray, dict]:
+def camera_path(
+    kind: str, joints: np.ndarray, fps: float, image_size, rng
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """world_from_cam (n, 4, 4), intrinsics (4,) and a description, for people's world joints (P, n, 24, 3).
     follow and tracking film person 0 (the walker); the other kinds the whole group."""
     if kind not in CAMERA_KINDS:
         raise ValueError(f"unknown camera kind {kind!r}; choose from {', '.join(CAMERA_KINDS)}")
     width, height = (int(v) for v in image_size)
-    P, n = joints.shape[:2]
+    n = joints.shape[1]
     hfov = np.radians(rng.uniform(40.0, 75.0))
     focal = 0.5 * width / np.tan(hfov / 2)
     intrinsics = np.array([focal, focal, width / 2, height / 2])
@@ -81,8 +88,8 @@ def camera_path(kind: str, joints: np.ndarray, fps: float, image_size, rng) -> t
     phi0 = rng.uniform(0, 2 * np.pi)
     side = rng.choice([-1.0, 1.0])
     cam_height = rng.uniform(1.2, 2.0)
-    aim_jitter = _ou(rng, n, 3, 0.015, 0.5 * fps)
-    shake = _ou(rng, n, 3, 0.008, 0.3 * fps)
+    aim_jitter = ou_noise(rng, n, 3, 0.015, 0.5 * fps)
+    shake = ou_noise(rng, n, 3, 0.008, 0.3 * fps)
     roll = np.zeros(n)
     info = {"kind": kind, "hfov_deg": float(np.degrees(hfov))}
 
@@ -96,7 +103,7 @@ def camera_path(kind: str, joints: np.ndarray, fps: float, image_size, rng) -> t
         bob = np.stack([0.015 * np.sin(2 * np.pi * 0.9 * t), 0.02 * np.sin(2 * np.pi * 1.8 * t), 0 * t], 1)
         base = rng.uniform(3.0, 4.5)
         cam_height = rng.uniform(1.5, 1.8)
-        roll = np.radians(0.8) * _ou(rng, n, 1, 1.0, 0.4 * fps)[:, 0]
+        roll = np.radians(0.8) * ou_noise(rng, n, 1, 1.0, 0.4 * fps)[:, 0]
 
         def build(scale):
             eye = walker - scale * base * heading + UP * (cam_height - AIM_HEIGHT) + bob + shake
@@ -121,7 +128,9 @@ def camera_path(kind: str, joints: np.ndarray, fps: float, image_size, rng) -> t
 
         def build(scale):
             ring = np.stack([np.sin(phi0 + omega * t), 0 * t, np.cos(phi0 + omega * t)], 1)
-            return group + scale * base * ring + UP * (cam_height - AIM_HEIGHT) + 0.5 * shake, group + aim_jitter
+            return group + scale * base * ring + UP * (
+                cam_height - AIM_HEIGHT
+            ) + 0.5 * shake, group + aim_jitter
     elif kind == "handheld":
         direction = _horizontal(np.array([np.sin(phi0), 0.0, np.cos(phi0)]))
         across = np.cross(UP, direction)
@@ -130,9 +139,9 @@ def camera_path(kind: str, joints: np.ndarray, fps: float, image_size, rng) -> t
         cam_height = rng.uniform(1.5, 1.8)
         bob = np.stack([0.015 * np.sin(2 * np.pi * 0.9 * t), 0.025 * np.sin(2 * np.pi * 1.8 * t), 0 * t], 1)
         walk = (t - t.mean())[:, None] * speed * direction
-        shake = _ou(rng, n, 3, 0.012, 0.25 * fps)
-        aim_jitter = _ou(rng, n, 3, 0.03, 0.3 * fps)
-        roll = np.radians(1.5) * _ou(rng, n, 1, 1.0, 0.3 * fps)[:, 0]
+        shake = ou_noise(rng, n, 3, 0.012, 0.25 * fps)
+        aim_jitter = ou_noise(rng, n, 3, 0.03, 0.3 * fps)
+        roll = np.radians(1.5) * ou_noise(rng, n, 1, 1.0, 0.3 * fps)[:, 0]
         centre = group.mean(axis=0)
 
         def build(scale):

@@ -12,32 +12,62 @@ from scipy.spatial.transform import Rotation
 from m3c.body import BodyModel
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval.retarget import RetargetedMotion
+from m3c.motion import CONTACT_JOINTS
 
 UP = np.array([0.0, 1.0, 0.0])
 
 # SMPL joint -> body part of the skin it drives (by the largest skinning weight).
 PARTS = ("skin", "hair", "top", "trousers", "shoes")
-_JOINT_PART = {0: "trousers", 1: "trousers", 2: "trousers", 3: "top", 4: "trousers", 5: "trousers", 6: "top",
-               7: "shoes", 8: "shoes", 9: "top", 10: "shoes", 11: "shoes", 12: "skin", 13: "top", 14: "top",
-               15: "skin", 16: "top", 17: "top", 18: "sleeve", 19: "sleeve", 20: "skin", 21: "skin", 22: "skin",
-               23: "skin"}
-SKIN_TONES = np.array([[0.96, 0.80, 0.69], [0.89, 0.67, 0.53], [0.78, 0.57, 0.44], [0.58, 0.40, 0.29],
-                       [0.40, 0.27, 0.20]])
+_JOINT_PART = {
+    0: "trousers",
+    1: "trousers",
+    2: "trousers",
+    3: "top",
+    4: "trousers",
+    5: "trousers",
+    6: "top",
+    7: "shoes",
+    8: "shoes",
+    9: "top",
+    10: "shoes",
+    11: "shoes",
+    12: "skin",
+    13: "top",
+    14: "top",
+    15: "skin",
+    16: "top",
+    17: "top",
+    18: "sleeve",
+    19: "sleeve",
+    20: "skin",
+    21: "skin",
+    22: "skin",
+    23: "skin",
+}
+SKIN_TONES = np.array(
+    [[0.96, 0.80, 0.69], [0.89, 0.67, 0.53], [0.78, 0.57, 0.44], [0.58, 0.40, 0.29], [0.40, 0.27, 0.20]]
+)
 
 
 @dataclass
 class PersonLook:
-    colours: dict               # part -> RGB in [0, 1]
+    colours: dict  # part -> RGB in [0, 1]
     long_sleeves: bool
 
     @classmethod
-    def random(cls, rng) -> "PersonLook":
+    def random(cls, rng) -> PersonLook:
         def cloth():
-            return np.array(colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.3, 0.9), rng.uniform(0.25, 0.9)))
+            return np.array(
+                colorsys.hsv_to_rgb(rng.uniform(0, 1), rng.uniform(0.3, 0.9), rng.uniform(0.25, 0.9))
+            )
 
-        colours = {"skin": SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.95, 1.05),
-                   "hair": np.array([0.08, 0.06, 0.05]) + rng.uniform(0, 0.35) * np.array([1.0, 0.8, 0.5]),
-                   "top": cloth(), "trousers": cloth() * 0.8, "shoes": np.full(3, rng.uniform(0.05, 0.9))}
+        colours = {
+            "skin": SKIN_TONES[rng.integers(len(SKIN_TONES))] * rng.uniform(0.95, 1.05),
+            "hair": np.array([0.08, 0.06, 0.05]) + rng.uniform(0, 0.35) * np.array([1.0, 0.8, 0.5]),
+            "top": cloth(),
+            "trousers": cloth() * 0.8,
+            "shoes": np.full(3, rng.uniform(0.05, 0.9)),
+        }
         return cls({k: np.clip(v, 0, 1) for k, v in colours.items()}, bool(rng.uniform() < 0.5))
 
 
@@ -50,8 +80,11 @@ def vertex_parts(model: BodyModel) -> np.ndarray:
     rest = model.forward(np.zeros((1, model.num_joints, 3)), np.zeros(model.num_betas))
     verts, joints = rest.vertices[0], rest.joints[0]
     head = joints[15]
-    hair = (names == "skin") & (dominant == 15) & ((verts[:, 1] > head[1] + 0.07) |
-                                                   ((verts[:, 1] > head[1] - 0.02) & (verts[:, 2] < head[2] - 0.02)))
+    hair = (
+        (names == "skin")
+        & (dominant == 15)
+        & ((verts[:, 1] > head[1] + 0.07) | ((verts[:, 1] > head[1] - 0.02) & (verts[:, 2] < head[2] - 0.02)))
+    )
     names = names.astype(object)
     names[hair] = "hair"
     return names
@@ -70,11 +103,11 @@ def face_colours(model: BodyModel, parts: np.ndarray, look: PersonLook, rng) -> 
 @dataclass
 class Person:
     clip: str
-    start: int                  # first clip frame used
-    root_orient: np.ndarray     # (n, 3) world
-    body_pose: np.ndarray       # (n, 23, 3)
-    transl: np.ndarray          # (n, 3) world
-    betas: np.ndarray           # (B,)
+    start: int  # first clip frame used
+    root_orient: np.ndarray  # (n, 3) world
+    body_pose: np.ndarray  # (n, 23, 3)
+    transl: np.ndarray  # (n, 3) world
+    betas: np.ndarray  # (B,)
     look: PersonLook
 
     def pose(self) -> np.ndarray:
@@ -84,18 +117,27 @@ class Person:
 def _displacement(clip: RetargetedMotion, n: int) -> np.ndarray:
     """Horizontal pelvis-translation displacement of every n-frame window of the clip."""
     xz = clip.transl[:, [0, 2]]
-    return np.linalg.norm(xz[n - 1:] - xz[: len(xz) - n + 1], axis=-1)
+    return np.linalg.norm(xz[n - 1 :] - xz[: len(xz) - n + 1], axis=-1)
 
 
-def place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n: int, rng,
-                 travelling_first: bool = False, tries: int = 200) -> list[Person]:
+def place_people(
+    model: BodyModel,
+    clips: list[RetargetedMotion],
+    count: int,
+    n: int,
+    rng,
+    travelling_first: bool = False,
+    tries: int = 200,
+) -> list[Person]:
     """`count` people on the ground around the origin, each a random n-frame segment of a clip, turned and moved;
     people keep 0.5 m apart (pelvis) at every frame. travelling_first: person 0 is the segment of a clip that
     covers the most ground (a walker or runner to follow), heading along +z on average."""
     usable = [c for c in clips if c.num_frames >= n]
     if not usable:
-        raise ValueError(f"no motion clip has {n} frames (longest: {max(c.num_frames for c in clips)}); ask for "
-                         "fewer frames or add longer clips (--clips / --mocap)")
+        raise ValueError(
+            f"no motion clip has {n} frames (longest: {max(c.num_frames for c in clips)}); ask for "
+            "fewer frames or add longer clips (--clips / --mocap)"
+        )
     for _ in range(tries):
         people = []
         for k in range(count):
@@ -111,11 +153,15 @@ def place_people(model: BodyModel, clips: list[RetargetedMotion], count: int, n:
             people.append(_place(model, clip, start, n, rng, k, count, k == 0 and travelling_first))
         if _apart(model, people, 0.5):
             return people
-    raise ValueError(f"could not place {count} people {n} frames long without collisions in {tries} tries; ask "
-                     "for fewer people or frames")
+    raise ValueError(
+        f"could not place {count} people {n} frames long without collisions in {tries} tries; ask "
+        "for fewer people or frames"
+    )
 
 
-def _place(model, clip: RetargetedMotion, start: int, n: int, rng, k: int, count: int, heading_z: bool) -> Person:
+def _place(
+    model, clip: RetargetedMotion, start: int, n: int, rng, k: int, count: int, heading_z: bool
+) -> Person:
     seg = slice(start, start + n)
     betas = clip.betas + 0.5 * rng.normal(size=clip.betas.shape)
     root, transl, body = clip.root_orient[seg].copy(), clip.transl[seg].copy(), clip.body_pose[seg].copy()
@@ -135,7 +181,9 @@ def _place(model, clip: RetargetedMotion, start: int, n: int, rng, k: int, count
     T[[0, 2], 3] = spot - (turn @ mid)[[0, 2]]
     root, transl = transform_smpl(T, root, transl, j0)
     # The new shape changes leg length: stand on y = 0 again (the lowest point over the clip, robustly).
-    lowest = model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
+    lowest = (
+        model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
+    )
     transl[:, 1] -= np.quantile(lowest, 0.1)
     return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
 
@@ -147,3 +195,12 @@ def _apart(model: BodyModel, people: list[Person], distance: float) -> bool:
             if np.min(np.linalg.norm(pelvis[a] - pelvis[b], axis=-1)) < distance:
                 return False
     return True
+
+
+def true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
+    """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per
+    frame."""
+    joints = model.joints(pose, betas, transl)[:, list(CONTACT_JOINTS)]
+    step = np.linalg.norm(np.diff(joints, axis=0), axis=-1)
+    step = np.concatenate([step, step[-1:]], axis=0)
+    return ((joints[..., 1] < height) & (step < speed)).astype(np.float64)

@@ -20,15 +20,15 @@ class TexturedMesh:
     vertices: np.ndarray
     faces: np.ndarray
     uv: np.ndarray
-    texture: int                  # index into the scene's textures
-    cull: bool = True             # closed meshes (boxes): skip faces seen from behind
+    texture: int  # index into the scene's textures
+    cull: bool = True  # closed meshes (boxes): skip faces seen from behind
 
 
 @dataclass
 class RenderedFrame:
-    image: np.ndarray             # (H, W, 3) BGR uint8
-    depth: np.ndarray             # (H, W) float32 camera z, inf where only sky
-    ids: np.ndarray               # (H, W) int32: person index, -1 for the static scene and the sky
+    image: np.ndarray  # (H, W, 3) BGR uint8
+    depth: np.ndarray  # (H, W) float32 camera z, inf where only sky
+    ids: np.ndarray  # (H, W) int32: person index, -1 for the static scene and the sky
 
 
 def camera_from_world_points(points: np.ndarray, world_from_cam: np.ndarray) -> np.ndarray:
@@ -39,8 +39,16 @@ def camera_from_world_points(points: np.ndarray, world_from_cam: np.ndarray) -> 
 class Renderer:
     """Renders one image size; textures are uploaded once. `supersample` s renders s x s samples per pixel."""
 
-    def __init__(self, textures: list[np.ndarray], width: int, height: int, supersample: int = 2,
-                 light_in_world=(0.35, 0.85, -0.4), ambient: float = 0.45, sky=SKY_RGB):
+    def __init__(
+        self,
+        textures: list[np.ndarray],
+        width: int,
+        height: int,
+        supersample: int = 2,
+        light_in_world=(0.35, 0.85, -0.4),
+        ambient: float = 0.45,
+        sky=SKY_RGB,
+    ):
         if width < 8 or height < 8:
             raise ValueError(f"image size must be at least 8 x 8 pixels, got {width} x {height}")
         if supersample < 1:
@@ -58,10 +66,17 @@ class Renderer:
         fx, fy, cx, cy = (float(v) for v in intrinsics)
         return np.array([fx * s, fy * s, cx * s + (s - 1) / 2, cy * s + (s - 1) / 2])
 
-    def render(self, world_from_cam: np.ndarray, intrinsics, static: list[TexturedMesh],
-               people: list[tuple[np.ndarray, np.ndarray, np.ndarray]], full: bool = True) -> RenderedFrame:
-        """static: meshes ordered near to far where possible (objects, ground, backdrop); people: (vertices (V, 3) world, faces (F, 3), face_rgb (F, 3)) per person; their index is their id.
-        full=False renders the people alone on the sky (for occlusion ratios), at the same resolution."""
+    def render(
+        self,
+        world_from_cam: np.ndarray,
+        intrinsics,
+        static: list[TexturedMesh],
+        people: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+        full: bool = True,
+    ) -> RenderedFrame:
+        """static: meshes ordered near to far where possible (objects, ground, backdrop); people: (vertices
+        (V, 3) world, faces (F, 3), face_rgb (F, 3)) per person, their index is their id. full=False renders the
+        people alone on the sky (for occlusion ratios), at the same resolution."""
         s = self.supersample
         K = self._hi_res(intrinsics)
         frame = _core.RenderFrame(self.width * s, self.height * s, self.sky)
@@ -69,12 +84,29 @@ class Renderer:
         # Near to far (people, then the static meshes in the scene's order): the depth test then skips the
         # shading of most hidden fragments.
         for index, (vertices, faces, face_rgb) in enumerate(people):
-            frame.draw_coloured(K, camera_from_world_points(vertices, world_from_cam), faces, face_rgb, light,
-                                self.ambient, index, True)
+            frame.draw_coloured(
+                K,
+                camera_from_world_points(vertices, world_from_cam),
+                faces,
+                face_rgb,
+                light,
+                self.ambient,
+                index,
+                True,
+            )
         if full:
             for mesh in static:
-                frame.draw_textured(K, camera_from_world_points(mesh.vertices, world_from_cam), mesh.faces,
-                                    self.textures[mesh.texture], mesh.uv, light, self.ambient, -1, mesh.cull)
+                frame.draw_textured(
+                    K,
+                    camera_from_world_points(mesh.vertices, world_from_cam),
+                    mesh.faces,
+                    self.textures[mesh.texture],
+                    mesh.uv,
+                    light,
+                    self.ambient,
+                    -1,
+                    mesh.cull,
+                )
         rgb = frame.rgb
         if s > 1:  # an exact s x s box filter
             rgb = cv2.resize(rgb, (self.width, self.height), interpolation=cv2.INTER_AREA)

@@ -21,11 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from m3c.body import BodyModel
-from m3c.eval.benchmark import true_contacts
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import atomic_path, save_npz_atomic
 from m3c.synth.cameras import camera_path
-from m3c.synth.people import Person, face_colours, place_people, vertex_parts
+from m3c.synth.people import Person, face_colours, place_people, true_contacts, vertex_parts
 from m3c.synth.render import RenderedFrame, Renderer
 from m3c.synth.world import StaticScene, make_scene
 
@@ -55,7 +54,9 @@ class SequenceSpec:
         if not 1 <= self.num_people <= 3:
             raise ValueError(f"1 to 3 people per sequence, got {self.num_people}")
         if self.width < 64 or self.height < 64 or self.width % 2 or self.height % 2:
-            raise ValueError(f"image size must be even and at least 64 x 64 (H.264), got {self.width} x {self.height}")
+            raise ValueError(
+                f"image size must be even and at least 64 x 64 (H.264), got {self.width} x {self.height}"
+            )
         if self.fps <= 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
 
@@ -66,7 +67,7 @@ class SyntheticVideo:
     folder: Path
     video: Path
     truth_path: Path
-    render_seconds: float            # 0 when it came from the cache
+    render_seconds: float  # 0 when it came from the cache
 
     def truth(self) -> dict:
         with np.load(self.truth_path) as z:
@@ -78,8 +79,12 @@ class SyntheticVideo:
 
 def _digest(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec) -> str:
     h = hashlib.sha1()
-    h.update(json.dumps({"version": GENERATOR_VERSION, "spec": asdict(spec),
-                         "model": getattr(model.data, "name", "")}, sort_keys=True).encode())
+    h.update(
+        json.dumps(
+            {"version": GENERATOR_VERSION, "spec": asdict(spec), "model": getattr(model.data, "name", "")},
+            sort_keys=True,
+        ).encode()
+    )
     for clip in clips:
         for a in (clip.transl, clip.root_orient, clip.body_pose, clip.betas):
             h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
@@ -90,22 +95,43 @@ def _video_writer(path: Path, width: int, height: int, fps: float):
     try:
         import imageio_ffmpeg
     except ImportError as err:
-        raise ImportError("writing H.264 videos needs imageio-ffmpeg (pip install imageio-ffmpeg; it is in m3c's "
-                          "dependencies)") from err
-    writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, codec="libx264", pix_fmt_in="bgr24",
-                                         output_params=["-crf", "16", "-preset", "fast"], macro_block_size=2,
-                                         ffmpeg_log_level="error")
+        raise ImportError(
+            "writing H.264 videos needs imageio-ffmpeg (pip install imageio-ffmpeg; it is in m3c's "
+            "dependencies)"
+        ) from err
+    writer = imageio_ffmpeg.write_frames(
+        str(path),
+        (width, height),
+        fps=fps,
+        codec="libx264",
+        pix_fmt_in="bgr24",
+        output_params=["-crf", "16", "-preset", "fast"],
+        macro_block_size=2,
+        ffmpeg_log_level="error",
+    )
     writer.send(None)
     return writer
 
 
 def build_people(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, rng) -> list[Person]:
-    return place_people(model, clips, spec.num_people, spec.num_frames, rng,
-                        travelling_first=spec.camera in ("follow", "tracking"))
+    return place_people(
+        model,
+        clips,
+        spec.num_people,
+        spec.num_frames,
+        rng,
+        travelling_first=spec.camera in ("follow", "tracking"),
+    )
 
 
-def make_video(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, out_dir: str | Path,
-               log=None, progress=None) -> SyntheticVideo:
+def make_video(
+    model: BodyModel,
+    clips: list[RetargetedMotion],
+    spec: SequenceSpec,
+    out_dir: str | Path,
+    log=None,
+    progress=None,
+) -> SyntheticVideo:
     """The sequence's folder under out_dir (video.mp4, truth.npz, meta.json), rendered unless already there."""
     spec.validate()
     folder = Path(out_dir) / f"{spec.name}-{_digest(model, clips, spec)}"
@@ -116,8 +142,10 @@ def make_video(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSp
     render_video(model, clips, spec, folder, progress)
     seconds = time.perf_counter() - start
     if log:
-        log(f"{spec.name}: rendered {spec.num_frames} frames in {seconds:.1f} s "
-            f"({spec.num_frames / seconds:.1f} frames/s) -> {folder}")
+        log(
+            f"{spec.name}: rendered {spec.num_frames} frames in {seconds:.1f} s "
+            f"({spec.num_frames / seconds:.1f} frames/s) -> {folder}"
+        )
     return SyntheticVideo(spec, folder, video, truth_path, seconds)
 
 
@@ -128,12 +156,12 @@ class SequenceSetup:
     model: BodyModel
     spec: SequenceSpec
     people: list[Person]
-    joints: np.ndarray              # (P, n, 24, 3) world
-    world_from_cam: np.ndarray      # (n, 4, 4)
-    intrinsics: np.ndarray          # (4,)
+    joints: np.ndarray  # (P, n, 24, 3) world
+    world_from_cam: np.ndarray  # (n, 4, 4)
+    intrinsics: np.ndarray  # (4,)
     camera_info: dict
     scene: StaticScene
-    albedo: list[np.ndarray]        # (F, 3) per person
+    albedo: list[np.ndarray]  # (F, 3) per person
     renderer: Renderer
 
     def bodies(self, a: int, b: int) -> list[np.ndarray]:
@@ -144,8 +172,13 @@ class SequenceSetup:
         """Frame i (vertices: each person's (V, 3) at frame i, else posed here); full=False: people only."""
         faces = np.asarray(self.model.faces, dtype=np.int32)
         vertices = vertices if vertices is not None else [v[0] for v in self.bodies(i, i + 1)]
-        return self.renderer.render(self.world_from_cam[i], self.intrinsics, self.scene.meshes,
-                                    [(v, faces, a) for v, a in zip(vertices, self.albedo)], full)
+        return self.renderer.render(
+            self.world_from_cam[i],
+            self.intrinsics,
+            self.scene.meshes,
+            [(v, faces, a) for v, a in zip(vertices, self.albedo)],
+            full,
+        )
 
 
 def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec) -> SequenceSetup:
@@ -155,8 +188,9 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
     n, P = spec.num_frames, spec.num_people
     people = build_people(model, clips, spec, rng)
     joints = np.stack([model.joints(p.pose(), p.betas, p.transl) for p in people])  # (P, n, 24, 3)
-    world_from_cam, intrinsics, camera_info = camera_path(spec.camera, joints, spec.fps, (spec.width, spec.height),
-                                                          rng)
+    world_from_cam, intrinsics, camera_info = camera_path(
+        spec.camera, joints, spec.fps, (spec.width, spec.height), rng
+    )
     cam_xz = world_from_cam[:, :3, 3][:, [0, 2]]
     pelvis_xz = joints[:, :, 0][..., [0, 2]]
     sight = [(cam_xz[i], pelvis_xz[p, i]) for i in range(0, n, max(1, n // 12)) for p in range(P)]
@@ -164,12 +198,14 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
     parts = vertex_parts(model)
     albedo = [face_colours(model, parts, p.look, rng) for p in people]
     renderer = Renderer(scene.textures, spec.width, spec.height, spec.supersample)
-    return SequenceSetup(model, spec, people, joints, world_from_cam, intrinsics, camera_info, scene, albedo,
-                         renderer)
+    return SequenceSetup(
+        model, spec, people, joints, world_from_cam, intrinsics, camera_info, scene, albedo, renderer
+    )
 
 
-def render_video(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, folder: Path,
-                 progress=None) -> None:
+def render_video(
+    model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, folder: Path, progress=None
+) -> None:
     """Generates and renders the sequence into `folder`; meta.json is written last (it marks a complete folder)."""
     setup = setup_sequence(model, clips, spec)
     people, world_from_cam, intrinsics = setup.people, setup.world_from_cam, setup.intrinsics
@@ -177,10 +213,12 @@ def render_video(model: BodyModel, clips: list[RetargetedMotion], spec: Sequence
     alone = Renderer([], W, H, spec.supersample)  # ids sampled where the full frame samples them
     faces = np.asarray(model.faces, dtype=np.int32)
     regressor = model.coco17_regressor()
-    truth = {"keypoints_2d": np.zeros((P, n, 17, 2), np.float32),
-             "keypoints_in_image": np.zeros((P, n, 17), bool),
-             "visible_pixels": np.zeros((P, n), np.int64),
-             "silhouette_pixels": np.zeros((P, n), np.int64)}
+    truth = {
+        "keypoints_2d": np.zeros((P, n, 17, 2), np.float32),
+        "keypoints_in_image": np.zeros((P, n, 17), bool),
+        "visible_pixels": np.zeros((P, n), np.int64),
+        "silhouette_pixels": np.zeros((P, n), np.int64),
+    }
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_path(folder / "video.mp4", suffix=".mp4") as tmp:
         writer = _video_writer(tmp, W, H, spec.fps)
@@ -194,8 +232,13 @@ def render_video(model: BodyModel, clips: list[RetargetedMotion], spec: Sequence
                     writer.send(np.ascontiguousarray(frame.image))
                     for p in range(P):
                         truth["visible_pixels"][p, i] = int((frame.ids == p).sum())
-                        own = alone.render(world_from_cam[i], intrinsics, [], [(verts[p][i - a], faces,
-                                                                                 setup.albedo[p])], full=False)
+                        own = alone.render(
+                            world_from_cam[i],
+                            intrinsics,
+                            [],
+                            [(verts[p][i - a], faces, setup.albedo[p])],
+                            full=False,
+                        )
                         truth["silhouette_pixels"][p, i] = int((own.ids == 0).sum())
                         uv, inside = project_points(kps[p][i - a], world_from_cam[i], intrinsics, W, H)
                         truth["keypoints_2d"][p, i] = uv
@@ -205,24 +248,45 @@ def render_video(model: BodyModel, clips: list[RetargetedMotion], spec: Sequence
         finally:
             writer.close()
     arrays = {
-        "fps": np.float64(spec.fps), "image_size": np.array([W, H], np.int32),
-        "intrinsics": intrinsics.astype(np.float64), "world_from_cam": world_from_cam.astype(np.float64),
-        "ground_normal": np.array([0.0, 1.0, 0.0]), "ground_offset": np.float64(0.0),
-        "root_orient": np.stack([p.root_orient for p in people]), "body_pose": np.stack([p.body_pose for p in people]),
-        "transl": np.stack([p.transl for p in people]), "betas": np.stack([p.betas for p in people]),
+        "fps": np.float64(spec.fps),
+        "image_size": np.array([W, H], np.int32),
+        "intrinsics": intrinsics.astype(np.float64),
+        "world_from_cam": world_from_cam.astype(np.float64),
+        "ground_normal": np.array([0.0, 1.0, 0.0]),
+        "ground_offset": np.float64(0.0),
+        "root_orient": np.stack([p.root_orient for p in people]),
+        "body_pose": np.stack([p.body_pose for p in people]),
+        "transl": np.stack([p.transl for p in people]),
+        "betas": np.stack([p.betas for p in people]),
         "joints": setup.joints,
         "contacts": np.stack([true_contacts(model, p.pose(), p.betas, p.transl) for p in people]),
         **truth,
     }
     save_npz_atomic(folder / "truth.npz", **arrays)
-    meta = {"name": spec.name, "spec": asdict(spec), "generator_version": GENERATOR_VERSION,
-            "body_model": getattr(model.data, "name", ""), "camera": setup.camera_info,
-            "people": [{"clip": p.clip, "start_frame": int(p.start),
-                        "look": {k: [round(float(c), 3) for c in v] for k, v in p.look.colours.items()}}
-                       for p in people],
-            "objects": [{"kind": o["kind"], "centre_xz": [float(v) for v in o["centre"]],
-                         "size": [float(v) for v in o["size"]]} for o in setup.scene.objects],
-            "world": "y up, metres, ground y = 0; cameras OpenCV, world_from_cam"}
+    meta = {
+        "name": spec.name,
+        "spec": asdict(spec),
+        "generator_version": GENERATOR_VERSION,
+        "body_model": getattr(model.data, "name", ""),
+        "camera": setup.camera_info,
+        "people": [
+            {
+                "clip": p.clip,
+                "start_frame": int(p.start),
+                "look": {k: [round(float(c), 3) for c in v] for k, v in p.look.colours.items()},
+            }
+            for p in people
+        ],
+        "objects": [
+            {
+                "kind": o["kind"],
+                "centre_xz": [float(v) for v in o["centre"]],
+                "size": [float(v) for v in o["size"]],
+            }
+            for o in setup.scene.objects
+        ],
+        "world": "y up, metres, ground y = 0; cameras OpenCV, world_from_cam",
+    }
     with atomic_path(folder / "meta.json") as tmp:
         tmp.write_text(json.dumps(meta, indent=1) + "\n")
 
@@ -234,6 +298,11 @@ def project_points(points, world_from_cam, intrinsics, width, height):
     fx, fy, cx, cy = intrinsics
     z = np.where(cam[:, 2] > 1e-6, cam[:, 2], np.nan)
     uv = np.stack([fx * cam[:, 0] / z + cx, fy * cam[:, 1] / z + cy], axis=-1)
-    inside = np.isfinite(uv).all(-1) & (uv[:, 0] >= 0) & (uv[:, 0] <= width - 1) & (uv[:, 1] >= 0) & \
-        (uv[:, 1] <= height - 1)
+    inside = (
+        np.isfinite(uv).all(-1)
+        & (uv[:, 0] >= 0)
+        & (uv[:, 0] <= width - 1)
+        & (uv[:, 1] >= 0)
+        & (uv[:, 1] <= height - 1)
+    )
     return np.nan_to_num(uv, nan=-1.0), inside

@@ -16,18 +16,18 @@ from scipy.ndimage import gaussian_filter
 from m3c.synth.render import TexturedMesh
 
 TEXTURE_SIZE = 512
-GROUND_TILE = 2.0         # metres per ground tile (one texture per tile, several textures mixed)
+GROUND_TILE = 2.0  # metres per ground tile (one texture per tile, several textures mixed)
 GROUND_TEXEL = GROUND_TILE / TEXTURE_SIZE
-OBJECT_TEXEL = 0.006      # metres per texel on boxes and walls
+OBJECT_TEXEL = 0.006  # metres per texel on boxes and walls
 BACKDROP_TEXEL = 0.03
 
 
 @dataclass
 class StaticScene:
     meshes: list[TexturedMesh]
-    textures: list[np.ndarray]      # (S, S, 3) float32 RGB in [0, 1]
-    bounds: np.ndarray              # (2, 2) ground extent [[x_min, z_min], [x_max, z_max]]
-    objects: list[dict]             # what was placed (kind, centre, size, yaw), for the record
+    textures: list[np.ndarray]  # (S, S, 3) float32 RGB in [0, 1]
+    bounds: np.ndarray  # (2, 2) ground extent [[x_min, z_min], [x_max, z_max]]
+    objects: list[dict]  # what was placed (kind, centre, size, yaw), for the record
 
 
 # Textures ---------------------------------------------------------------------------------------------------
@@ -41,7 +41,9 @@ def _noise(rng, size: int, sigmas=(24.0, 8.0, 2.5, 1.0), weights=(1.0, 0.7, 0.45
 
 
 def _tint(base, variation, field) -> np.ndarray:
-    return np.clip(np.asarray(base)[None, None] + variation * field[..., None] * np.array([1.0, 0.95, 0.9]), 0, 1)
+    return np.clip(
+        np.asarray(base)[None, None] + variation * field[..., None] * np.array([1.0, 0.95, 0.9]), 0, 1
+    )
 
 
 def _ground_texture(rng, size: int) -> np.ndarray:
@@ -65,20 +67,22 @@ def _brick_texture(rng, size: int) -> np.ndarray:
             colour = np.clip(base * rng.uniform(0.75, 1.2) + rng.normal(0, 0.03, 3), 0, 1)
             x0 = c * w - shift
             for x in range(x0, x0 + w):
-                tex[r * h:(r + 1) * h, x % size] = colour
+                tex[r * h : (r + 1) * h, x % size] = colour
     mortar = np.zeros((size, size), bool)
     mortar[np.arange(size) % h < 2] = True
     for r in range(rows):
         shift = (w // 2) * (r % 2)
         cols_at = (np.arange(size) + shift) % w < 2
-        mortar[r * h:(r + 1) * h, cols_at] = True
+        mortar[r * h : (r + 1) * h, cols_at] = True
     tex[mortar] = [0.78, 0.76, 0.72]
     return np.clip(tex + 0.05 * _noise(rng, size, (6.0, 1.5), (1.0, 0.6))[..., None], 0, 1).astype(np.float32)
 
 
 def _patch_texture(rng, size: int) -> np.ndarray:
     """Painted wood or concrete with poster-like rectangles of other colours."""
-    base = np.asarray(rng.choice([[0.60, 0.50, 0.35], [0.55, 0.57, 0.60], [0.30, 0.45, 0.55], [0.65, 0.62, 0.50]]))
+    base = np.asarray(
+        rng.choice([[0.60, 0.50, 0.35], [0.55, 0.57, 0.60], [0.30, 0.45, 0.55], [0.65, 0.62, 0.50]])
+    )
     tex = _tint(base, 0.07, _noise(rng, size))
     for _ in range(int(rng.integers(6, 14))):
         w, h = rng.integers(size // 10, size // 3, size=2)
@@ -97,7 +101,7 @@ def _backdrop_texture(rng, size: int) -> np.ndarray:
     for y in range(step // 2, size - step, step):
         for x in range(step // 2, size - step, step):
             if rng.uniform() < 0.35:
-                tex[y:y + step // 2, x:x + step // 2] = rng.uniform(0.15, 0.8, 3)
+                tex[y : y + step // 2, x : x + step // 2] = rng.uniform(0.15, 0.8, 3)
     return tex.astype(np.float32)
 
 
@@ -118,8 +122,13 @@ def _merge(quads: list[TexturedMesh]) -> TexturedMesh:
         faces.append(q.faces + offset)
         uv.append(q.uv)
         offset += len(q.vertices)
-    return TexturedMesh(np.concatenate(vertices), np.concatenate(faces).astype(np.int32), np.concatenate(uv),
-                        quads[0].texture, quads[0].cull)
+    return TexturedMesh(
+        np.concatenate(vertices),
+        np.concatenate(faces).astype(np.int32),
+        np.concatenate(uv),
+        quads[0].texture,
+        quads[0].cull,
+    )
 
 
 def box_mesh(centre_xz, size, yaw: float, texture: int, texel: float = OBJECT_TEXEL) -> TexturedMesh:
@@ -134,9 +143,13 @@ def box_mesh(centre_xz, size, yaw: float, texture: int, texel: float = OBJECT_TE
     half = {"x": ax * sx / 2, "y": ay * sy / 2, "z": az * sz / 2}
     faces = []
     # (outward normal, edge_u, edge_v) with edge_u x edge_v along the normal.
-    for normal, eu, ev in ((half["y"], 2 * half["z"], 2 * half["x"]), (half["x"], 2 * half["y"], 2 * half["z"]),
-                           (-half["x"], 2 * half["z"], 2 * half["y"]), (half["z"], 2 * half["x"], 2 * half["y"]),
-                           (-half["z"], 2 * half["y"], 2 * half["x"])):
+    for normal, eu, ev in (
+        (half["y"], 2 * half["z"], 2 * half["x"]),
+        (half["x"], 2 * half["y"], 2 * half["z"]),
+        (-half["x"], 2 * half["z"], 2 * half["y"]),
+        (half["z"], 2 * half["x"], 2 * half["y"]),
+        (-half["z"], 2 * half["y"], 2 * half["x"]),
+    ):
         faces.append(_quad(centre + normal - eu / 2 - ev / 2, eu, ev, texel, texture, True))
     return _merge(faces)
 
@@ -147,8 +160,16 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
     return np.linalg.norm(points - (a + t[:, None] * ab), axis=-1)
 
 
-def make_scene(rng, people_xz: np.ndarray, camera_xz: np.ndarray, sight_lines: list[tuple[np.ndarray, np.ndarray]],
-               num_boxes: int = 8, num_pillars: int = 3, num_walls: int = 2, margin: float = 18.0) -> StaticScene:
+def make_scene(
+    rng,
+    people_xz: np.ndarray,
+    camera_xz: np.ndarray,
+    sight_lines: list[tuple[np.ndarray, np.ndarray]],
+    num_boxes: int = 8,
+    num_pillars: int = 3,
+    num_walls: int = 2,
+    margin: float = 18.0,
+) -> StaticScene:
     """people_xz (N, 2) and camera_xz (M, 2): ground positions to keep clear; sight_lines: (camera, target) xz
     segments no object may block. The ground covers everything within `margin` metres, closed by a backdrop."""
     textures = [_ground_texture(rng, TEXTURE_SIZE) for _ in range(4)]
@@ -165,7 +186,9 @@ def make_scene(rng, people_xz: np.ndarray, camera_xz: np.ndarray, sight_lines: l
     for x in np.arange(lo[0], hi[0], GROUND_TILE):
         for z in np.arange(lo[1], hi[1], GROUND_TILE):
             k = int(rng.integers(first_object))
-            tiles[k].append(_quad([x, 0.0, z], [0, 0, GROUND_TILE], [GROUND_TILE, 0, 0], GROUND_TEXEL, k, True))
+            tiles[k].append(
+                _quad([x, 0.0, z], [0, 0, GROUND_TILE], [GROUND_TILE, 0, 0], GROUND_TEXEL, k, True)
+            )
     ground = [_merge(q) for q in tiles.values() if q]
 
     # Objects: boxes, pillars and walls, within 8 m of the action, clear of paths and sight lines.
@@ -204,7 +227,11 @@ def make_scene(rng, people_xz: np.ndarray, camera_xz: np.ndarray, sight_lines: l
     height = 12.0
     (x0, z0), (x1, z1) = lo, hi
     up = np.array([0.0, height, 0.0])
-    for corner, edge in (([x0, 0, z0], [x1 - x0, 0, 0]), ([x1, 0, z0], [0, 0, z1 - z0]),
-                         ([x1, 0, z1], [x0 - x1, 0, 0]), ([x0, 0, z1], [0, 0, z0 - z1])):
+    for corner, edge in (
+        ([x0, 0, z0], [x1 - x0, 0, 0]),
+        ([x1, 0, z0], [0, 0, z1 - z0]),
+        ([x1, 0, z1], [x0 - x1, 0, 0]),
+        ([x0, 0, z1], [0, 0, z0 - z1]),
+    ):
         meshes.append(_quad(corner, up, edge, BACKDROP_TEXEL, backdrop, False))
     return StaticScene(meshes, textures, np.stack([lo, hi]), objects)
