@@ -8,7 +8,8 @@ WA-MPJPE100, RTE, jitter, foot sliding of truly planted feet), it measures what 
   ID switches  changes of the predicted track id that a ground-truth person is matched to, frame by frame
   ATE          camera centres after a Sim(3) alignment (mm), moving cameras only
   scale error  metric camera path length against the true one (%), cameras that travel at least 0.5 m
-  speed error  mean horizontal pelvis speed against the true one (%), people moving at least 0.2 m/s
+  speed error  mean horizontal pelvis speed (m3c.eval.plausibility) against the true one (%), people moving at
+               least 0.2 m/s
   ground error camera height above the ground (m) and camera tilt to gravity (degrees) against the truth
 The pipeline runs uncalibrated (its default intrinsics) unless asked to use the true ones.
 """
@@ -29,6 +30,7 @@ from m3c.body import BodyModel
 from m3c.eval import metrics as M
 from m3c.eval.evaluate import SequenceResult, aggregate, evaluate_sequence
 from m3c.eval.matching import common_frames
+from m3c.eval.plausibility import track_plausibility
 from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.synth.cameras import CAMERA_KINDS
@@ -46,7 +48,6 @@ MAX_OCCLUSION = 0.3
 MATCH_DISTANCE = 0.2
 MIN_CAMERA_PATH = 0.5  # metres: shorter true camera paths get no scale error
 MIN_PERSON_SPEED = 0.2  # m/s: slower true people get no speed error
-SPEED_SMOOTHING = 0.5  # seconds: pelvis smoothing before speeds (removes the gait's sway)
 
 
 @dataclass
@@ -202,16 +203,6 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
     }
 
 
-def _mean_speed(pelvis: np.ndarray, fps: float) -> float:
-    from scipy.ndimage import uniform_filter1d
-
-    xz = uniform_filter1d(
-        pelvis[:, [0, 2]], size=max(1, round(SPEED_SMOOTHING * fps)), axis=0, mode="nearest"
-    )
-    duration = (len(xz) - 1) / fps
-    return float(np.linalg.norm(np.diff(xz, axis=0), axis=-1).sum() / duration) if duration > 0 else 0.0
-
-
 def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarray) -> dict:
     """Camera errors of one method: ATE after Sim(3) (moving cameras), scale error of the path length, camera
     height above the ground (y = 0 in both worlds) and tilt of the camera to gravity (world y)."""
@@ -245,9 +236,9 @@ def score_method(
         ig, ip = common_frames(gt[match.gt].frames, pred[match.pred].frames)
         if len(ig) < fps:  # under a second: no meaningful speed
             continue
-        true_speed = _mean_speed(M.pelvis_of(gt[match.gt].joints_world[ig], PELVIS), fps)
+        true_speed = track_plausibility(gt[match.gt].joints_world[ig], fps)["mean_speed_mps"]
         if true_speed >= MIN_PERSON_SPEED:
-            pred_speed = _mean_speed(M.pelvis_of(pred[match.pred].joints_world[ip], PELVIS), fps)
+            pred_speed = track_plausibility(pred[match.pred].joints_world[ip], fps)["mean_speed_mps"]
             speeds.append(100.0 * (pred_speed / true_speed - 1.0))
     return MethodScore(body, camera, speeds)
 
