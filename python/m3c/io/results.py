@@ -107,6 +107,15 @@ def describe(folder: str | Path) -> str:
         lines.append(f"  id {track['id']:>3}: frames {track['first_frame']}..{track['last_frame']} "
                      f"({track['visible_frames']}/{track['frames']} detected), reprojection "
                      f"{'n/a' if err is None else f'{err:.1f} px'}, path {track['path_length_m']:.2f} m")
+        figures = track.get("plausibility")
+        if figures:
+            ratio = figures["path_ratio"]
+            lines.append(f"         speed {figures['mean_speed_mps']:.2f} m/s mean, {figures['peak_speed_mps']:.2f} "
+                         f"peak; path {figures['path_length_m']:.2f} m for {figures['displacement_m']:.2f} m "
+                         f"displacement{'' if ratio is None else f' (x{ratio:.1f})'}; slower foot "
+                         f"{figures['slow_foot_speed_mps']:.2f} m/s; below ground "
+                         f"{100 * figures['below_ground_fraction']:.0f}% of frames, "
+                         f"{100 * figures['penetration_m']:.0f} cm deep")
     for stage in summary["optimization"]["stages"]:
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
                      f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")

@@ -10,6 +10,7 @@ import numpy as np
 
 import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.eval.plausibility import results_plausibility
 from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays
 from m3c.io.video import VideoWriter
@@ -121,6 +122,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         if dtype == "float32":
             arrays[name] = np.asarray(arrays[name], dtype=np.float32)
     check_arrays(arrays)
+    for entry, figures in zip(summary_tracks, results_plausibility(arrays)):
+        entry["plausibility"] = figures
     summary = {
         "schema": SCHEMA,
         "m3c_version": m3c.__version__,
