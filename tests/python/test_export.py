@@ -1,0 +1,145 @@
+"""Exports read back without Blender: the BVH by m3c.io.bvh, the GLB by pygltflib with forward kinematics done
+here from its nodes and animation; both must give results.npz's world joints."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from export_scene import INTRINSICS, WIDTH, HEIGHT, write_results
+from m3c.body import default_body_model
+from m3c.cli import main
+from m3c.export import export_results, load_source
+from m3c.io.bvh import read_bvh
+
+
+@pytest.fixture(scope="module")
+def model():
+    return default_body_model()
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory, model):
+    return write_results(tmp_path_factory.mktemp("export") / "out", model)
+
+
+def test_bvh_reproduces_world_joints(results, tmp_path):
+    source = load_source(results)
+    paths = export_results(results, "bvh", tmp_path / "bvh")
+    assert [p.name for p in paths] == ["motion_track4.bvh", "motion_track7.bvh"]
+    for track, path in zip(source.tracks, paths):
+        bvh = read_bvh(path)
+        assert bvh.num_frames == len(track.frames) and bvh.fps == pytest.approx(10.0)
+        order = [bvh.index(name) for name in source.joint_names]
+        joints = bvh.positions()[:, order] / 100.0  # centimetres
+        np.testing.assert_allclose(joints, track.world_joints, atol=1e-5)
+        # The rest offsets are the track's own shape: bone lengths of the body model at its betas.
+        rest = model_rest = track.rest_joints
+        assert np.linalg.norm(bvh.joints[bvh.index("left_knee")].offset) == pytest.approx(
+            100.0 * np.linalg.norm(rest[4] - model_rest[1]), rel=1e-6)
+    metres = read_bvh(export_results(results, "bvh", tmp_path / "one.bvh", tracks=[7], bvh_unit="m")[0])
+    np.testing.assert_allclose(metres.positions()[:, [metres.index(n) for n in source.joint_names]],
+                               source.tracks[1].world_joints, atol=1e-5)
+
+
+def _gltf_reader(path):
+    import pygltflib as gl
+
+    gltf = gl.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+    dtypes = {gl.FLOAT: np.float32, gl.UNSIGNED_BYTE: np.uint8, gl.UNSIGNED_SHORT: np.uint16,
+              gl.UNSIGNED_INT: np.uint32}
+    sizes = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+    def read(index):
+        acc = gltf.accessors[index]
+        view = gltf.bufferViews[acc.bufferView]
+        n = sizes[acc.type]
+        return np.frombuffer(blob, dtypes[acc.componentType], acc.count * n,
+                             view.byteOffset + (acc.byteOffset or 0)).reshape(acc.count, n).astype(np.float64)
+    return gltf, read
+
+
+def _animated_world(gltf, read, node_ids, key):
+    """World (rotation, translation) of the given nodes at keyframe `key` of the file's one animation."""
+    parent = {c: i for i, n in enumerate(gltf.nodes) for c in n.children}
+    local = {i: [np.asarray(gltf.nodes[i].translation or [0.0, 0.0, 0.0]),
+                 Rotation.from_quat(gltf.nodes[i].rotation or [0, 0, 0, 1]).as_matrix()] for i in node_ids}
+    animation = gltf.animations[0]
+    for channel in animation.channels:
+        if channel.target.node in local:
+            value = read(animation.samplers[channel.sampler].output)[key]
+            slot = 0 if channel.target.path == "translation" else 1
+            local[channel.target.node][slot] = value if slot == 0 else Rotation.from_quat(value).as_matrix()
+    world = {}
+    for i in node_ids:  # parents come first in a skin's joint list
+        t, R = local[i]
+        if i in parent and parent[i] in world:
+            pR, pt = world[parent[i]]
+            world[i] = (pR @ R, pt + pR @ t)
+        else:
+            world[i] = (R, t)
+    return world
+
+
+def test_glb_reproduces_joints_mesh_and_camera(results, tmp_path, model):
+    pytest.importorskip("pygltflib", reason="GLB export needs pygltflib (pip install m3c[export])")
+    source = load_source(results)
+    path, = export_results(results, "glb", tmp_path / "scene.glb")
+    gltf, read = _gltf_reader(path)
+    assert len(gltf.animations) == 1 and len(gltf.skins) == 2
+    for skin_index, track in enumerate(source.tracks):
+        skin = gltf.skins[skin_index]
+        times = read(gltf.animations[0].samplers[gltf.animations[0].channels[25 * skin_index].sampler].input)
+        np.testing.assert_allclose(times[:, 0], track.frames / 10.0, atol=1e-5)
+        inverse_bind = read(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+        mesh_node = next(n for n in gltf.nodes if n.skin == skin_index)
+        prim = gltf.meshes[mesh_node.mesh].primitives[0]
+        rest_vertices = read(prim.attributes.POSITION)
+        joints, weights = read(prim.attributes.JOINTS_0).astype(int), read(prim.attributes.WEIGHTS_0)
+        np.testing.assert_allclose(weights.sum(axis=1), 1.0, atol=1e-5)
+        for key in (0, len(track.frames) - 1):
+            world = _animated_world(gltf, read, skin.joints, key)
+            positions = np.array([world[i][1] for i in skin.joints])
+            np.testing.assert_allclose(positions, track.world_joints[key], atol=1e-5)
+            # Linear blend skinning of the exported mesh (glTF's formula) against the body model's own mesh,
+            # on the vertices the model itself skins with at most 4 joints.
+            mats = np.stack([np.block([[world[i][0], world[i][1][:, None]], [np.zeros((1, 3)), 1.0]])
+                             for i in skin.joints]) @ inverse_bind
+            homog = np.concatenate([rest_vertices, np.ones((len(rest_vertices), 1))], axis=1)
+            per_joint = np.einsum("vkij,vj->vki", mats[joints], homog)[..., :3]
+            skinned = np.einsum("vk,vki->vi", weights, per_joint)
+            truth = model.forward(track.pose[key:key + 1], track.betas, track.transl[key:key + 1]).vertices[0]
+            exact = (np.asarray(model.data.weights) > 0).sum(axis=1) <= 4
+            np.testing.assert_allclose(skinned[exact], truth[exact], atol=1e-5)
+            assert np.abs(skinned - truth).max() < 0.05  # the truncated vertices move a little
+    camera_node = next(i for i, n in enumerate(gltf.nodes) if n.camera is not None)
+    camera = gltf.cameras[gltf.nodes[camera_node].camera].perspective
+    assert camera.yfov == pytest.approx(2 * np.arctan(HEIGHT / 2 / INTRINSICS[1]))
+    assert camera.aspectRatio == pytest.approx(WIDTH / HEIGHT)
+    world_from_cam = source.arrays["world_from_cam"]
+    for key in (0, 5, 11):
+        R, t = _animated_world(gltf, read, [camera_node], key)[camera_node]
+        np.testing.assert_allclose(t, world_from_cam[key, :3, 3], atol=1e-5)
+        # glTF cameras look down -z with y up: the OpenCV forward axis is -z of the node.
+        np.testing.assert_allclose(R @ [0, 0, -1], world_from_cam[key, :3, 2], atol=1e-5)
+        np.testing.assert_allclose(R @ [0, 1, 0], -world_from_cam[key, :3, 1], atol=1e-5)
+    assert any(n.name == "ground" for n in gltf.nodes)
+
+
+def test_bad_input_gets_a_clear_error_and_no_file(results, tmp_path, capsys):
+    assert main(["export", str(tmp_path), "--format", "glb"]) == 2
+    assert "holds no M3C results" in capsys.readouterr().err
+    out = tmp_path / "x.glb"
+    assert main(["export", str(results), "--format", "glb", "--tracks", "5", "--out", str(out)]) == 2
+    assert "no track 5" in capsys.readouterr().err and not out.exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["export", str(results), "--format", "bvh", "--out", str(blocker / "bvh")]) == 2
+    assert "cannot write" in capsys.readouterr().err
+    assert main(["export", str(results), "--format", "bvh", "--out", str(tmp_path / "one.bvh")]) == 2
+    assert "2 tracks are selected" in capsys.readouterr().err
+    assert main(["export", str(results), "--format", "bvh", "--tracks", "4,x"]) == 2
+    assert "comma-separated" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
