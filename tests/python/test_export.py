@@ -3,6 +3,8 @@ here from its nodes and animation; both must give results.npz's world joints."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -143,3 +145,80 @@ def test_bad_input_gets_a_clear_error_and_no_file(results, tmp_path, capsys):
     assert main(["export", str(results), "--format", "bvh", "--tracks", "4,x"]) == 2
     assert "comma-separated" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def _cam_joints(source, track):
+    """The track's joints in each of its frames' OpenCV cameras, from results.npz."""
+    cam_from_world = np.linalg.inv(source.arrays["world_from_cam"][track.frames].astype(np.float64))
+    return np.einsum("nij,nkj->nki", cam_from_world[:, :3, :3], track.world_joints) + cam_from_world[:, None, :3, 3]
+
+
+def test_wham_layout(results, tmp_path, model):
+    joblib = pytest.importorskip("joblib", reason="WHAM reads its file with joblib")
+    source = load_source(results)
+    path, = export_results(results, "wham", tmp_path)
+    data = joblib.load(path)
+    assert sorted(data) == [4, 7]
+    for track in source.tracks:
+        entry = data[track.track_id]
+        n = len(track.frames)
+        assert {k: v.shape for k, v in entry.items()} == {
+            "pose": (n, 72), "trans": (n, 3), "pose_world": (n, 72), "trans_world": (n, 3), "betas": (n, 10),
+            "frame_ids": (n,)}  # no verts: the open model is not SMPL's 6890-vertex mesh
+        np.testing.assert_array_equal(entry["frame_ids"], 2 * track.frames)  # video frames (step 2)
+        world = model.joints(entry["pose_world"].reshape(n, 24, 3), entry["betas"][0], entry["trans_world"])
+        np.testing.assert_allclose(world, track.world_joints, atol=1e-5)
+        cam = model.joints(entry["pose"].reshape(n, 24, 3), entry["betas"][0], entry["trans"])
+        np.testing.assert_allclose(cam, _cam_joints(source, track), atol=1e-5)
+
+
+def test_slahmr_layout(results, tmp_path, model):
+    source = load_source(results)
+    npz_path, info_path = export_results(results, "slahmr", tmp_path)
+    assert npz_path.name == "synthetic_000000_world_results.npz" and npz_path.parent.name == "motion_chunks"
+    res = np.load(npz_path)
+    T = source.num_frames
+    assert {k: res[k].shape for k in res.files} == {
+        "trans": (2, T, 3), "root_orient": (2, T, 3), "pose_body": (2, T, 63), "betas": (2, 16),
+        "cam_R": (2, T, 3, 3), "cam_t": (2, T, 3), "intrins": (4,), "world_scale": (1, 1), "floor_plane": (1, 3),
+        "floor_idcs": (2,)}
+    info = json.loads(info_path.read_text())
+    world_from_cam0 = source.arrays["world_from_cam"][0].astype(np.float64)
+    for b, track in enumerate(source.tracks):
+        assert info["tracks"][str(track.track_id)]["index"] == b
+        f = track.frames
+        pose = np.concatenate([res["root_orient"][b, f][:, None], res["pose_body"][b, f].reshape(-1, 21, 3),
+                               np.zeros((len(f), 2, 3))], axis=1)  # SMPL-H body: no hand joints
+        joints = model.joints(pose, res["betas"][b, :10], res["trans"][b, f])
+        # SLAHMR's world is camera 0's frame; with flat hands the hand joints still sit where M3C's are only
+        # when M3C's hand rotations are zero, so compare the 22 body joints.
+        back = joints @ world_from_cam0[:3, :3].T + world_from_cam0[:3, 3]
+        np.testing.assert_allclose(back[:, :22], track.world_joints[:, :22], atol=1e-5)
+        in_cam = np.einsum("nij,nkj->nki", res["cam_R"][b, f], joints) + res["cam_t"][b, f][:, None]
+        np.testing.assert_allclose(in_cam[:, :22], _cam_joints(source, track)[:, :22], atol=1e-5)
+    # The floor n . x = d (stored as n d) holds the lowest ground point of the world, y = 0, in camera 0.
+    plane = res["floor_plane"][0]
+    d = np.linalg.norm(plane)
+    ground_point_in_cam0 = np.linalg.inv(world_from_cam0) @ [1.3, 0.0, 2.0, 1.0]
+    assert plane @ ground_point_in_cam0[:3] / d == pytest.approx(d, abs=1e-5)
+
+
+def test_gvhmr_layout(results, tmp_path, model):
+    torch = pytest.importorskip("torch", reason="GVHMR's layout is a torch file")
+    source = load_source(results)
+    paths = export_results(results, "gvhmr", tmp_path)
+    assert [p.relative_to(tmp_path).as_posix() for p in paths] == ["track4/hmr4d_results.pt",
+                                                                    "track7/hmr4d_results.pt"]
+    for track, path in zip(source.tracks, paths):
+        pred = torch.load(path)
+        n = len(track.frames)
+        for key, frame in (("smpl_params_global", track.world_joints), ("smpl_params_incam", None)):
+            p = {k: v.numpy() for k, v in pred[key].items()}
+            assert {k: v.shape for k, v in p.items()} == {"body_pose": (n, 63), "betas": (n, 10),
+                                                          "global_orient": (n, 3), "transl": (n, 3)}
+            pose = np.concatenate([p["global_orient"][:, None], p["body_pose"].reshape(n, 21, 3),
+                                   track.pose[:, 22:]], axis=1)
+            joints = model.joints(pose, p["betas"][0], p["transl"])
+            expected = track.world_joints if frame is not None else _cam_joints(source, track)
+            np.testing.assert_allclose(joints, expected, atol=1e-5)
+        np.testing.assert_allclose(pred["K_fullimg"][0].numpy(), [[150, 0, 79.5], [0, 150, 59.5], [0, 0, 1]])
