@@ -127,7 +127,7 @@ class _Builder:
 
 
 def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, track: TrackMotion) -> int:
-    """The person's joints, skin and mesh; returns the node of its skeleton's root."""
+    """The person's joints, skin and mesh; returns the person's node (the parent of its skeleton)."""
     model, parents, names = source.model, source.parents, source.joint_names
     rest = track.rest_joints
     prefix = f"track{track.track_id}"
@@ -150,13 +150,15 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
                   track_colour(track.track_id)), joints, weights)
     b.node(name=f"{prefix}_body", mesh=mesh, skin=len(b.gltf.skins) - 1)
 
+    # A node per person above its skeleton: importers (Blender) then make one armature per person.
+    person = b.node(name=prefix, children=[first])
     times = b.accessor((track.frames / source.fps).astype(np.float32), "SCALAR", bounds=True)
     b.animate(animation, first, "translation", times, track.root_positions)
     local = Rotation.from_rotvec(track.pose.reshape(-1, 3)).as_matrix().reshape(len(track.frames), 24, 3, 3)
     quat = continuous_quaternions(local)
     for j in range(len(names)):
         b.animate(animation, first + j, "rotation", times, quat[:, j])
-    return first
+    return person
 
 
 def _add_camera(b: _Builder, animation: gl.Animation, source: ExportSource) -> int:
