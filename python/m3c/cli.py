@@ -155,7 +155,7 @@ def _export(args) -> int:
 def _view(args) -> int:
     from m3c.viz.viewer import serve
 
-    serve(args.folder, host=args.host, port=args.port, body_model=args.body_model)
+    serve(args.folder, host=args.host, port=args.port, body_model=args.body_model, video=args.video)
     return 0
 
 
@@ -361,6 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--port", type=int, default=8080, help="port (default 8080)")
     view.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
                                                            "M3C's open model")
+    view.add_argument("--video", metavar="FILE", help="show the source video's frames (default: OUT_DIR/overlay.mp4)")
     view.set_defaults(func=_view)
 
     graph = sub.add_parser("graph", help="draw the pipeline graph (Graphviz dot text, or .svg/.png via `dot`)")

@@ -1,0 +1,239 @@
+"""`m3c view OUT_DIR`: the results in the browser, on viser (a WebGL scene with a GUI, served from Python).
+
+The 3D view shows the ground (y = 0 when the run found one), every person's mesh (optimized motion, and the
+world lift before optimization: its root orientation and translation with the same body pose), the video
+camera's frustum with the current frame on it, and the camera's path. The panel beside it has the timeline
+(slider, play/pause, frame steps), the video frame (overlay.mp4 of the folder, or the source video when
+given), toggles for each layer, and per-track figures from results.json.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from m3c.export.source import ExportSource, load_source
+from m3c.viz.scene import track_colour
+
+MAX_IMAGE_WIDTH = 480    # video frames shown in the panel and on the frustum are downscaled to this width
+GROUND_MARGIN = 1.0      # metres of grid beyond the people's and the camera's paths
+# results.json per-track fields shown in the panel (any other numeric field, e.g. plausibility figures, follows).
+_TRACK_FIELDS = {"frames": "frames", "visible_frames": "detected", "mean_reprojection_error_px": "reproj. px",
+                 "path_length_m": "path m", "height_m": "height m"}
+
+
+def _wxyz(rotation: np.ndarray) -> np.ndarray:
+    x, y, z, w = Rotation.from_matrix(rotation).as_quat()
+    return np.array([w, x, y, z])
+
+
+def track_vertices(source: ExportSource, lift: bool) -> list[np.ndarray]:
+    """Per track (n, V, 3) world vertices over its frames: the optimized motion, or the world lift's root
+    (lift_world_root_orient/transl) with the same body pose."""
+    out = []
+    for track in source.tracks:
+        pose, transl = track.pose.copy(), track.transl
+        if lift:
+            pose[:, 0] = source.arrays["lift_world_root_orient"][track.index, track.frames]
+            transl = source.arrays["lift_world_transl"][track.index, track.frames].astype(np.float64)
+        out.append(source.model.forward(pose.astype(np.float32), track.betas.astype(np.float32),
+                                        transl.astype(np.float32)).vertices)
+    return out
+
+
+def load_frames(folder: Path, source: ExportSource, video: str | Path | None = None) -> list[np.ndarray] | None:
+    """RGB frames for each processed frame: the source video's frames by frame_ids when `video` is given, else
+    the folder's overlay.mp4 (one frame per processed frame); None when neither exists."""
+    import cv2
+
+    from m3c.io.video import iter_frames
+
+    path = Path(video) if video is not None else folder / "overlay.mp4"
+    if not path.is_file():
+        if video is not None:
+            raise FileNotFoundError(f"video not found: {path}")
+        return None
+    frame_ids = source.arrays["frame_ids"]
+    wanted = set(int(f) for f in frame_ids) if video is not None else None
+    frames = {}
+    for index, frame in iter_frames(path):
+        key = index if wanted is None else (index if index in wanted else None)
+        if key is None:
+            continue
+        h, w = frame.shape[:2]
+        if w > MAX_IMAGE_WIDTH:
+            frame = cv2.resize(frame, (MAX_IMAGE_WIDTH, round(h * MAX_IMAGE_WIDTH / w)), interpolation=cv2.INTER_AREA)
+        frames[key] = frame[..., ::-1].copy()
+        if len(frames) == len(frame_ids):
+            break
+    keys = list(range(len(frame_ids))) if wanted is None else [int(f) for f in frame_ids]
+    if not all(k in frames for k in keys):
+        return None
+    return [frames[k] for k in keys]
+
+
+def track_table(summary: dict, track_ids) -> str:
+    """Markdown table of results.json's per-track figures for the shown tracks."""
+    rows = [t for t in summary.get("tracks", []) if t.get("id") in set(int(i) for i in track_ids)]
+    if not rows:
+        return "No per-track figures in results.json."
+    extra = sorted({k for t in rows for k, v in t.items() if isinstance(v, (int, float)) and not isinstance(v, bool)
+                    and k not in _TRACK_FIELDS and k not in ("id", "first_frame", "last_frame")})
+    nested = sorted({f"{k}.{kk}" for t in rows for k, v in t.items() if isinstance(v, dict)
+                     for kk, vv in v.items() if isinstance(vv, (int, float)) and not isinstance(vv, bool)})
+    header = ["track", *_TRACK_FIELDS.values(), *extra, *nested]
+
+    def value(t, key):
+        if "." in key:
+            outer, inner = key.split(".", 1)
+            v = t.get(outer, {}).get(inner)
+        else:
+            v = t.get(key)
+        return "n/a" if v is None else (f"{v:.3g}" if isinstance(v, float) else str(v))
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for t in rows:
+        lines.append("| " + " | ".join([str(t["id"])] + [value(t, k) for k in [*_TRACK_FIELDS, *extra, *nested]])
+                     + " |")
+    return "\n".join(lines)
+
+
+class ResultViewer:
+    """The scene and GUI of one result folder on a viser server."""
+
+    def __init__(self, server, folder: str | Path, body_model: str | Path | None = None,
+                 video: str | Path | None = None):
+        self.server, self.folder = server, Path(folder)
+        self.source = source = load_source(self.folder, None, body_model)
+        self.num_frames = source.num_frames
+        self.frame = 0
+        self.images = load_frames(self.folder, source, video)
+        self.vertices = {"optimized": track_vertices(source, lift=False), "lift": track_vertices(source, lift=True)}
+        self._lock = threading.RLock()  # set_frame moves the slider, whose callback calls set_frame
+        scene, gui = server.scene, server.gui
+        scene.set_up_direction("+y")
+        self._add_ground()
+        self._initial_view()
+        world_from_cam = source.arrays["world_from_cam"].astype(np.float64)
+        centres = world_from_cam[:, :3, 3]
+        if len(centres) > 1:
+            scene.add_line_segments("/camera/path", np.stack([centres[:-1], centres[1:]], axis=1),
+                                    colors=(40, 40, 40), thickness=0.01)
+        width, height = (int(v) for v in source.arrays["image_size"])
+        fy = float(np.median(source.arrays["intrinsics"][:, 1]))
+        self.frustum = scene.add_camera_frustum("/camera/frustum", fov=float(2 * np.arctan(0.5 * height / fy)),
+                                                aspect=width / height, scale=0.25, color=(30, 30, 30))
+        faces = np.asarray(source.model.faces, dtype=np.uint32)
+        self.meshes = {layer: [] for layer in self.vertices}
+        for layer, per_track in self.vertices.items():
+            for track, verts in zip(source.tracks, per_track):
+                colour = track_colour(track.track_id)
+                if layer == "lift":
+                    colour = 0.55 * colour + 0.45
+                self.meshes[layer].append(scene.add_mesh_simple(
+                    f"/{layer}/track{track.track_id}", verts[0], faces, color=tuple(int(255 * c) for c in colour),
+                    opacity=None if layer == "optimized" else 0.5, visible=layer == "optimized"))
+
+        with gui.add_folder("Timeline"):
+            self.slider = gui.add_slider("frame", min=0, max=max(self.num_frames - 1, 1), step=1, initial_value=0,
+                                         disabled=self.num_frames < 2)
+            self.playing = gui.add_checkbox("play", initial_value=False)
+            self.speed = gui.add_slider("speed", min=0.25, max=2.0, step=0.25, initial_value=1.0)
+            steps = gui.add_button_group("step", ("-10", "-1", "+1", "+10"))
+            self.label = gui.add_markdown("")
+        steps.on_click(lambda event: self.set_frame(self.frame + int(event.target.value)))
+        self.slider.on_update(lambda _: int(self.slider.value) != self.frame and self.set_frame(int(self.slider.value)))
+        self.image = gui.add_image(self.images[0], label="video") if self.images else None
+        with gui.add_folder("Show"):
+            self.show = {"optimized": gui.add_checkbox("optimized motion", initial_value=True),
+                         "lift": gui.add_checkbox("world lift (before optimization)", initial_value=False),
+                         "camera": gui.add_checkbox("camera", initial_value=True)}
+        for box in self.show.values():
+            box.on_update(lambda _: self.set_frame(self.frame))
+        with gui.add_folder("Tracks"):
+            gui.add_markdown(track_table(source.summary, [t.track_id for t in source.tracks]))
+        self.set_frame(0)
+
+    def _add_ground(self) -> None:
+        source = self.source
+        points = np.concatenate([t.world_joints.reshape(-1, 3) for t in source.tracks]
+                                + [source.arrays["world_from_cam"][:, :3, 3].astype(np.float64)])
+        lo, hi = points[:, [0, 2]].min(axis=0) - GROUND_MARGIN, points[:, [0, 2]].max(axis=0) + GROUND_MARGIN
+        centre, size = (lo + hi) / 2, hi - lo
+        height = 0.0 if source.ground_found else float(points[:, 1].min())
+        # The grid's plane "xz" is spanned by world x and z; it sits at y = ground height.
+        self.server.scene.add_grid("/ground", width=float(size[0]), height=float(size[1]), plane="xz",
+                                   cell_size=0.5, section_size=1.0, position=(float(centre[0]), height,
+                                                                              float(centre[1])))
+
+    def _initial_view(self) -> None:
+        """Look at the people's first positions from behind and above the video camera's first position."""
+        source = self.source
+        target = np.mean([t.world_joints[0, 0] for t in source.tracks], axis=0)
+        camera = source.arrays["world_from_cam"][0, :3, 3].astype(np.float64)
+        back = camera - target
+        back[1] = 0.0
+        back = back / max(np.linalg.norm(back), 1e-6)
+        side = np.cross([0.0, 1.0, 0.0], back)
+        self.server.initial_camera.look_at = target
+        self.server.initial_camera.position = target + 6.0 * back + 3.0 * side + np.array([0.0, 3.0, 0.0])
+
+    def set_frame(self, frame: int) -> None:
+        """Shows processed frame `frame` (clamped to the video)."""
+        with self._lock:
+            frame = int(np.clip(frame, 0, self.num_frames - 1))
+            self.frame = frame
+            if int(self.slider.value) != frame:
+                self.slider.value = frame
+            for layer, handles in self.meshes.items():
+                for track, verts, handle in zip(self.source.tracks, self.vertices[layer], handles):
+                    k = np.searchsorted(track.frames, frame)
+                    inside = k < len(track.frames) and track.frames[k] == frame
+                    if inside and self.show[layer].value:
+                        handle.vertices = verts[k]
+                    handle.visible = bool(inside and self.show[layer].value)
+            pose = self.source.arrays["world_from_cam"][frame].astype(np.float64)
+            self.frustum.position = pose[:3, 3]
+            self.frustum.wxyz = _wxyz(pose[:3, :3])   # viser frusta look down +z with y down, as OpenCV's
+            self.frustum.visible = bool(self.show["camera"].value)
+            if self.images:
+                self.frustum.image = self.images[frame]
+                self.image.image = self.images[frame]
+            video_frame = int(self.source.arrays["frame_ids"][frame])
+            self.label.content = (f"processed frame {frame} of {self.num_frames} (video frame {video_frame}, "
+                                  f"t = {frame / self.source.fps:.2f} s)")
+
+    def step(self) -> None:
+        """Advances one frame when playing (wrapping at the end)."""
+        if self.playing.value and self.num_frames > 1:
+            self.set_frame((self.frame + 1) % self.num_frames)
+
+
+def serve(folder: str | Path, host: str = "127.0.0.1", port: int = 8080, body_model: str | Path | None = None,
+          video: str | Path | None = None, stop: threading.Event | None = None, ready=None) -> None:
+    """Serves the viewer until interrupted (or `stop` is set); `ready(viewer)` is called once it is up."""
+    try:
+        import viser
+    except ImportError:
+        raise ImportError("`m3c view` needs viser: pip install 'm3c[viewer]' (or pip install viser)") from None
+    load_source(folder, None, body_model)  # a bad folder fails before the server starts
+    server = viser.ViserServer(host=host, port=port, verbose=False)
+    try:
+        viewer = ResultViewer(server, folder, body_model, video)
+        print(f"m3c view: open http://{host}:{server.get_port()} (Ctrl-C to stop)", flush=True)
+        if ready is not None:
+            ready(viewer)
+        stop = stop or threading.Event()
+        while not stop.is_set():
+            started = time.monotonic()
+            viewer.step()
+            delay = 1.0 / (viewer.source.fps * float(viewer.speed.value)) - (time.monotonic() - started)
+            stop.wait(max(delay, 0.001))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

@@ -1,0 +1,108 @@
+"""`m3c view`: the viewer's scene follows the results frame by frame, and headless Chromium draws it."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from export_scene import write_results
+from m3c.body import default_body_model
+from m3c.cli import main
+
+viser = pytest.importorskip("viser", reason="the viewer needs viser (pip install m3c[viewer])")
+
+from m3c.viz.browser import find_chromium, free_port, screenshot_page  # noqa: E402
+from m3c.viz.viewer import ResultViewer, serve, track_table  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def model():
+    return default_body_model()
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory, model):
+    return write_results(tmp_path_factory.mktemp("viewer") / "out", model)
+
+
+@pytest.fixture
+def server():
+    server = viser.ViserServer(host="127.0.0.1", port=free_port(), verbose=False)
+    yield server
+    server.stop()
+
+
+def test_viewer_follows_the_results(results, server, model):
+    viewer = ResultViewer(server, results)
+    source = viewer.source
+    assert viewer.images is None  # no overlay.mp4 in this folder
+    late = source.tracks[1]       # frames 3..9
+    for frame in (0, 5):
+        viewer.set_frame(frame)
+        optimized, lift = viewer.meshes["optimized"], viewer.meshes["lift"]
+        assert optimized[0].visible and not lift[0].visible
+        k = frame - late.frames[0]
+        assert optimized[1].visible == (0 <= k < len(late.frames))
+        if optimized[1].visible:
+            truth = model.forward(late.pose[k:k + 1], late.betas, late.transl[k:k + 1]).vertices[0]
+            np.testing.assert_allclose(optimized[1].vertices, truth, atol=1e-5)
+        pose = source.arrays["world_from_cam"][frame]
+        np.testing.assert_allclose(viewer.frustum.position, pose[:3, 3], atol=1e-6)
+    viewer.show["lift"].value = True
+    viewer.show["optimized"].value = False
+    viewer.set_frame(5)
+    assert viewer.meshes["lift"][1].visible and not viewer.meshes["optimized"][1].visible
+    lift_root = source.arrays["lift_world_transl"][late.index, 5]
+    pose = late.pose[2:3].copy()
+    pose[0, 0] = source.arrays["lift_world_root_orient"][late.index, 5]
+    truth = model.forward(pose, late.betas, lift_root[None]).vertices[0]
+    np.testing.assert_allclose(viewer.meshes["lift"][1].vertices, truth, atol=1e-5)
+    viewer.set_frame(99)
+    assert viewer.frame == source.num_frames - 1
+    viewer.playing.value = True
+    viewer.step()
+    assert viewer.frame == 0  # wraps around at the end
+
+
+def test_track_table_shows_figures_present():
+    summary = {"tracks": [{"id": 3, "frames": 10, "visible_frames": 8, "mean_reprojection_error_px": 4.25,
+                           "path_length_m": 2.0, "height_m": 1.7, "plausibility": {"foot_skate_m": 0.012}}]}
+    table = track_table(summary, [3])
+    assert "foot_skate_m" in table.splitlines()[0] and "| 3 | 10 | 8 | 4.25 | 2 | 1.7 | 0.012 |" in table
+    assert track_table(summary, [4]) == "No per-track figures in results.json."
+
+
+def test_view_rejects_a_folder_without_results(tmp_path, capsys):
+    assert main(["view", str(tmp_path)]) == 2
+    assert "holds no M3C results" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(find_chromium() is None, reason="headless Chromium absent (Debian: apt-get install chromium)")
+def test_chromium_draws_the_scene(results, tmp_path):
+    from m3c.viz.scene import track_colour
+
+    port, stop, up = free_port(), threading.Event(), threading.Event()
+    thread = threading.Thread(target=serve, args=(results,), kwargs=dict(port=port, stop=stop,
+                                                                          ready=lambda _: up.set()))
+    thread.start()
+    try:
+        assert up.wait(60)
+        png = screenshot_page(f"http://127.0.0.1:{port}", tmp_path / "view.png", 1200, 700, wait_s=5.0)
+    finally:
+        stop.set()
+        thread.join(30)
+    import cv2
+
+    image = cv2.imread(str(png))[..., ::-1].astype(int)
+    canvas = image[200:, :850]  # left of viser's panel, below its notices
+    # The bodies are drawn in their track colours (shaded): pixels whose hue matches track 4's blue.
+    colour = track_colour(4)
+    direction = colour / np.linalg.norm(colour)
+    norms = np.linalg.norm(canvas, axis=-1)
+    cosine = (canvas @ direction) / np.maximum(norms, 1)
+    body = (cosine > 0.98) & (norms > 60) & (canvas.max(-1) - canvas.min(-1) > 60)
+    assert body.sum() > 300, f"only {body.sum()} body-coloured pixels: the 3D canvas looks blank"
+    assert canvas.std() > 10  # ground grid and bodies, not a flat colour
