@@ -33,8 +33,9 @@ def find_chromium() -> str | None:
 
 
 def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 800, wait_s: float = 8.0,
-                    chromium: str | None = None) -> Path:
-    """Loads `url` in headless Chromium, waits `wait_s` seconds, and writes the window as PNG to `png`."""
+                    chromium: str | None = None, script: str | None = None) -> Path:
+    """Loads `url` in headless Chromium, waits `wait_s` seconds, runs the JavaScript `script` if given, and
+    writes the window as PNG to `png`."""
     from websockets.sync.client import connect
 
     chromium = chromium or find_chromium()
@@ -73,7 +74,9 @@ def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 
                 call(1, "Page.enable")
                 call(2, "Page.navigate", url=url)
                 time.sleep(wait_s)
-                data = call(3, "Page.captureScreenshot", format="png")["data"]
+                if script:
+                    call(3, "Runtime.evaluate", expression=script)
+                data = call(4, "Page.captureScreenshot", format="png")["data"]
         finally:
             proc.kill()  # our own headless instance with a throw-away profile: nothing to save
             proc.wait()

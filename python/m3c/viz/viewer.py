@@ -126,7 +126,7 @@ class ResultViewer:
         width, height = (int(v) for v in source.arrays["image_size"])
         fy = float(np.median(source.arrays["intrinsics"][:, 1]))
         self.frustum = scene.add_camera_frustum("/camera/frustum", fov=float(2 * np.arctan(0.5 * height / fy)),
-                                                aspect=width / height, scale=0.25, color=(30, 30, 30))
+                                                aspect=width / height, scale=0.4, color=(30, 30, 30))
         faces = np.asarray(source.model.faces, dtype=np.uint32)
         self.meshes = {layer: [] for layer in self.vertices}
         for layer, per_track in self.vertices.items():
@@ -170,17 +170,20 @@ class ResultViewer:
                                    cell_size=0.5, section_size=1.0, position=(float(centre[0]), height,
                                                                               float(centre[1])))
 
-    def _initial_view(self) -> None:
-        """Look at the people's first positions from behind and above the video camera's first position."""
+    def _initial_view(self, frame: int = 0) -> None:
+        """Look from the side and above at the middle between the people and the video camera at `frame`."""
         source = self.source
-        target = np.mean([t.world_joints[0, 0] for t in source.tracks], axis=0)
-        camera = source.arrays["world_from_cam"][0, :3, 3].astype(np.float64)
-        back = camera - target
+        people = [t.world_joints[np.searchsorted(t.frames, frame).clip(0, len(t.frames) - 1), 0]
+                  for t in source.tracks]
+        camera = source.arrays["world_from_cam"][frame, :3, 3].astype(np.float64)
+        target = 0.5 * (np.mean(people, axis=0) + camera)
+        target[1] = 0.5 * camera[1]
+        back = camera - np.mean(people, axis=0)
         back[1] = 0.0
         back = back / max(np.linalg.norm(back), 1e-6)
         side = np.cross([0.0, 1.0, 0.0], back)
         self.server.initial_camera.look_at = target
-        self.server.initial_camera.position = target + 6.0 * back + 3.0 * side + np.array([0.0, 3.0, 0.0])
+        self.server.initial_camera.position = target + 7.0 * side + 2.0 * back + np.array([0.0, 3.5, 0.0])
 
     def set_frame(self, frame: int) -> None:
         """Shows processed frame `frame` (clamped to the video)."""
