@@ -39,6 +39,14 @@ fi
 if [ "${M3C_NO_VIEWER:-0}" != "1" ]; then
   "$PY" -m pip install --quiet "pygltflib>=1.16" "viser>=1.1" ||
     echo "setup: pygltflib/viser not installed; the GLB export and viewer tests will skip" >&2
+  # Headless Chromium for the viewer's browser test (software WebGL; about 20 s). Failure only skips that test.
+  if command -v apt-get >/dev/null 2>&1 && ! command -v chromium >/dev/null 2>&1; then
+    SUDO=""
+    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    { $SUDO apt-get update -qq && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+        --no-install-recommends chromium >/dev/null; } ||
+      echo "setup: chromium not installed; the viewer's browser test will skip" >&2
+  fi
 fi
 # FBX export and the Blender round-trip tests: Blender as a Python module (bpy 5.0.1, Python 3.11 only, pins
 # numpy<2) in its own virtual environment, which M3C runs in a subprocess (about 25 s, 1 GB). Failure only
