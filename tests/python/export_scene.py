@@ -57,8 +57,10 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
     world_from_cam = np.stack([look_at(c, np.array([0.2, 0.9, 3.5])) for c in centres])
     video = {"num_frames": num_frames, "frame_ids": np.arange(num_frames) * 2, "fps": FPS, "width": WIDTH,
              "height": HEIGHT, "name": "synthetic.mp4", "start": 0, "stop": 2 * num_frames, "step": 2}
-    world = {"method": "test", "tracks": [{"root_orient": t["root_orient"] + 0.01, "transl": t["transl"] + 0.05}
-                                          for t in tracks]}
+    # The world lift: a little off the final motion (newer result schemas also store its pose, shape, cameras).
+    world = {"method": "test", "world_from_cam": world_from_cam, "initial_scale": 1.0,
+             "tracks": [{"root_orient": t["root_orient"] + 0.01, "transl": t["transl"] + 0.05,
+                         "body_pose": t["body_pose"] + 0.02, "betas": t["betas"]} for t in tracks]}
     result = {"tracks": tracks, "world_from_cam": world_from_cam, "camera_scale": 1.0,
               "camera_offset": np.zeros(3), "optimized": True, "stopped_early": False, "stages": []}
     arrays, summary = build_results(model, video, {"intrinsics": INTRINSICS, "source": "test"},

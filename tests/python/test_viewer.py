@@ -54,10 +54,14 @@ def test_viewer_follows_the_results(results, server, model):
     viewer.show["optimized"].value = False
     viewer.set_frame(5)
     assert viewer.meshes["lift"][1].visible and not viewer.meshes["optimized"][1].visible
-    lift_root = source.arrays["lift_world_transl"][late.index, 5]
+    arrays = source.arrays
+    lift_root = arrays["lift_world_transl"][late.index, 5]
     pose = late.pose[2:3].copy()
-    pose[0, 0] = source.arrays["lift_world_root_orient"][late.index, 5]
-    truth = model.forward(pose, late.betas, lift_root[None]).vertices[0]
+    pose[0, 0] = arrays["lift_world_root_orient"][late.index, 5]
+    if "lift_body_pose" in arrays:  # results that carry the lift's own body pose and shape
+        pose[0, 1:] = arrays["lift_body_pose"][late.index, 5]
+    betas = arrays["lift_betas"][late.index] if "lift_betas" in arrays else late.betas
+    truth = model.forward(pose, betas, lift_root[None]).vertices[0]
     np.testing.assert_allclose(viewer.meshes["lift"][1].vertices, truth, atol=1e-5)
     viewer.set_frame(99)
     assert viewer.frame == source.num_frames - 1

@@ -1,7 +1,7 @@
 """`m3c view OUT_DIR`: the results in the browser, on viser (a WebGL scene with a GUI, served from Python).
 
 The 3D view shows the ground (y = 0 when the run found one), every person's mesh (optimized motion, and the
-world lift before optimization: its root orientation and translation with the same body pose), the video
+world lift before optimization), the video
 camera's frustum with the current frame on it, and the camera's path. The panel beside it has the timeline
 (slider, play/pause, frame steps), the video frame (overlay.mp4 of the folder, or the source video when
 given), toggles for each layer, and per-track figures from results.json.
@@ -32,15 +32,22 @@ def _wxyz(rotation: np.ndarray) -> np.ndarray:
 
 
 def track_vertices(source: ExportSource, lift: bool) -> list[np.ndarray]:
-    """Per track (n, V, 3) world vertices over its frames: the optimized motion, or the world lift's root
-    (lift_world_root_orient/transl) with the same body pose."""
+    """Per track (n, V, 3) world vertices over its frames: the optimized motion, or the world lift (its root
+    orientation and translation; its body pose and shape when the results hold them, lift_body_pose and
+    lift_betas, else the optimized ones)."""
+    arrays = source.arrays
     out = []
     for track in source.tracks:
-        pose, transl = track.pose.copy(), track.transl
+        pose, transl, betas = track.pose.copy(), track.transl, track.betas
         if lift:
-            pose[:, 0] = source.arrays["lift_world_root_orient"][track.index, track.frames]
-            transl = source.arrays["lift_world_transl"][track.index, track.frames].astype(np.float64)
-        out.append(source.model.forward(pose.astype(np.float32), track.betas.astype(np.float32),
+            p, f = track.index, track.frames
+            pose[:, 0] = arrays["lift_world_root_orient"][p, f]
+            if "lift_body_pose" in arrays:
+                pose[:, 1:] = arrays["lift_body_pose"][p, f]
+            if "lift_betas" in arrays:
+                betas = arrays["lift_betas"][p].astype(np.float64)
+            transl = arrays["lift_world_transl"][p, f].astype(np.float64)
+        out.append(source.model.forward(pose.astype(np.float32), betas.astype(np.float32),
                                         transl.astype(np.float32)).vertices)
     return out
 
