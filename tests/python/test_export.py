@@ -93,8 +93,21 @@ def test_glb_reproduces_joints_mesh_and_camera(results, tmp_path, model):
     assert len(gltf.animations) == 1 and len(gltf.skins) == 2
     for skin_index, track in enumerate(source.tracks):
         skin = gltf.skins[skin_index]
-        times = read(gltf.animations[0].samplers[gltf.animations[0].channels[25 * skin_index].sampler].input)
+        animation = gltf.animations[0]
+        root_translation = next(c for c in animation.channels
+                                if c.target.node == skin.joints[0] and c.target.path == "translation")
+        times = read(animation.samplers[root_translation.sampler].input)
         np.testing.assert_allclose(times[:, 0], track.frames / 10.0, atol=1e-5)
+        # Hidden (scale 0, stepped) outside the track: track 7 covers frames 3..9 of 12.
+        person = next(i for i, n in enumerate(gltf.nodes) if n.children == [skin.joints[0]])
+        presence = [c for c in animation.channels if c.target.node == person and c.target.path == "scale"]
+        if track.track_id == 7:
+            sampler = animation.samplers[presence[0].sampler]
+            assert sampler.interpolation == "STEP"
+            np.testing.assert_allclose(read(sampler.input)[:, 0], [0.0, 0.3, 1.0], atol=1e-6)
+            np.testing.assert_allclose(read(sampler.output)[:, 0], [0.0, 1.0, 0.0])
+        else:
+            assert not presence  # track 4 spans the whole video
         inverse_bind = read(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
         mesh_node = next(n for n in gltf.nodes if n.skin == skin_index)
         prim = gltf.meshes[mesh_node.mesh].primitives[0]
@@ -222,3 +235,13 @@ def test_gvhmr_layout(results, tmp_path, model):
             expected = track.world_joints if frame is not None else _cam_joints(source, track)
             np.testing.assert_allclose(joints, expected, atol=1e-5)
         np.testing.assert_allclose(pred["K_fullimg"][0].numpy(), [[150, 0, 79.5], [0, 150, 59.5], [0, 0, 1]])
+
+
+def test_fbx_without_blender_names_the_install(results, tmp_path, monkeypatch, capsys):
+    import sys
+
+    monkeypatch.setenv("M3C_BLENDER_PYTHON", sys.executable)  # this Python has no bpy
+    out = tmp_path / "scene.fbx"
+    assert main(["export", str(results), "--format", "fbx", "--out", str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "cannot import bpy" in err and "pip install bpy==5.0.1" in err and not out.exists()

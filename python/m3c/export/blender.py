@@ -64,13 +64,15 @@ def run_blender(*args: str, timeout: float = 600.0) -> None:
 
 def export_fbx(source: ExportSource, out: Path) -> list[Path]:
     """The GLB export converted by Blender's FBX exporter (y up, -z forward, armatures with baked animation,
-    meshes, the camera): out/scene.fbx, or `out` when it ends in .fbx."""
+    meshes, the camera; people hold their first/last pose outside their tracks): out/scene.fbx, or `out` when
+    it ends in .fbx."""
     from m3c.export.gltf import export_glb
 
     path = out if out.suffix.lower() == ".fbx" else out / "scene.fbx"
     blender_python()  # fail before any work when Blender is missing
     with tempfile.TemporaryDirectory(prefix="m3c-fbx-") as tmp:
-        glb, = export_glb(source, Path(tmp) / "scene.glb")
+        # Zero scales (people hidden outside their tracks) make Blender's FBX bake NaN bone matrices.
+        glb, = export_glb(source, Path(tmp) / "scene.glb", hide_outside_track=False)
         with atomic_path(path) as fbx:
             run_blender("fbx", glb, fbx, repr(source.fps))
     return [path]

@@ -5,7 +5,8 @@ activate only a file's first animation (Blender) play everything.
 Axes and units: glTF's own, y up, metres, right-handed; the results' world frame is already that (+z is the
 first camera's viewing direction along the ground), so coordinates are copied as they are. Keyframe k of a
 track is at time frame / fps (seconds) with frame the processed frame index, so a track that starts late starts
-late in the animation; before its first and after its last frame a person holds that pose (glTF clamps).
+late in the animation; before its first and after its last frame a person is hidden (its node is scaled to 0,
+stepped keys).
 
 Per person: the body model's mesh at the track's betas in the rest pose (no pose blend shapes: glTF has no
 pose correctives), the 24 SMPL joints as nodes (rest translation = offset from the parent, animated rotation =
@@ -126,7 +127,8 @@ class _Builder:
             self.gltf.save_binary(str(tmp))
 
 
-def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, track: TrackMotion) -> int:
+def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, track: TrackMotion,
+                hide_outside_track: bool) -> int:
     """The person's joints, skin and mesh; returns the person's node (the parent of its skeleton)."""
     model, parents, names = source.model, source.parents, source.joint_names
     rest = track.rest_joints
@@ -152,6 +154,8 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
 
     # A node per person above its skeleton: importers (Blender) then make one armature per person.
     person = b.node(name=prefix, children=[first])
+    if hide_outside_track:
+        _animate_presence(b, animation, person, track, source)
     times = b.accessor((track.frames / source.fps).astype(np.float32), "SCALAR", bounds=True)
     b.animate(animation, first, "translation", times, track.root_positions)
     local = Rotation.from_rotvec(track.pose.reshape(-1, 3)).as_matrix().reshape(len(track.frames), 24, 3, 3)
@@ -159,6 +163,20 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
     for j in range(len(names)):
         b.animate(animation, first + j, "rotation", times, quat[:, j])
     return person
+
+
+def _animate_presence(b: _Builder, animation: gl.Animation, person: int, track: TrackMotion,
+                      source: ExportSource) -> None:
+    """Scale 0 before the track's first and after its last frame, 1 in between (stepped): a person is shown only
+    while tracked. Nothing when the track spans the whole video."""
+    first, last = int(track.frames[0]), int(track.frames[-1])
+    keys = [(0.0, 0.0), (first, 1.0)] if first > 0 else [(0.0, 1.0)]
+    if last < source.num_frames - 1:
+        keys.append((last + 1, 0.0))
+    if len(keys) == 1:
+        return
+    times = b.accessor(np.array([k / source.fps for k, _ in keys], np.float32), "SCALAR", bounds=True)
+    b.animate(animation, person, "scale", times, np.array([[v, v, v] for _, v in keys], np.float32), "STEP")
 
 
 def _add_camera(b: _Builder, animation: gl.Animation, source: ExportSource) -> int:
@@ -185,15 +203,16 @@ def _add_ground(b: _Builder, source: ExportSource) -> int:
     return b.node(name="ground", mesh=mesh)
 
 
-def export_glb(source: ExportSource, out: Path) -> list[Path]:
-    """One .glb with every selected person, the ground (when the run found one: y = 0) and the camera."""
+def export_glb(source: ExportSource, out: Path, hide_outside_track: bool = True) -> list[Path]:
+    """One .glb with every selected person, the ground (when the run found one: y = 0) and the camera.
+    hide_outside_track: scale people to 0 outside their tracks (else they hold their first/last pose there)."""
     if out.suffix.lower() != ".glb":
         out = out / "scene.glb"
     b = _Builder()
     animation = gl.Animation(name=ANIMATION_NAME)
     roots = []
     for track in source.tracks:
-        roots.append(_add_person(b, animation, source, track))
+        roots.append(_add_person(b, animation, source, track, hide_outside_track))
     bodies = [i for i, n in enumerate(b.gltf.nodes) if n.mesh is not None]
     scene_nodes = roots + bodies + [_add_camera(b, animation, source)]
     if source.ground_found:
