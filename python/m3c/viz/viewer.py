@@ -31,8 +31,28 @@ def _wxyz(rotation: np.ndarray) -> np.ndarray:
     return np.array([w, x, y, z])
 
 
-def track_vertices(source: ExportSource, lift: bool) -> list[np.ndarray]:
-    """Per track (n, V, 3) world vertices over its frames: the optimized motion, or the world lift (its root
+class ChunkedVertices:
+    """A track's world vertices (n, V, 3) computed a chunk of frames at a time when first asked for, so that long
+    videos with many people do not hold every frame's mesh in memory."""
+
+    def __init__(self, model, pose: np.ndarray, betas: np.ndarray, transl: np.ndarray, chunk: int = 32):
+        self.model, self.pose, self.betas, self.transl, self.chunk = model, pose, betas, transl, chunk
+        self._start, self._verts = -1, None
+
+    def __len__(self) -> int:
+        return len(self.pose)
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if self._verts is None or not self._start <= k < self._start + len(self._verts):
+            self._start = k - k % self.chunk
+            stop = min(self._start + self.chunk, len(self.pose))
+            self._verts = self.model.forward(self.pose[self._start:stop], self.betas,
+                                             self.transl[self._start:stop]).vertices
+        return self._verts[k - self._start]
+
+
+def track_vertices(source: ExportSource, lift: bool) -> list[ChunkedVertices]:
+    """Per track its world vertices over its frames: the optimized motion, or the world lift (its root
     orientation and translation; its body pose and shape when the results hold them, lift_body_pose and
     lift_betas, else the optimized ones)."""
     arrays = source.arrays
@@ -47,13 +67,30 @@ def track_vertices(source: ExportSource, lift: bool) -> list[np.ndarray]:
             if "lift_betas" in arrays:
                 betas = arrays["lift_betas"][p].astype(np.float64)
             transl = arrays["lift_world_transl"][p, f].astype(np.float64)
-        out.append(source.model.forward(pose.astype(np.float32), betas.astype(np.float32),
-                                        transl.astype(np.float32)).vertices)
+        out.append(ChunkedVertices(source.model, pose.astype(np.float32), betas.astype(np.float32),
+                                   transl.astype(np.float32)))
     return out
 
 
-def load_frames(folder: Path, source: ExportSource, video: str | Path | None = None) -> list[np.ndarray] | None:
-    """RGB frames for each processed frame: the source video's frames by frame_ids when `video` is given, else
+class EncodedFrames:
+    """Video frames kept JPEG-encoded (about 20 kB each instead of 400 kB), decoded to RGB when shown."""
+
+    def __init__(self, frames_bgr: list[np.ndarray]):
+        import cv2
+
+        self._jpegs = [cv2.imencode(".jpg", f, [cv2.IMWRITE_JPEG_QUALITY, 90])[1] for f in frames_bgr]
+
+    def __len__(self) -> int:
+        return len(self._jpegs)
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        import cv2
+
+        return cv2.imdecode(self._jpegs[k], cv2.IMREAD_COLOR)[..., ::-1].copy()
+
+
+def load_frames(folder: Path, source: ExportSource, video: str | Path | None = None) -> EncodedFrames | None:
+    """Frames for each processed frame: the source video's frames by frame_ids when `video` is given, else
     the folder's overlay.mp4 (one frame per processed frame); None when neither exists."""
     import cv2
 
@@ -74,13 +111,13 @@ def load_frames(folder: Path, source: ExportSource, video: str | Path | None = N
         h, w = frame.shape[:2]
         if w > MAX_IMAGE_WIDTH:
             frame = cv2.resize(frame, (MAX_IMAGE_WIDTH, round(h * MAX_IMAGE_WIDTH / w)), interpolation=cv2.INTER_AREA)
-        frames[key] = frame[..., ::-1].copy()
+        frames[key] = frame
         if len(frames) == len(frame_ids):
             break
     keys = list(range(len(frame_ids))) if wanted is None else [int(f) for f in frame_ids]
     if not all(k in frames for k in keys):
         return None
-    return [frames[k] for k in keys]
+    return EncodedFrames([frames[k] for k in keys])
 
 
 def track_table(summary: dict, track_ids) -> str:
@@ -211,8 +248,9 @@ class ResultViewer:
             self.frustum.wxyz = _wxyz(pose[:3, :3])   # viser frusta look down +z with y down, as OpenCV's
             self.frustum.visible = bool(self.show["camera"].value)
             if self.images:
-                self.frustum.image = self.images[frame]
-                self.image.image = self.images[frame]
+                image = self.images[frame]
+                self.frustum.image = image
+                self.image.image = image
             video_frame = int(self.source.arrays["frame_ids"][frame])
             self.label.content = (f"processed frame {frame} of {self.num_frames} (video frame {video_frame}, "
                                   f"t = {frame / self.source.fps:.2f} s)")
