@@ -245,3 +245,12 @@ def test_fbx_without_blender_names_the_install(results, tmp_path, monkeypatch, c
     assert main(["export", str(results), "--format", "fbx", "--out", str(out)]) == 3
     err = capsys.readouterr().err
     assert "cannot import bpy" in err and "pip install bpy==5.0.1" in err and not out.exists()
+
+
+def test_glb_without_a_ground_has_no_ground_plane(tmp_path, model):
+    pytest.importorskip("pygltflib", reason="GLB export needs pygltflib (pip install m3c[export])")
+    folder = write_results(tmp_path / "out", model, num_frames=6, ground=False)
+    path, = export_results(folder, "glb")
+    assert path == folder / "export" / "scene.glb"
+    gltf, _ = _gltf_reader(path)
+    assert [n.name for n in gltf.nodes if n.mesh is not None and n.skin is None] == []

@@ -33,7 +33,6 @@ from m3c.viz.scene import track_colour
 MAX_INFLUENCES = 4
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0])  # camera axes: OpenCV (x right, y down, z forward) -> glTF (y up, -z forward)
 ANIMATION_NAME = "m3c"
-GROUND_MARGIN = 1.0  # metres of ground beyond the people's and the camera's paths
 _TYPE_SIZES = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 _COMPONENTS = {np.dtype(np.float32): gl.FLOAT, np.dtype(np.uint8): gl.UNSIGNED_BYTE,
                np.dtype(np.uint16): gl.UNSIGNED_SHORT, np.dtype(np.uint32): gl.UNSIGNED_INT}
@@ -180,12 +179,10 @@ def _animate_presence(b: _Builder, animation: gl.Animation, person: int, track: 
 
 
 def _add_camera(b: _Builder, animation: gl.Animation, source: ExportSource) -> int:
-    arrays = source.arrays
-    width, height = (int(v) for v in arrays["image_size"])
-    fx, fy, cx, cy = np.median(arrays["intrinsics"].astype(np.float64), axis=0)
+    width, height = source.image_size
     b.gltf.cameras.append(gl.Camera(name="video_camera", type="perspective", perspective=gl.Perspective(
-        yfov=float(2.0 * np.arctan(0.5 * height / fy)), aspectRatio=width / height, znear=0.01, zfar=1000.0)))
-    world_from_cam = arrays["world_from_cam"].astype(np.float64)
+        yfov=source.vertical_fov, aspectRatio=width / height, znear=0.01, zfar=1000.0)))
+    world_from_cam = source.arrays["world_from_cam"].astype(np.float64)
     node = b.node(name="video_camera", camera=len(b.gltf.cameras) - 1)
     times = b.accessor((np.arange(len(world_from_cam)) / source.fps).astype(np.float32), "SCALAR", bounds=True)
     b.animate(animation, node, "translation", times, world_from_cam[:, :3, 3])
@@ -194,9 +191,7 @@ def _add_camera(b: _Builder, animation: gl.Animation, source: ExportSource) -> i
 
 
 def _add_ground(b: _Builder, source: ExportSource) -> int:
-    points = np.concatenate([t.world_joints.reshape(-1, 3) for t in source.tracks]
-                            + [source.arrays["world_from_cam"][:, :3, 3].astype(np.float64)])
-    lo, hi = points[:, [0, 2]].min(axis=0) - GROUND_MARGIN, points[:, [0, 2]].max(axis=0) + GROUND_MARGIN
+    lo, hi = source.ground_extent()
     vertices = np.array([[lo[0], 0.0, lo[1]], [hi[0], 0.0, lo[1]], [hi[0], 0.0, hi[1]], [lo[0], 0.0, hi[1]]])
     faces = np.array([[0, 2, 1], [0, 3, 2]])  # counter-clockwise seen from above (+y)
     mesh = b.mesh("ground", vertices, faces, b.material("ground", [0.75, 0.75, 0.72], double_sided=True))

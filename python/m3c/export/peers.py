@@ -101,7 +101,7 @@ def export_slahmr(source: ExportSource, out: Path) -> list[Path]:
     result = {k: np.stack(v).astype(np.float32) for k, v in fields.items()}
     result["cam_R"] = np.broadcast_to(cam_from_slahmr[:, :3, :3], (B, T, 3, 3)).astype(np.float32)
     result["cam_t"] = np.broadcast_to(cam_from_slahmr[:, :3, 3], (B, T, 3)).astype(np.float32)
-    result["intrins"] = np.median(arrays["intrinsics"], axis=0).astype(np.float32)
+    result["intrins"] = source.intrinsics.astype(np.float32)
     result["world_scale"] = np.ones((1, 1), np.float32)   # cam_t is already in metres
     if source.ground_found:
         # The ground y = 0 in the results' world; in camera 0: normal n' = R n through the point A (0, 0, 0).
@@ -125,7 +125,7 @@ def export_gvhmr(source: ExportSource, out: Path) -> list[Path]:
         import torch
     except ImportError:
         raise ImportError("GVHMR's layout is a torch file: install torch (pip install m3c[torch])") from None
-    fx, fy, cx, cy = np.median(source.arrays["intrinsics"].astype(np.float64), axis=0)
+    fx, fy, cx, cy = source.intrinsics
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     paths = []
     for track in source.tracks:

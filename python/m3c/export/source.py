@@ -16,6 +16,8 @@ from m3c.body import OPEN_MODEL_NAME, default_body_model
 from m3c.body.joint_names import SMPL_JOINT_NAMES
 from m3c.io.results import load_results
 
+GROUND_MARGIN = 1.0  # metres of ground shown beyond the people's and the camera's paths
+
 
 @dataclass
 class TrackMotion:
@@ -62,6 +64,28 @@ class ExportSource:
     @property
     def ground_found(self) -> bool:
         return self.summary["world"]["ground"] == "y = 0"
+
+    @property
+    def intrinsics(self) -> np.ndarray:
+        """(4,) fx, fy, cx, cy (pixels): the median over frames (M3C's are constant over a video)."""
+        return np.median(self.arrays["intrinsics"].astype(np.float64), axis=0)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        width, height = (int(v) for v in self.arrays["image_size"])
+        return width, height
+
+    @property
+    def vertical_fov(self) -> float:
+        """The camera's vertical field of view (radians) from fy and the image height."""
+        return float(2.0 * np.arctan(0.5 * self.image_size[1] / self.intrinsics[1]))
+
+    def ground_extent(self, margin: float = GROUND_MARGIN) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) world x, z corners of a ground patch under every person's joints and every camera position,
+        `margin` metres beyond them."""
+        points = np.concatenate([t.world_joints.reshape(-1, 3) for t in self.tracks]
+                                + [self.arrays["world_from_cam"][:, :3, 3].astype(np.float64)])
+        return points[:, [0, 2]].min(axis=0) - margin, points[:, [0, 2]].max(axis=0) + margin
 
 
 def results_body_model(summary: dict, body_model: str | Path | None = None):

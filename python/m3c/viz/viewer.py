@@ -20,7 +20,6 @@ from m3c.export.source import ExportSource, load_source
 from m3c.viz.scene import track_colour
 
 MAX_IMAGE_WIDTH = 480    # video frames shown in the panel and on the frustum are downscaled to this width
-GROUND_MARGIN = 1.0      # metres of grid beyond the people's and the camera's paths
 # results.json per-track fields shown in the panel (any other numeric field, e.g. plausibility figures, follows).
 _TRACK_FIELDS = {"frames": "frames", "visible_frames": "detected", "mean_reprojection_error_px": "reproj. px",
                  "path_length_m": "path m", "height_m": "height m"}
@@ -167,10 +166,8 @@ class ResultViewer:
         if len(centres) > 1:
             scene.add_line_segments("/camera/path", np.stack([centres[:-1], centres[1:]], axis=1),
                                     colors=(40, 40, 40), thickness=0.01)
-        width, height = (int(v) for v in source.arrays["image_size"])
-        fy = float(np.median(source.arrays["intrinsics"][:, 1]))
-        self.frustum = scene.add_camera_frustum("/camera/frustum", fov=float(2 * np.arctan(0.5 * height / fy)),
-                                                aspect=width / height, scale=0.4, color=(30, 30, 30))
+        width, height = source.image_size
+        self.frustum = scene.add_camera_frustum("/camera/frustum", fov=source.vertical_fov, aspect=width / height, scale=0.4, color=(30, 30, 30))
         faces = np.asarray(source.model.faces, dtype=np.uint32)
         self.meshes = {layer: [] for layer in self.vertices}
         for layer, per_track in self.vertices.items():
@@ -204,11 +201,10 @@ class ResultViewer:
 
     def _add_ground(self) -> None:
         source = self.source
-        points = np.concatenate([t.world_joints.reshape(-1, 3) for t in source.tracks]
-                                + [source.arrays["world_from_cam"][:, :3, 3].astype(np.float64)])
-        lo, hi = points[:, [0, 2]].min(axis=0) - GROUND_MARGIN, points[:, [0, 2]].max(axis=0) + GROUND_MARGIN
+        lo, hi = source.ground_extent()
         centre, size = (lo + hi) / 2, hi - lo
-        height = 0.0 if source.ground_found else float(points[:, 1].min())
+        lowest = min(float(np.min(t.world_joints[..., 1])) for t in source.tracks)
+        height = 0.0 if source.ground_found else lowest
         # The grid's plane "xz" is spanned by world x and z; it sits at y = ground height.
         self.server.scene.add_grid("/ground", width=float(size[0]), height=float(size[1]), plane="xz",
                                    cell_size=0.5, section_size=1.0, position=(float(centre[0]), height,
