@@ -50,6 +50,8 @@ def _check_joints(sampled, source, names_of, frame_offset):
 
 
 def _check_camera(sampled, source):
+    # The vertical field of view is the video's; the horizontal one follows Blender's render resolution.
+    assert sampled["camera_fov"]["video_camera"][1] == pytest.approx(source.vertical_fov, abs=1e-6)
     matrices = np.array(sampled["cameras"]["video_camera"])
     world_from_cam = source.arrays["world_from_cam"].astype(np.float64)
     expected = np.tile(np.eye(4), (len(world_from_cam), 1, 1))

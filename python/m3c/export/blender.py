@@ -74,7 +74,7 @@ def export_fbx(source: ExportSource, out: Path) -> list[Path]:
         # Zero scales (people hidden outside their tracks) make Blender's FBX bake NaN bone matrices.
         glb, = export_glb(source, Path(tmp) / "scene.glb", hide_outside_track=False)
         with atomic_path(path) as fbx:
-            run_blender("fbx", glb, fbx, repr(source.fps))
+            run_blender("fbx", glb, fbx, repr(source.fps), *source.image_size)
     return [path]
 
 

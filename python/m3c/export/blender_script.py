@@ -1,7 +1,7 @@
 """Blender steps of the exports, run by Blender's own Python (the bpy module) in a subprocess, since bpy pins
 numpy<2 and lives in its own environment. Self-contained: it imports nothing from m3c.
 
-    python blender_script.py fbx    GLB FBX FPS                 the GLB converted by Blender's FBX exporter
+    python blender_script.py fbx    GLB FBX FPS W H             the GLB converted by Blender's FBX exporter
     python blender_script.py sample FILE FPS FIRST LAST OUT     imported joints and camera per frame (JSON)
     python blender_script.py render GLB FPS FRAME PNG           a still of the imported GLB (Cycles, CPU)
 
@@ -46,8 +46,10 @@ def _frame_range() -> tuple[int, int]:
     return int(round(first)), int(round(last))
 
 
-def export_fbx(glb: str, fbx: str, fps: float) -> None:
+def export_fbx(glb: str, fbx: str, fps: float, width: int, height: int) -> None:
     _import(glb, fps)
+    # The FBX camera's aspect comes from the render resolution: the video's.
+    bpy.context.scene.render.resolution_x, bpy.context.scene.render.resolution_y = width, height
     first, last = _frame_range()
     bpy.context.scene.frame_start, bpy.context.scene.frame_end = first, last
     bpy.ops.export_scene.fbx(filepath=fbx, object_types={"ARMATURE", "MESH", "CAMERA", "EMPTY"}, bake_anim=True,
@@ -72,8 +74,10 @@ def sample(path: str, fps: float, first: int, last: int, out: str) -> None:
                 bones[bone.name].append(list(obj.matrix_world @ bone.head))
         for name, mats in cameras.items():
             mats.append([list(row) for row in scene.objects[name].matrix_world])
+    fovs = {o.name: [o.data.angle_x, o.data.angle_y] for o in scene.objects if o.type == "CAMERA"}
     with open(out, "w") as fh:
-        json.dump({"frames": frames, "armatures": armatures, "cameras": cameras,
+        json.dump({"frames": frames, "armatures": armatures, "cameras": cameras, "camera_fov": fovs,
+                   "resolution": [scene.render.resolution_x, scene.render.resolution_y],
                    "fps": scene.render.fps / scene.render.fps_base}, fh)
 
 
@@ -122,7 +126,7 @@ def render(glb: str, fps: float, frame: int, png: str) -> None:
 if __name__ == "__main__":
     command, *args = sys.argv[1:]
     if command == "fbx":
-        export_fbx(args[0], args[1], float(args[2]))
+        export_fbx(args[0], args[1], float(args[2]), int(args[3]), int(args[4]))
     elif command == "sample":
         sample(args[0], float(args[1]), int(args[2]), int(args[3]), args[4])
     elif command == "render":
