@@ -29,7 +29,7 @@ def _import(path: str, fps: float) -> None:
     _reset(fps)
     if path.lower().endswith(".bvh"):
         # M3C's BVH is y up in centimetres; frame k of the file lands on scene frame k + 1 (a glTF key at time t
-        # lands on frame t * fps).
+        # lands on frame t * fps). Blender 5.0.1 puts it there with frame_start 0 too.
         bpy.ops.import_anim.bvh(filepath=path, global_scale=0.01, frame_start=1, use_fps_scale=False,
                                 axis_forward="-Z", axis_up="Y", rotate_mode="NATIVE")
     elif path.lower().endswith(".fbx"):
