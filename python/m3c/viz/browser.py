@@ -33,9 +33,11 @@ def find_chromium() -> str | None:
 
 
 def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 800, wait_s: float = 8.0,
-                    chromium: str | None = None, script: str | None = None) -> Path:
+                    chromium: str | None = None, script: str | None = None, done=None,
+                    timeout_s: float = 60.0) -> Path:
     """Loads `url` in headless Chromium, waits `wait_s` seconds, runs the JavaScript `script` if given, and
-    writes the window as PNG to `png`."""
+    writes the window as PNG to `png`. With `done` (PNG bytes -> bool), shoots again every 2 s until it holds
+    or `timeout_s` has passed since the page was opened (a busy machine draws a WebGL scene slowly)."""
     from websockets.sync.client import connect
 
     chromium = chromium or find_chromium()
@@ -73,13 +75,20 @@ def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 
 
                 call(1, "Page.enable")
                 call(2, "Page.navigate", url=url)
+                opened = time.monotonic()
                 time.sleep(wait_s)
-                if script:
-                    call(3, "Runtime.evaluate", expression=script)
-                data = call(4, "Page.captureScreenshot", format="png")["data"]
+                message_id = 3
+                while True:
+                    if script:
+                        call(message_id, "Runtime.evaluate", expression=script)
+                    data = base64.b64decode(call(message_id + 1, "Page.captureScreenshot", format="png")["data"])
+                    message_id += 2
+                    if done is None or done(data) or time.monotonic() - opened > timeout_s:
+                        break
+                    time.sleep(2.0)
         finally:
             proc.kill()  # our own headless instance with a throw-away profile: nothing to save
             proc.wait()
     png = Path(png)
-    png.write_bytes(base64.b64decode(data))
+    png.write_bytes(data)
     return png
