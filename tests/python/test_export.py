@@ -254,3 +254,33 @@ def test_glb_without_a_ground_has_no_ground_plane(tmp_path, model):
     assert path == folder / "export" / "scene.glb"
     gltf, _ = _gltf_reader(path)
     assert [n.name for n in gltf.nodes if n.mesh is not None and n.skin is None] == []
+
+
+def test_results_of_another_body_model_need_its_file(tmp_path):
+    """A run with a user's SMPL-sized model (6890 vertices): exports need that file, and WHAM gets its verts."""
+    from m3c.body import BodyModel, open_body_model_path
+    from m3c.body.synthetic import make_synthetic_model
+
+    data = make_synthetic_model(num_vertices=6890, posedirs_scale=0.0)
+    path = tmp_path / "SMPL_LIKE.npz"
+    np.savez(path, v_template=data.v_template, shapedirs=data.shapedirs, posedirs=data.posedirs,
+             J_regressor=data.J_regressor, weights=data.weights, f=data.faces,
+             kintree_table=np.stack([np.where(data.parents < 0, 2 ** 32 - 1, data.parents), np.arange(24)]))
+    model = BodyModel.from_file(path)
+    folder = write_results(tmp_path / "out", model, num_frames=6)
+    with pytest.raises(ValueError, match="SMPL_LIKE.npz.*pass its file"):
+        export_results(folder, "wham", tmp_path / "a")
+    with pytest.raises(ValueError, match="but the results were made with 'SMPL_LIKE.npz'"):
+        export_results(folder, "wham", tmp_path / "b", body_model=open_body_model_path())
+    path_out, = export_results(folder, "wham", tmp_path / "c", body_model=path)
+    source = load_source(folder, body_model=path)
+    with open(path_out, "rb") as fh:
+        import pickle
+
+        data_out = pickle.load(fh)
+    for track in source.tracks:
+        verts = data_out[track.track_id]["verts"]
+        world = model.forward(track.pose, track.betas, track.transl).vertices
+        cam_from_world = np.linalg.inv(source.arrays["world_from_cam"][track.frames].astype(np.float64))
+        expected = np.einsum("nij,nvj->nvi", cam_from_world[:, :3, :3], world) + cam_from_world[:, None, :3, 3]
+        np.testing.assert_allclose(verts, expected, atol=1e-4)
