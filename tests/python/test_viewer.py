@@ -117,3 +117,36 @@ def test_chromium_draws_the_scene(results, tmp_path):
     assert pixels > 300, f"only {pixels} body-coloured pixels: the 3D canvas looks blank"
     canvas = cv2.imread(str(png))[200:, :850]
     assert canvas.std() > 10  # ground grid and bodies, not a flat colour
+
+
+def test_viewer_shows_the_overlay_video(results, tmp_path, server):
+    import shutil
+
+    from m3c.io.video import VideoWriter
+
+    folder = tmp_path / "out"
+    shutil.copytree(results, folder)
+    levels = 20 * np.arange(12) + 20
+    with VideoWriter(folder / "overlay.mp4", 10.0, (160, 120)) as writer:
+        for level in levels:
+            writer.write(np.full((120, 160, 3), level, np.uint8))
+    viewer = ResultViewer(server, folder)
+    assert len(viewer.images) == 12
+    for frame in (0, 7, 11):
+        viewer.set_frame(frame)
+        assert abs(float(viewer.image.image.mean()) - levels[frame]) < 6  # lossy video, one frame per step
+
+
+def test_viewer_picks_the_processed_frames_of_the_source_video(results, tmp_path, server):
+    from m3c.io.video import VideoWriter
+
+    levels = 10 * np.arange(24) + 10   # the results processed every second frame (frame_ids 0, 2, ..., 22)
+    with VideoWriter(tmp_path / "source.mp4", 20.0, (160, 120)) as writer:
+        for level in levels:
+            writer.write(np.full((120, 160, 3), level, np.uint8))
+    viewer = ResultViewer(server, results, video=tmp_path / "source.mp4")
+    for frame in (1, 6, 11):
+        viewer.set_frame(frame)
+        assert abs(float(viewer.image.image.mean()) - levels[2 * frame]) < 4
+    with pytest.raises(FileNotFoundError, match="video not found"):
+        ResultViewer(server, results, video=tmp_path / "missing.mp4")
