@@ -34,4 +34,28 @@ if [ "${M3C_NO_PERCEPTION:-0}" != "1" ]; then
   "$PY" -m pip install --quiet "mediapipe==0.10.14" ||
     echo "setup: mediapipe==0.10.14 not installed; the MediaPipe perception tests will skip" >&2
 fi
+# The exports and the viewer (the m3c[export] and m3c[viewer] extras, pure Python, no torch): GLB export and
+# `m3c view`. Their tests skip when this fails. M3C_NO_VIEWER=1 leaves them out.
+if [ "${M3C_NO_VIEWER:-0}" != "1" ]; then
+  "$PY" -m pip install --quiet "pygltflib>=1.16" "viser>=1.1" ||
+    echo "setup: pygltflib/viser not installed; the GLB export and viewer tests will skip" >&2
+  # Headless Chromium for the viewer's browser test (software WebGL; about 20 s). Failure only skips that test.
+  if command -v apt-get >/dev/null 2>&1 && ! command -v chromium >/dev/null 2>&1; then
+    SUDO=""
+    [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    { $SUDO apt-get update -qq && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+        --no-install-recommends chromium >/dev/null; } ||
+      echo "setup: chromium not installed; the viewer's browser test will skip" >&2
+  fi
+fi
+# FBX export and the Blender round-trip tests: Blender as a Python module (bpy 5.0.1, Python 3.11 only, pins
+# numpy<2) in its own virtual environment, which M3C runs in a subprocess (about 25 s, 1 GB). Failure only
+# skips those tests. M3C_NO_BLENDER=1 leaves it out; M3C_BLENDER_PYTHON picks another interpreter with bpy.
+BLENDER_VENV=${M3C_BLENDER_VENV:-$HOME/.cache/m3c/blender-venv}
+if [ "${M3C_NO_BLENDER:-0}" != "1" ] && "$PY" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+  if [ ! -x "$BLENDER_VENV/bin/python" ] || ! "$BLENDER_VENV/bin/python" -c "import bpy" >/dev/null 2>&1; then
+    { "$PY" -m venv "$BLENDER_VENV" && "$BLENDER_VENV/bin/python" -m pip install --quiet "bpy==5.0.1"; } ||
+      echo "setup: bpy not installed in $BLENDER_VENV; FBX export and the Blender tests will skip" >&2
+  fi
+fi
 "$PY" -c "import m3c._core; print('setup: m3c', __import__('m3c').__version__, 'installed')"

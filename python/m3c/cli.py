@@ -139,6 +139,26 @@ def _info(args) -> int:
     return 0
 
 
+def _export(args) -> int:
+    from m3c.export import export_results, parse_track_ids
+
+    try:
+        paths = export_results(args.folder, args.format, args.out, parse_track_ids(args.tracks), args.body_model,
+                               bvh_unit=args.bvh_unit)
+    except PermissionError as err:  # an unwritable --out: bad input, not a bug
+        raise ValueError(str(err)) from None
+    for path in paths:
+        print(path)
+    return 0
+
+
+def _view(args) -> int:
+    from m3c.viz.viewer import serve
+
+    serve(args.folder, host=args.host, port=args.port, body_model=args.body_model, video=args.video)
+    return 0
+
+
 def _graph(args) -> int:
     from m3c.pipeline import Graph, render_dot
 
@@ -372,6 +392,27 @@ def build_parser() -> argparse.ArgumentParser:
     info = sub.add_parser("info", help="summarise the results in an output folder")
     info.add_argument("folder")
     info.set_defaults(func=_info)
+
+    export = sub.add_parser("export", help="write the results as BVH, GLB or FBX, or in WHAM/SLAHMR/GVHMR layouts",
+                            description="Exports OUT_DIR's results (see README, 'Use the results' for axes and "
+                                        "units of each format).")
+    export.add_argument("folder", metavar="OUT_DIR", help="a result folder of `m3c run`")
+    export.add_argument("--format", required=True, choices=("bvh", "glb", "fbx", "wham", "slahmr", "gvhmr"))
+    export.add_argument("--tracks", metavar="IDS", help="comma-separated track ids (default: every track)")
+    export.add_argument("--out", metavar="PATH", help="output file or folder (default: OUT_DIR/export/...)")
+    export.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
+                                                             "M3C's open model")
+    export.add_argument("--bvh-unit", choices=("cm", "m"), default="cm", help="BVH length unit (default cm)")
+    export.set_defaults(func=_export)
+
+    view = sub.add_parser("view", help="interactive 3D viewer of a result folder in the browser (viser)")
+    view.add_argument("folder", metavar="OUT_DIR", help="a result folder of `m3c run`")
+    view.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    view.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    view.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
+                                                           "M3C's open model")
+    view.add_argument("--video", metavar="FILE", help="show the source video's frames (default: OUT_DIR/overlay.mp4)")
+    view.set_defaults(func=_view)
 
     graph = sub.add_parser("graph", help="draw the pipeline graph (Graphviz dot text, or .svg/.png via `dot`)")
     _add_config_options(graph)

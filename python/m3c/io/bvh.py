@@ -1,4 +1,5 @@
-"""Reading BVH motion capture (Biovision hierarchy): the skeleton, the channels, and world joint positions.
+"""BVH motion capture (Biovision hierarchy): reading and writing the skeleton, the channels, and world joint
+positions.
 
 Conventions of the format, as the files in the wild use them: each joint's CHANNELS are applied in the order
 listed, rotations compose left to right (R = R_c1 R_c2 R_c3, angles in degrees) and map the joint's frame into
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+
+from m3c.io.atomic import atomic_path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -196,3 +199,42 @@ def read_bvh(path: str | Path) -> BVHMotion:
         raise BVHError(f"{path}: motion rows have {motion.shape[1]} values, the hierarchy declares {num_channels} "
                        "channels")
     return BVHMotion(joints, frame_time, motion, str(path))
+
+
+def _format(values) -> str:
+    return " ".join(f"{v:.6f}" for v in values)
+
+
+def write_bvh(path: str | Path, bvh: BVHMotion) -> None:
+    """Writes `bvh` as a BVH file (atomically), in the conventions read_bvh reads. Joints may come in any order
+    with parents before children; the file nests them depth first and orders the motion columns to match."""
+    joints = bvh.joints
+    if not joints or joints[0].parent != -1 or any(j.parent >= i or (i and j.parent < 0)
+                                                    for i, j in enumerate(joints)):
+        raise ValueError("write_bvh needs one root first and every parent before its children")
+    if not np.all(np.isfinite(bvh.motion)):
+        raise ValueError("the motion has NaN or infinite values; BVH cannot store them")
+    children: list[list[int]] = [[] for _ in joints]
+    for i, joint in enumerate(joints[1:], start=1):
+        children[joint.parent].append(i)
+    lines, columns = ["HIERARCHY"], []
+
+    def emit(i: int, depth: int) -> None:
+        joint, pad = joints[i], "  " * depth
+        if joint.end_site:
+            lines.extend([f"{pad}End Site", f"{pad}{{", f"{pad}  OFFSET {_format(joint.offset)}", f"{pad}}}"])
+            return
+        lines.extend([f"{pad}{'ROOT' if depth == 0 else 'JOINT'} {joint.name}", f"{pad}{{",
+                      f"{pad}  OFFSET {_format(joint.offset)}",
+                      f"{pad}  CHANNELS {len(joint.channels)} {' '.join(joint.channels)}"])
+        columns.extend(range(joint.channel_start, joint.channel_start + len(joint.channels)))
+        for child in children[i]:
+            emit(child, depth + 1)
+        lines.append(f"{pad}}}")
+
+    emit(0, 0)
+    lines.extend(["MOTION", f"Frames: {bvh.num_frames}", f"Frame Time: {bvh.frame_time:.8f}"])
+    motion = bvh.motion[:, columns]
+    lines.extend(_format(row) for row in motion)
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
