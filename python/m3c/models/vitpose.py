@@ -91,6 +91,8 @@ def decode_heatmaps(heatmaps: np.ndarray, kernel: int = DARK_KERNEL) -> tuple[np
     Each map's maximum is refined by DARK as mmpose's post_dark_udp does: the map is blurred with a Gaussian of
     `kernel` pixels (OpenCV's sigma for that size), clipped to [0.001, 50] and logged; the peak moves by one Newton
     step -H^-1 g, with g and H central differences of the log map at the integer maximum (borders replicated).
+    Where the log map is not peaked there (H not negative definite, or a step over a pixel) the integer maximum
+    is kept.
     """
     import cv2
 
@@ -122,11 +124,14 @@ def decode_heatmaps(heatmaps: np.ndarray, kernel: int = DARK_KERNEL) -> tuple[np
     eps = np.finfo(np.float32).eps
     hxx, hyy = hxx + eps, hyy + eps
     det = hxx * hyy - hxy * hxy
-    safe = np.abs(det) > 1e-12
-    det = np.where(safe, det, 1.0)
-    step_x = np.where(safe, (hyy * gx - hxy * gy) / det, 0.0)
-    step_y = np.where(safe, (hxx * gy - hxy * gx) / det, 0.0)
-    coords = np.stack([x - step_x, y - step_y], axis=-1)
+    # A peak has a negative definite Hessian and moves by less than a pixel; elsewhere (flat or noisy maps, where
+    # mmpose's step can leave the map) the integer maximum stays.
+    peak = (det > 1e-12) & (hxx < 0)
+    det = np.where(peak, det, 1.0)
+    step_x = (hyy * gx - hxy * gy) / det
+    step_y = (hxx * gy - hxy * gx) / det
+    peak &= (np.abs(step_x) <= 1.0) & (np.abs(step_y) <= 1.0)
+    coords = np.stack([x - np.where(peak, step_x, 0.0), y - np.where(peak, step_y, 0.0)], axis=-1)
     return coords, scores.astype(np.float64)
 
 

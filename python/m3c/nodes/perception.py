@@ -9,6 +9,7 @@ component, reached through m3c.nodes.adapters.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,13 +35,59 @@ class PerceptionNode(Node):
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
     static_camera (contacts from foot speeds in the camera frame), and any other m3c.perception.PerceptionConfig
     setting under `options` (tracker, detect_every, ...).
+
+    The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
+    checkpoints lie in the models folder (--checkpoints / settings.models_dir / $M3C_MODELS, at
+    NETWORK_CHECKPOINTS' paths); named without a `checkpoint` option, they read it from there. The resolved names
+    are written into the node's config, so the cache key and results.json record which backend ran.
     """
 
     type_name = "perception"
     level = "patch"
     inputs = ("video", "camera")
     outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
-    settings = ("body_model",)
+    settings = ("body_model", "models_dir")
+
+    def _network_checkpoints(self, ctx) -> dict:
+        """task -> (estimator name, checkpoint path in the models folder or None)."""
+        from m3c.models.hmr2 import HMR2_SOURCE
+        from m3c.models.vitpose import VITPOSE_SOURCE
+
+        folder = ctx.models_dir()
+        out = {}
+        for task, name, source in (("pose2d", "vitpose", VITPOSE_SOURCE), ("body", "hmr2", HMR2_SOURCE)):
+            out[task] = (name, None if folder is None else folder / source.default_path, source)
+        return out
+
+    def _resolve_networks(self, ctx) -> None:
+        """Picks the networks whose checkpoints are present for tasks left unnamed, and gives named network
+        estimators their checkpoint from the models folder."""
+        estimators = self.config.estimators
+        for task, (name, path, _) in self._network_checkpoints(ctx).items():
+            spec = estimators.get(task)
+            if spec is None:
+                if path is not None and path.is_file():
+                    estimators[task] = {"name": name, "options": {"checkpoint": str(path)}}
+                continue
+            spec = {"name": spec, "options": {}} if isinstance(spec, str) else spec
+            options = spec.get("options") or {} if isinstance(spec, dict) else {}
+            if isinstance(spec, dict) and spec.get("name") == name and "checkpoint" not in options and path:
+                estimators[task] = {"name": name, "options": {**options, "checkpoint": str(path)}}
+
+    def key_config(self, ctx):
+        from m3c.pipeline.cache import file_digest
+
+        self._resolve_networks(ctx)
+        config = super().key_config(ctx)
+        digests = {}
+        for task, spec in self.config.estimators.items():
+            options = spec.get("options") or {} if isinstance(spec, dict) else {}
+            path = options.get("checkpoint")
+            if path and Path(path).is_file():
+                digests[task] = file_digest(path)
+        if digests:
+            config["checkpoint_digests"] = digests
+        return config
 
     @dataclass
     class Config:
@@ -59,20 +106,30 @@ class PerceptionNode(Node):
         except (TypeError, ValueError) as err:
             raise InputError(f"node {self.name!r}: {err}") from None
         body = config.estimators["body"]
-        if body.name == "fit" and body_model is not None and "model_path" not in body.options:
+        if body.name in ("fit", "hmr2") and body_model is not None and "model_path" not in body.options:
             body.options["model_path"] = body_model  # fit with the run's body model
         return config
 
     def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
         from m3c.perception.mediapipe_pose import NAME, mediapipe_available
 
         from m3c.perception import available
 
+        self._resolve_networks(ctx)
         config = self._perception_config()
         for task, spec in config.estimators.items():
             if spec.name not in available(task):
                 raise InputError(f"node {self.name!r}: no {task} estimator named {spec.name!r}; available: "
                                  f"{', '.join(available(task))}")
+        for task, (name, _, source) in self._network_checkpoints(ctx).items():
+            spec = config.estimators[task]
+            if spec.name == name:
+                try:
+                    resolve_path(spec.options.get("checkpoint"), source)
+                except CheckpointNotFoundError as err:
+                    raise ComponentUnavailable(self.name, f"{source.model}'s checkpoint (the {task} estimator)",
+                                               str(err)) from None
         users = sorted(task for task, spec in config.estimators.items() if spec.name == NAME)
         if users and not mediapipe_available():
             raise ComponentUnavailable(self.name, f"MediaPipe (the {', '.join(users)} estimator)",
@@ -85,7 +142,9 @@ class PerceptionNode(Node):
         from m3c.perception import run_perception_frames
 
         video = inputs["video"]
+        self._resolve_networks(ctx)
         config = self._perception_config(inputs["camera"]["intrinsics"], ctx.settings.body_model)
+        ctx.log.info("estimators: %s", ", ".join(f"{t} {s.name}" for t, s in config.estimators.items()))
         T = int(video["num_frames"])
         with ctx.progress("people", T) as bar:
             frames = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB) for _, frame in stream_frames(ctx, video))

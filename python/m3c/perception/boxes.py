@@ -154,8 +154,8 @@ def full_to_crop_camera(transl: np.ndarray, square: np.ndarray, intrinsics) -> n
 @dataclass(frozen=True)
 class NetworkInput:
     """A person's network input: image (h, w, 3) uint8 RGB, and where it lies in the frame: input pixel (i, j)
-    is frame pixel origin + scale * (i, j) (pixel centres; its corners sit on the region's corners). region:
-    (x0, y0, x1, y1) frame pixels the input spans, centred on the patch (square when the input is)."""
+    is frame pixel origin + scale * (i, j) (pixel centres at integers). region: (x0, y0, x1, y1) the frame area
+    the input covers (pixel corners), centred on the patch, with the input's aspect ratio."""
 
     image: np.ndarray
     origin: np.ndarray
@@ -171,8 +171,7 @@ def network_input(frame: np.ndarray, box, others=(), focus_mask_in=None, size: t
     other people's tight boxes `others` (N, 4) are whitened in it except the focused person's mask
     (`focus_mask_in(patch_box)` -> (h, w) bool, e.g. Person.mask_in, or None); the patch is then widened to the
     network's aspect ratio around its centre (the added margin is white, nothing is stretched) and resampled
-    bilinearly so that the region's first and last pixel centres meet the input's (mmpose's unbiased "UDP"
-    alignment, which ViTPose's heatmap decoding assumes).
+    bilinearly, the region's corners on the input's corners.
     """
     import cv2
 
@@ -187,12 +186,10 @@ def network_input(frame: np.ndarray, box, others=(), focus_mask_in=None, size: t
     if len(others):
         patch = isolate(patch, patch_box, others, None if focus_mask_in is None else focus_mask_in(patch_box))
     ph, pw = patch.shape[:2]
-    aspect = width / height
-    region_w = max(float(pw), ph * aspect)
-    region_h = region_w / aspect
+    # One scale for x and y (nothing stretched): the region is the patch widened to the input's aspect ratio.
+    scale = np.full(2, max(pw / width, ph / height))
     centre = np.array([patch_box[0] + (pw - 1) / 2.0, patch_box[1] + (ph - 1) / 2.0])
-    scale = np.array([(region_w - 1) / (width - 1), (region_h - 1) / (height - 1)])
-    origin = centre - 0.5 * np.array([region_w - 1, region_h - 1])
+    origin = centre - 0.5 * scale * np.array([width - 1, height - 1])
     # Input pixel (i, j) samples patch pixel (origin - patch origin) + scale * (i, j).
     warp = np.array([[scale[0], 0.0, origin[0] - patch_box[0]], [0.0, scale[1], origin[1] - patch_box[1]]])
     image = cv2.warpAffine(np.ascontiguousarray(patch), warp, (width, height),
