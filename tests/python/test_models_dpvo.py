@@ -117,6 +117,9 @@ def test_correlation_matches_the_kernel():
     got = correlation(torch.from_numpy(gmap), torch.from_numpy(fmaps), torch.from_numpy(coords))
     assert got.shape == (E, CORR_DIM)
     np.testing.assert_allclose(got.numpy(), kernel_reference(gmap, fmaps, coords), atol=1e-10)
+    # One target map for every edge (the VO's case) takes the batched path.
+    shared = correlation(torch.from_numpy(gmap), torch.from_numpy(fmaps[1]), torch.from_numpy(coords))
+    np.testing.assert_allclose(shared.numpy(), kernel_reference(gmap, fmaps[[1, 1, 1]], coords), atol=1e-10)
 
 
 def test_patch_features_at_integer_centres_are_the_pixels():

@@ -1,6 +1,6 @@
 """The ViTPose and HMR 2.0 estimators: the thesis's patch preprocessing they share (invariants and geometry), the
 estimators on random weights saved in the official layouts, and `m3c run --checkpoints DIR` end to end on the
-bundled clip with those files (the results are meaningless, the plumbing is real)."""
+bundled clip with those files and a random dpvo.pth (the results are meaningless, the plumbing is real)."""
 
 import json
 from pathlib import Path
@@ -10,6 +10,7 @@ import pytest
 import torch
 import yaml
 
+from m3c.models.dpvo import DPVO_SOURCE, DPVONet
 from m3c.models.hmr2 import HMR2, DecoderConfig
 from m3c.models.vit import ViTConfig
 from m3c.models.vitpose import ViTPose
@@ -91,6 +92,9 @@ def models_dir(tmp_path_factory):
     root = tmp_path_factory.mktemp("models")
     tiny_vitpose(root / VITPOSE_SOURCE.default_path)
     tiny_hmr2(root / HMR2_SOURCE.default_path)
+    torch.manual_seed(2)
+    (root / DPVO_SOURCE.default_path).parent.mkdir(parents=True)
+    torch.save({"module." + k: v for k, v in DPVONet().state_dict().items()}, root / DPVO_SOURCE.default_path)
     return root
 
 
@@ -133,9 +137,12 @@ def test_run_picks_up_the_networks_from_checkpoints(models_dir, tmp_path):
     out = tmp_path / "out"
     code = main(["run", str(EXAMPLE), "--out", str(out), "--frames", "0:12", "--checkpoints", str(models_dir),
                  "--set", "optimize.enabled=false", "--set", "perception.options={detect_every: 1}",
-                 "--set", "local_tracks.min_visible_frames=3", "--until", "results", "--no-progress", "-q"])
+                 "--set", "local_tracks.min_visible_frames=3", "--set", "vo.options={max_image_side: 192, patches_per_frame: 16}",
+                 "--set", "vo.dpvo_iterations=1",
+                 "--until", "results", "--no-progress", "-q"])
     assert code == 0
     summary = json.loads((out / "results.json").read_text())
+    assert summary["backends"]["vo"]["method"] == "dpvo"
     estimators = summary["backends"]["perception"]["estimators"]
     assert estimators["pose2d"]["name"] == "vitpose" and estimators["body"]["name"] == "hmr2"
     assert estimators["pose2d"]["options"]["checkpoint"].endswith("vitpose/vitpose-h.pth")

@@ -34,6 +34,7 @@ RADIUS = 3  # correlation window 7 x 7
 LEVELS = (1, 4)
 CORR_DIM = len(LEVELS) * (2 * RADIUS + 1) ** 2 * PATCH_SIZE ** 2  # 882
 RESOLUTION = 4  # features live at 1/4 of the image
+CHUNK = 256  # edges whose correlation windows are gathered at once (memory ~ CHUNK * 9 * 64 * 128 floats)
 
 DPVO_SOURCE = ckpt.CheckpointSource(
     model="DPVO",
@@ -192,6 +193,7 @@ def sample(features: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Bilinear samples of a feature map (C, H, W) at points (..., 2) x, y in its pixels (zero outside) ->
     (..., C)."""
     C, H, W = features.shape
+    table = features.reshape(C, -1).T.contiguous()  # (H W, C): one row per pixel, gathered by index
     x, y = points[..., 0], points[..., 1]
     x0, y0 = torch.floor(x), torch.floor(y)
     out = 0
@@ -201,8 +203,7 @@ def sample(features: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
             w = (1 - (x - x0 - dx).abs()) * (1 - (y - y0 - dy).abs())
             inside = (xi >= 0) & (xi <= W - 1) & (yi >= 0) & (yi <= H - 1)
             flat = (yi.clamp(0, H - 1) * W + xi.clamp(0, W - 1)).long()
-            values = features.reshape(C, -1)[:, flat.reshape(-1)].T.reshape(*flat.shape, C)
-            out = out + (w * inside)[..., None] * values
+            out = out + (w * inside)[..., None] * table[flat]
     return out
 
 
@@ -216,25 +217,41 @@ def patch_features(fmap: torch.Tensor, imap: torch.Tensor, centres: torch.Tensor
     return sample(fmap, grid).permute(0, 3, 1, 2), sample(imap, centres)
 
 
+def _window_correlation(gmap: torch.Tensor, features: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """The kernel's two steps on one feature map (C, H, W): dot products of each patch pixel's features gmap
+    (E, C, 3, 3) with the map on the (2R+2)^2 integer window from floor(points) (zero outside the map), then the
+    bilinear blend of neighbouring entries by the points' fractions. points (E, 3, 3, 2) -> (E, 3, 3, 7 y, 7 x)."""
+    C, H, W = features.shape
+    table = features.reshape(C, -1).T.contiguous()  # (H W, C)
+    steps = torch.arange(-RADIUS, RADIUS + 2, device=points.device)
+    x0, y0 = torch.floor(points[..., 0]), torch.floor(points[..., 1])
+    xi = x0.long()[..., None, None] + steps[None, :]  # (E, 3, 3, 1, 8)
+    yi = y0.long()[..., None, None] + steps[:, None]  # (E, 3, 3, 8, 1)
+    inside = (xi >= 0) & (xi < W) & (yi >= 0) & (yi < H)
+    flat = yi.clamp(0, H - 1) * W + xi.clamp(0, W - 1)  # (E, 3, 3, 8, 8)
+    corr = torch.einsum("epqabc,ecpq->epqab", table[flat], gmap) * inside
+    dx = (points[..., 0] - x0)[..., None, None]
+    dy = (points[..., 1] - y0)[..., None, None]
+    return ((1 - dx) * (1 - dy) * corr[..., :-1, :-1] + dx * (1 - dy) * corr[..., :-1, 1:]
+            + (1 - dx) * dy * corr[..., 1:, :-1] + dx * dy * corr[..., 1:, 1:])
+
+
 def correlation(gmap: torch.Tensor, fmap: torch.Tensor, coords: torch.Tensor) -> torch.Tensor:
     """Edges' matching patches gmap (E, 128, 3, 3), the target frames' features fmap (E, 128, h, w) or one map
     (128, h, w) shared by all edges, and each patch pixel's position in the target coords (E, 3, 3, 2) x, y at
     feature resolution -> (E, 882) correlation features in DPVO's order."""
     maps = fmap if fmap.ndim == 4 else fmap[None]
     E = gmap.shape[0]
-    offsets = torch.arange(-RADIUS, RADIUS + 1, dtype=coords.dtype, device=coords.device)
-    oy, ox = torch.meshgrid(offsets, offsets, indexing="ij")
-    window = torch.stack([ox, oy], dim=-1)  # (7 y, 7 x, 2)
     levels = []
     for level in LEVELS:
         pooled = F.avg_pool2d(maps, level, stride=level) if level > 1 else maps
-        points = coords[:, :, :, None, None, :] / level + window  # (E, 3, 3, 7, 7, 2)
-        per_edge = []
-        for e in range(E):
-            f = pooled[e if len(pooled) > 1 else 0]
-            values = sample(f, points[e])  # (3, 3, 7, 7, C)
-            per_edge.append(torch.einsum("pqabc,cpq->pqab", values, gmap[e]))
-        corr = torch.stack(per_edge)  # (E, 3 rows, 3 cols, 7 y-offsets, 7 x-offsets)
+        points = coords / level
+        if len(pooled) == 1:  # one target for every edge: a chunk of edges at a time
+            parts = [_window_correlation(gmap[s:s + CHUNK], pooled[0], points[s:s + CHUNK])
+                     for s in range(0, E, CHUNK)]
+        else:
+            parts = [_window_correlation(gmap[e:e + 1], pooled[e], points[e:e + 1]) for e in range(E)]
+        corr = torch.cat(parts) if parts else coords.new_zeros((0, 3, 3, 7, 7))  # (E, row, col, y-off, x-off)
         levels.append(corr.permute(0, 4, 3, 1, 2))  # (E, x-offset, y-offset, row, col)
     return torch.stack(levels, dim=-1).reshape(E, -1)
 

@@ -382,9 +382,11 @@ class VisualOdometryNode(AdapterNode):
 
     backend "patch" (default): M3C's patch visual odometry (m3c.vo), streaming the frames, with every person's
     mask (from the masks and detections inputs) hidden from it, and depth maps when the depth node gives them;
-    options: m3c.vo.VOConfig settings. Any other backend goes through the "vo" adapter. Output cameras:
-    world_from_cam (T, 4, 4), static, source, and points (M, 3) the odometry's map when it gives one. With static: true the
-    camera is taken not to move (identity poses) and no odometry runs."""
+    options: m3c.vo.VOConfig settings. Its front-end (method): "lk" Lucas-Kanade, "dpvo" DPVO's networks
+    (m3c.vo.dpvo, the official dpvo.pth from `checkpoint` or the models folder), "auto" dpvo when that file is
+    there. Any other backend goes through the "vo" adapter. Output cameras: world_from_cam (T, 4, 4), static,
+    source, and points (M, 3) the odometry's map when it gives one. With static: true the camera is taken not to
+    move (identity poses) and no odometry runs."""
 
     type_name = "vo"
     level = "patch"
@@ -392,19 +394,75 @@ class VisualOdometryNode(AdapterNode):
     inputs = ("video", "masks", "detections", "depth", "camera")
     optional_inputs = ("masks", "detections", "depth")
     outputs = ("cameras",)
+    settings = ("models_dir",)
 
     @dataclass
     class Config(BackendConfig):
         backend: str = "patch"
         static: bool = False
+        method: str = "auto"  # front-end of the patch backend: auto, lk or dpvo
+        checkpoint: str | None = None  # dpvo.pth; None = $M3C_MODELS/dpvo/dpvo.pth (or --checkpoints DIR)
+        dpvo_iterations: int = 2  # update-operator steps per measurement
+
+    def _dpvo_checkpoint(self, ctx):
+        """The DPVO file the run uses, or None (method lk, or auto without the file)."""
+        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
+        from m3c.models.dpvo import DPVO_SOURCE
+
+        if self.config.static or self.config.backend != "patch" or self.config.method == "lk":
+            return None
+        path = self.config.checkpoint
+        if path is None and ctx.models_dir() is not None:
+            path = ctx.models_dir() / DPVO_SOURCE.default_path
+        try:
+            return resolve_path(path, DPVO_SOURCE)
+        except CheckpointNotFoundError:
+            if self.config.method == "dpvo":
+                raise
+            return None
+
+    def key_config(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError
+        from m3c.pipeline.cache import file_digest
+
+        try:
+            path = self._dpvo_checkpoint(ctx)
+        except CheckpointNotFoundError:  # method dpvo without its file: check() reports it
+            path = None
+        if self.config.method == "auto" and not self.config.static and self.config.backend == "patch":
+            # Resolved once, so the key and results.json name the front-end that runs.
+            self.config.method = "dpvo" if path is not None else "lk"
+        config = super().key_config(ctx)
+        config["dpvo_digest"] = file_digest(path) if path is not None else None
+        return config
 
     def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError
+
         if self.config.static:
             return
+        if self.config.method not in ("auto", "lk", "dpvo"):
+            raise InputError(f"node {self.name!r}: method must be auto, lk or dpvo, got {self.config.method!r}")
         if self.config.backend == "patch":
             self._vo_config()
+            try:
+                self._dpvo_checkpoint(ctx)
+            except CheckpointNotFoundError as err:
+                raise ComponentUnavailable(self.name, "DPVO's checkpoint", str(err)) from None
         else:
             super().check(ctx)
+
+    def load(self, ctx) -> None:
+        self._dpvo = None
+        path = self._dpvo_checkpoint(ctx)
+        if path is not None:
+            from m3c.models.dpvo import load_dpvo
+
+            self._dpvo = load_dpvo(path)
+            ctx.log.info("visual odometry with DPVO's networks from %s", path)
+
+    def unload(self) -> None:
+        self._dpvo = None
 
     def _vo_config(self):
         from m3c.vo import VOConfig
@@ -448,7 +506,14 @@ class VisualOdometryNode(AdapterNode):
         depth = inputs["depth"]
         maps = depth.get("depth") if depth is not None and depth.get("available") else None
         height, width = int(video["height"]), int(video["width"])
-        vo = VisualOdometry(intrinsics=inputs["camera"]["intrinsics"], config=self._vo_config(), bgr=True)
+        network = getattr(self, "_dpvo", None)
+        front_end = None
+        if network is not None:
+            from m3c.vo.dpvo import DPVOFrontEnd
+
+            front_end = DPVOFrontEnd(network, iterations=self.config.dpvo_iterations)
+        vo = VisualOdometry(intrinsics=inputs["camera"]["intrinsics"], config=self._vo_config(), bgr=True,
+                            front_end=front_end)
         with ctx.progress("camera", int(video["num_frames"])) as bar:
             for i, frame in stream_frames(ctx, video):
                 mask = None
@@ -469,5 +534,5 @@ class VisualOdometryNode(AdapterNode):
         if result.static_camera:
             ctx.log.warning("the camera barely moved: odometry gives rotation only (pass --static-camera if it "
                             "stood still)")
-        return {"world_from_cam": result.world_from_cam, "points": result.points,
-                "source": "patch visual odometry (m3c.vo)"}
+        source = "patch visual odometry (m3c.vo)" + (" with DPVO's networks" if front_end is not None else "")
+        return {"world_from_cam": result.world_from_cam, "points": result.points, "source": source}
