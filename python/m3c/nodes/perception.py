@@ -406,20 +406,12 @@ class VisualOdometryNode(AdapterNode):
 
     def _dpvo_checkpoint(self, ctx):
         """The DPVO file the run uses, or None (method lk, or auto without the file)."""
-        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
+        from m3c.models.checkpoint import locate
         from m3c.models.dpvo import DPVO_SOURCE
 
         if self.config.static or self.config.backend != "patch" or self.config.method == "lk":
             return None
-        path = self.config.checkpoint
-        if path is None and ctx.models_dir() is not None:
-            path = ctx.models_dir() / DPVO_SOURCE.default_path
-        try:
-            return resolve_path(path, DPVO_SOURCE)
-        except CheckpointNotFoundError:
-            if self.config.method == "dpvo":
-                raise
-            return None
+        return locate(self.config.checkpoint, ctx.models_dir(), DPVO_SOURCE, self.config.method == "dpvo")
 
     def key_config(self, ctx):
         from m3c.models.checkpoint import CheckpointNotFoundError

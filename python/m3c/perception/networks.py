@@ -12,6 +12,7 @@ import numpy as np
 from m3c.perception.body import BodyFits
 from m3c.perception.boxes import crop_to_full_camera, network_input
 from m3c.perception.interfaces import BodyEstimator, PoseEstimator2D
+from m3c.perception.mediapipe_pose import tight_box
 from m3c.perception.registry import register
 from m3c.perception.types import FrameContext, Person
 
@@ -46,11 +47,13 @@ def _batches(items: list, size: int):
 @register("pose2d", VITPOSE)
 class ViTPoseEstimator(PoseEstimator2D):
     """ViTPose on each person's patch (widened to 256 x 192 with white margins), with flip test and DARK/UDP
-    decoding; keypoint confidence = the heatmap maximum clipped to [0, 1]. checkpoint: the mmpose file (default
+    decoding; keypoint confidence = the heatmap maximum clipped to [0, 1]; the person's box becomes the tight box
+    of its mask and its keypoints above min_confidence. checkpoint: the mmpose file (default
     $M3C_MODELS/vitpose/vitpose-h.pth)."""
 
     def __init__(self, checkpoint: str | None = None, padding: float = 5.0, flip_test: bool = True,
-                 batch_size: int = 8, num_heads: int | None = None, device: str = "cpu"):
+                 batch_size: int = 8, num_heads: int | None = None, min_confidence: float = 0.5,
+                 device: str = "cpu"):
         import_torch()
         from m3c.models.vitpose import load_vitpose
 
@@ -58,6 +61,7 @@ class ViTPoseEstimator(PoseEstimator2D):
             raise ValueError(f"batch_size must be >= 1, got {batch_size}")
         self.model = load_vitpose(checkpoint, num_heads).to(device)
         self.padding, self.flip_test, self.batch_size, self.device = padding, flip_test, batch_size, device
+        self.min_confidence = min_confidence
 
     def keypoints(self, images: np.ndarray, geometries: list) -> np.ndarray:
         """Network inputs (B, 256, 192, 3) uint8 and their NetworkInput placements -> keypoints (B, 17, 3) u, v
@@ -87,7 +91,11 @@ class ViTPoseEstimator(PoseEstimator2D):
         for person, kp in zip(people, keypoints):
             sources = dict(person.sources)
             sources["pose2d"] = VITPOSE
-            out.append(Person(person.box, person.score, kp, None, person.mask, person.mask_box, sources))
+            # The person's tight box from the mask and the confident keypoints: a tracker's proposal box is wider
+            # than the person and must not be handed on as the observation.
+            box = tight_box(kp, person.mask, person.mask_box, ctx.size, self.min_confidence)
+            out.append(Person(person.box if box is None else box, person.score, kp, None, person.mask,
+                              person.mask_box, sources))
         return out
 
     def close(self) -> None:
