@@ -155,3 +155,18 @@ def test_run_picks_up_the_networks_from_checkpoints(models_dir, tmp_path):
     assert estimators["pose2d"]["options"]["checkpoint"].endswith("vitpose/vitpose-h.pth")
     arrays = np.load(out / "results.npz")
     assert arrays["cam_transl"].shape[1] == 12 and np.isfinite(arrays["cam_transl"][arrays["valid"]]).all()
+
+
+@pytest.mark.parametrize("setting,named", [("vo.method=dpvo", "DPVO"), ("perception.estimators={pose2d: vitpose}",
+                                                                        "ViTPose"),
+                                           ("perception.estimators={body: hmr2}", "HMR 2.0")])
+def test_a_named_network_without_its_file_is_reported(tmp_path, capsys, setting, named):
+    from m3c.cli import main
+
+    empty = tmp_path / "models"
+    empty.mkdir()
+    code = main(["run", str(EXAMPLE), "--out", str(tmp_path / "out"), "--frames", "0:4", "--checkpoints", str(empty),
+                 "--set", setting, "--no-progress", "-q"])
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert named in err and str(empty) in err
