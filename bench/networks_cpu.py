@@ -40,14 +40,26 @@ from m3c.models.vitpose import ViTPose, decode_heatmaps  # noqa: E402
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pexels_walking_moving_camera.mp4"
 
 
-def median_time(fn, reps: int) -> float:
+REFERENCE = None  # the ViT-B forward, timed right before every timed repetition
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def median_time(fn, reps: int) -> tuple[float, float]:
+    """Median seconds of fn and median ratio to the reference, each repetition paired with a reference run just
+    before it (the machine's load then weighs on both alike)."""
     fn()  # warm-up
-    times = []
+    times, ratios = [], []
     for _ in range(reps):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
+        ref = _timed(REFERENCE) if REFERENCE is not None else None
+        t = _timed(fn)
+        times.append(t)
+        ratios.append(t / ref if ref else 1.0)
+    return float(np.median(times)), float(np.median(ratios))
 
 
 def clip_frames(count: int, side: int = 640):
@@ -72,20 +84,27 @@ def main() -> None:
     rows = []
     wanted = set(ARGS.only) if ARGS.only else None
 
+    def record(name, params, seconds, ratio):
+        rows.append((name, params, seconds, ratio))
+        count = f"{params / 1e6:7.1f} M" if params else " " * 9
+        print(f"{name:58s} {count}  {seconds * 1e3:9.0f} ms  {ratio:6.2f} x ViT-B", flush=True)
+
     def run(name, build, fn, params):
-        if wanted is not None and name not in wanted and name != "ViT-B forward (reference)":
+        if wanted is not None and name not in wanted:
             return
         model = build()
-        seconds = median_time(lambda: fn(model), ARGS.reps)
-        rows.append((name, params(model), seconds))
-        print(f"{name:44s} {params(model) / 1e6:7.1f} M  {seconds * 1e3:9.0f} ms", flush=True)
+        record(name, params(model), *median_time(lambda: fn(model), ARGS.reps))
         del model
         gc.collect()
 
+    global REFERENCE
     image = torch.randn(1, 3, 256, 192)
     with torch.no_grad():
-        run("ViT-B forward (reference)", lambda: ViT(ViTConfig.size("base")).eval(), lambda m: m(image),
-            parameter_count)
+        reference = ViT(ViTConfig.size("base")).eval()
+        REFERENCE = lambda: reference(image)  # noqa: E731
+        REFERENCE, fn = None, REFERENCE
+        record("ViT-B forward (reference)", parameter_count(reference), median_time(fn, ARGS.reps)[0], 1.0)
+        REFERENCE = fn
         for size, letter in (("base", "B"), ("large", "L"), ("huge", "H")):
             run(f"ViTPose-{letter} (flip test + decoding)", lambda s=size: ViTPose(ViTConfig.size(s)).eval(),
                 lambda m: decode_heatmaps(m.heatmaps(image, flip_test=True).numpy()), parameter_count)
@@ -121,36 +140,33 @@ def main() -> None:
 
         if wanted is None or "DPVO update step (1248 edges)" in wanted:
             model = DPVONet().eval()
-            seconds = median_time(dpvo_update(model), ARGS.reps)
-            rows.append(("DPVO update step (1248 edges)", parameter_count(model.update), seconds))
-            print(f"{'DPVO update step (1248 edges)':44s} {parameter_count(model.update) / 1e6:7.1f} M  "
-                  f"{seconds * 1e3:9.0f} ms", flush=True)
+            record("DPVO update step (1248 edges)", parameter_count(model.update),
+                   *median_time(dpvo_update(model), ARGS.reps))
 
     if ARGS.vo_frames and (wanted is None or "patch VO with DPVO front-end" in wanted):
         from m3c.vo import VOConfig
         from m3c.vo.dpvo import DPVOFrontEnd
         from m3c.vo.odometry import VisualOdometry
 
-        timings = {}
-        for name, front in (("patch VO, Lucas-Kanade front-end", None),
-                            ("patch VO with DPVO front-end", DPVOFrontEnd(DPVONet().eval()))):
+        for name, make in (("patch VO, Lucas-Kanade front-end", lambda: None),
+                           ("patch VO with DPVO front-end", lambda: DPVOFrontEnd(DPVONet().eval()))):
+            front = make()
+            ref = _timed(REFERENCE)
             vo = VisualOdometry(None, VOConfig(), bgr=True, front_end=front)
             start = time.perf_counter()
             for frame in frames[:ARGS.vo_frames]:
                 vo.add_frame(frame)
             vo.finish()
-            timings[name] = (time.perf_counter() - start) / ARGS.vo_frames
-            rows.append((name + f" (per frame, {ARGS.vo_frames} frames)", 0, timings[name]))
-            print(f"{rows[-1][0]:44s} {'':9s}  {timings[name] * 1e3:9.0f} ms", flush=True)
+            per_frame = (time.perf_counter() - start) / ARGS.vo_frames
+            record(f"{name} (per frame, {ARGS.vo_frames} frames)", 0, per_frame, per_frame / ref)
 
-    reference = rows[0][2]
-    print(f"\n{ARGS.threads} threads, torch {torch.__version__}; ratio = time / ViT-B forward "
-          f"({reference * 1e3:.0f} ms)")
+    print(f"\n{ARGS.threads} threads, torch {torch.__version__}, median of {ARGS.reps}; x ViT-B = median ratio "
+          "to a ViT-B forward timed right before each repetition")
     print("| network | parameters | ms per frame | x ViT-B |")
     print("|---|---|---|---|")
-    for name, params, seconds in rows:
+    for name, params, seconds, ratio in rows:
         count = f"{params / 1e6:.1f} M" if params else ""
-        print(f"| {name} | {count} | {seconds * 1e3:.0f} | {seconds / reference:.2f} |")
+        print(f"| {name} | {count} | {seconds * 1e3:.0f} | {ratio:.2f} |")
 
 
 if __name__ == "__main__":
