@@ -132,6 +132,9 @@ def test_estimators_on_two_people(models_dir, synthetic_body_model):
     u = 300 * fits.transl[0, 0] / fits.transl[0, 2] + 160
     assert u == pytest.approx((r[0] + r[2]) / 2 + (r[2] - r[0]) * s * tx / 2, rel=1e-9)
     assert fits.transl[0, 2] > 0 and np.isfinite(fits.reprojection_error_px).all() and fits.num_keypoints[0] == 17
+    flipped = dict(observed[0], crop_cam=-observed[0]["crop_cam"])  # scale < 0: behind the camera
+    fits = body.fit_track(keypoints[None], None, np.array([300.0, 300.0, 160.0, 120.0]), observations=[flipped])
+    assert fits.status == ["bad_camera"] and not fits.valid.any() and np.isnan(fits.reprojection_error_px).all()
     pose2d.close()
     body.close()
 

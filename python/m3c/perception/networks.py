@@ -169,9 +169,10 @@ class HMR2Estimator(BodyEstimator):
             pose[i] = o["pose"]
             m = min(B, len(o["betas"]))
             betas[i, :m] = o["betas"][:m]
+            if not np.isfinite(o["crop_cam"]).all() or o["crop_cam"][0] <= 0:
+                status[i] = "bad_camera"  # a weak-perspective scale <= 0 puts the body behind the camera
+                continue
             transl[i] = crop_to_full_camera(o["crop_cam"], o["region"], K_all[i])[0]
-            if not np.isfinite(transl[i]).all() or transl[i, 2] <= 0:
-                status[i] = "behind_camera"
         valid = np.array([s == "ok" for s in status])
         errors = np.full((n, K), np.nan)
         if valid.any():
@@ -180,13 +181,11 @@ class HMR2Estimator(BodyEstimator):
             uv = np.stack([fx[:, None] * points[..., 0] / points[..., 2] + cx[:, None],
                            fy[:, None] * points[..., 1] / points[..., 2] + cy[:, None]], axis=-1)
             errors[valid] = np.linalg.norm(uv - keypoints[valid, :, :2], axis=-1)
-        seen = keypoints[..., 2] >= self.min_confidence
-        errors = np.where(seen, errors, np.nan)
+        seen = (keypoints[..., 2] >= self.min_confidence) & valid[:, None]
+        errors = np.where(seen, errors, 0.0)
         counts = seen.sum(axis=1)
-        with np.errstate(invalid="ignore"):
-            mean = np.where(counts > 0, np.nansum(np.nan_to_num(errors), axis=1) / np.maximum(counts, 1), np.nan)
-        return BodyFits(transl, pose[:, 0], pose[:, 1:], betas, mean, np.nan_to_num(errors, nan=0.0), counts,
-                        np.zeros(n, dtype=bool), status)
+        mean = np.where(counts > 0, errors.sum(axis=1) / np.maximum(counts, 1), np.nan)
+        return BodyFits(transl, pose[:, 0], pose[:, 1:], betas, mean, errors, counts, np.zeros(n, dtype=bool), status)
 
     def close(self) -> None:
         self.network = None
