@@ -37,7 +37,8 @@ VITPOSE_SOURCE = ckpt.CheckpointSource(
     default_path="vitpose/vitpose-h.pth",
     obtain=("download ViTPose-H (or -B/-L), 256x192, COCO, from the OneDrive links in the README of "
             "github.com/ViTAE-Transformer/ViTPose (an mmpose checkpoint: a dict with 'state_dict' holding "
-            "backbone.* and keypoint_head.* tensors)."),
+            "backbone.* and keypoint_head.* tensors; split a multi-dataset model first with the repository's "
+            "tools/model_split.py and use its coco.pth)."),
 )
 
 
