@@ -338,3 +338,14 @@ def test_networks_on_a_real_frame(real_frame, vitpose_file, hmr2_file):
     # Every keypoint lies in the network's input region (which holds the whole padded box).
     assert (uv >= a.region[:2] - 1).all() and (uv <= a.region[2:] + 1).all()
     assert torch.isfinite(out.pose).all() and torch.isfinite(out.crop_cam).all()
+
+
+def test_a_heatmap_peak_decodes_to_its_frame_pixel(real_frame):
+    """network_input's placement, the UDP heatmap alignment and DARK together: a peak put where a frame pixel
+    falls in the heatmap decodes back to that pixel."""
+    net = network_input(real_frame, [400.0, 150.0, 560.0, 500.0], size=(256, 192))
+    targets = np.array([[430.3, 200.6], [500.0, 321.2], [455.7, 470.9]])
+    ratio = np.array([191 / 47, 255 / 63])
+    in_heatmap = (targets - net.origin) / net.scale / ratio
+    coords, _ = decode_heatmaps(gaussian_maps(in_heatmap)[None])
+    np.testing.assert_allclose(heatmap_to_frame(coords[0], net), targets, atol=0.05 * net.scale[0] * ratio[0])
