@@ -13,6 +13,8 @@ from m3c.models import checkpoint as ckpt
 from m3c.models.dpvo import (CORR_DIM, DPVONet, SoftAgg, correlation, load_dpvo, parameter_count, patch_features,
                              temporal_neighbors)
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 CLIP = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 
 

@@ -18,6 +18,8 @@ from m3c.models.vitpose import (COCO_FLIP_PAIRS, InputGeometry, ViTPose, decode_
                                 heatmap_to_frame, load_vitpose)
 from m3c.perception.boxes import crop_to_full_camera, network_input
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 CLIP = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 SMALL_VIT = ViTConfig(embed_dim=64, depth=2, num_heads=4)
 SMALL_DECODER = DecoderConfig(dim=32, depth=2, heads=2, dim_head=16, mlp_dim=48, context_dim=64)

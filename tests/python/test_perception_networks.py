@@ -18,6 +18,8 @@ from m3c.perception import FrameContext, Person, create
 from m3c.perception.boxes import network_input, process_box
 from m3c.perception.mediapipe_pose import mediapipe_available
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 # Width 384 is ViTPose-S's (an official width, so the loaders know its heads); one block keeps it fast.
 TINY_VIT = ViTConfig(embed_dim=384, depth=1, num_heads=12)

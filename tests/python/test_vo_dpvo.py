@@ -12,6 +12,8 @@ from m3c.vo.dpvo import DPVOFrontEnd
 from m3c.vo.odometry import VisualOdometry
 from m3c.vo.synthetic import forward_trajectory, render_sequence
 
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 
 class PythonLucasKanade:
     """OpenCV's pyramidal LK with a forward-backward check, as a Python front-end (no masks, no Verify)."""
