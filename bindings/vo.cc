@@ -1,6 +1,9 @@
 // Bindings for cpp/vo: the patch visual odometry (streaming class and whole-sequence function) and its options.
 // Frames are uint8 numpy arrays (H, W) gray or (H, W, 3) RGB/BGR; masks bool/uint8 (H, W), non-zero = person;
 // depth maps float (H, W) along the camera z axis (any consistent unit; <= 0 or non-finite = unknown).
+#include <cmath>
+#include <cstring>
+
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
@@ -8,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bindings/numpy_util.h"
+#include "vo/front_end.h"
 #include "vo/patch_vo.h"
 
 namespace m3c::bindings {
@@ -150,11 +154,86 @@ py::dict ResultToDict(const PatchVOResult& r) {
   return out;
 }
 
+py::array_t<uint8_t> MatToArray(const cv::Mat& m) {
+  py::array_t<uint8_t> out({m.rows, m.cols});
+  for (int r = 0; r < m.rows; ++r) std::memcpy(out.mutable_data(r, 0), m.ptr<uint8_t>(r), m.cols);
+  return out;
+}
+
+// A front-end written in Python (e.g. DPVO's networks, m3c.vo.dpvo): an object with
+//   add_frame(frame: int, gray: uint8 (h, w), mask: uint8 (h, w) or None)
+//   sample_patches(frame: int, count: int) -> float (n, 2) patch centres, pixels
+//   track(target: int, hosts: int (n,), host_uv: float (n, 2), predicted_uv: float (n, 2))
+//       -> (uv float (n, 2), weight float (n,), ok bool (n,))
+//   release_frame(frame: int)
+// at PatchVO's processing resolution. Each call takes the GIL (PatchVO runs without it).
+class PyFrontEnd final : public vo::FrontEnd {
+ public:
+  explicit PyFrontEnd(py::object impl) : impl_(std::move(impl)) {}
+  ~PyFrontEnd() override {
+    py::gil_scoped_acquire gil;
+    impl_ = py::object();
+  }
+
+  void AddFrame(int frame, const cv::Mat& gray, const cv::Mat& mask) override {
+    py::gil_scoped_acquire gil;
+    impl_.attr("add_frame")(frame, MatToArray(gray), mask.empty() ? py::object(py::none()) : MatToArray(mask));
+  }
+
+  std::vector<Eigen::Vector2d> SamplePatches(int frame, int count) override {
+    py::gil_scoped_acquire gil;
+    const auto centres = AsArray<double>(impl_.attr("sample_patches")(frame, count), "sample_patches()");
+    if (centres.ndim() != 2 || centres.shape(1) != 2) ShapeError("sample_patches()", "(n, 2)", centres);
+    std::vector<Eigen::Vector2d> out;
+    for (py::ssize_t i = 0; i < centres.shape(0); ++i) out.emplace_back(centres.at(i, 0), centres.at(i, 1));
+    return out;
+  }
+
+  std::vector<vo::TrackResult> Track(int target, const std::vector<vo::TrackRequest>& requests) override {
+    py::gil_scoped_acquire gil;
+    const py::ssize_t n = static_cast<py::ssize_t>(requests.size());
+    py::array_t<int64_t> hosts(n);
+    py::array_t<double> host_uv({n, py::ssize_t{2}}), predicted({n, py::ssize_t{2}});
+    for (py::ssize_t i = 0; i < n; ++i) {
+      hosts.mutable_at(i) = requests[i].host_frame;
+      for (int c = 0; c < 2; ++c) {
+        host_uv.mutable_at(i, c) = requests[i].host_uv[c];
+        predicted.mutable_at(i, c) = requests[i].predicted_uv[c];
+      }
+    }
+    const py::tuple out = impl_.attr("track")(target, hosts, host_uv, predicted);
+    if (out.size() != 3) throw py::value_error("track() must return (uv, weight, ok)");
+    const auto uv = AsArray<double>(out[0], "track() uv");
+    const auto weight = AsArray<double>(out[1], "track() weight");
+    const auto ok = py::array_t<bool, py::array::c_style | py::array::forcecast>::ensure(out[2]);
+    if (uv.ndim() != 2 || uv.shape(0) != n || uv.shape(1) != 2) ShapeError("track() uv", "(n, 2)", uv);
+    if (weight.ndim() != 1 || weight.shape(0) != n) ShapeError("track() weight", "(n,)", weight);
+    if (!ok || ok.ndim() != 1 || ok.shape(0) != n) throw py::value_error("track() ok must be bool (n,)");
+    std::vector<vo::TrackResult> results(requests.size());
+    for (py::ssize_t i = 0; i < n; ++i) {
+      results[i].uv = Eigen::Vector2d(uv.at(i, 0), uv.at(i, 1));
+      results[i].weight = weight.at(i);
+      results[i].ok = ok.at(i) && std::isfinite(weight.at(i)) && weight.at(i) > 0 && results[i].uv.allFinite();
+    }
+    return results;
+  }
+
+  void ReleaseFrame(int frame) override {
+    py::gil_scoped_acquire gil;
+    impl_.attr("release_frame")(frame);
+  }
+
+ private:
+  py::object impl_;
+};
+
 // A streaming wrapper that converts numpy frames.
 class PyPatchVO {
  public:
-  PyPatchVO(const PatchVOOptions& options, const py::handle& intrinsics, bool bgr)
-      : vo_(options, ParseIntrinsics(intrinsics)), bgr_(bgr) {}
+  PyPatchVO(const PatchVOOptions& options, const py::handle& intrinsics, bool bgr, const py::object& front_end)
+      : vo_(options, ParseIntrinsics(intrinsics),
+            front_end.is_none() ? nullptr : std::make_unique<PyFrontEnd>(front_end)),
+        bgr_(bgr) {}
 
   void AddFrame(const py::array& frame, const py::handle& mask, const py::handle& depth) {
     const std::string idx = "[" + std::to_string(vo_.num_frames()) + "]";
@@ -301,9 +380,13 @@ Args:
     intrinsics: None or (4,) = (fx, fy, cx, cy) in pixels of the input frames; None uses
         f = sqrt(W^2 + H^2), (cx, cy) = (W/2, H/2).
     bgr: 3-channel frames are BGR (OpenCV) rather than RGB.
+    front_end: None (Lucas-Kanade) or a Python object with add_frame(frame, gray, mask),
+        sample_patches(frame, count) -> (n, 2), track(target, hosts, host_uv, predicted_uv) -> (uv (n, 2),
+        weight (n,), ok (n,)) and release_frame(frame), all at PatchVO's processing resolution (e.g.
+        m3c.vo.dpvo.DPVOFrontEnd: DPVO's networks give the measurements and their weights).
 )doc")
-      .def(py::init<const PatchVOOptions&, const py::handle&, bool>(), py::arg("options"),
-           py::arg("intrinsics") = py::none(), py::arg("bgr") = false)
+      .def(py::init<const PatchVOOptions&, const py::handle&, bool, const py::object&>(), py::arg("options"),
+           py::arg("intrinsics") = py::none(), py::arg("bgr") = false, py::arg("front_end") = py::none())
       .def("add_frame", &PyPatchVO::AddFrame, py::arg("frame"), py::arg("mask") = py::none(),
            py::arg("depth") = py::none(),
            "Adds one frame: uint8 (H, W) or (H, W, 3); mask None or bool/uint8 (H, W); depth None or float (H, W).")

@@ -26,3 +26,15 @@ def rng():
 def _pipeline_test_nodes():
     """Registers the framework tests' node types (tests/python/pipeline_test_nodes.py)."""
     import pipeline_test_nodes  # noqa: F401
+
+
+@pytest.fixture(scope="module")
+def one_torch_thread():
+    """Torch on one thread for a test module: networks run as many small ops, and with the cores shared by other
+    jobs, OpenMP's spin-waiting at every op makes two threads several times slower than one."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -50,6 +50,20 @@ def resolve_path(path: str | os.PathLike | None, source: CheckpointSource) -> Pa
     return path
 
 
+def locate(path: str | os.PathLike | None, models_dir: Path | None, source: CheckpointSource,
+           required: bool) -> Path | None:
+    """The checkpoint a pipeline node reads: `path` when given, else <models_dir>/<default_path> (models_dir None:
+    $M3C_MODELS). Absent: CheckpointNotFoundError when required, else None."""
+    if path is None and models_dir is not None:
+        path = Path(models_dir) / source.default_path
+    try:
+        return resolve_path(path, source)
+    except CheckpointNotFoundError:
+        if required:
+            raise
+        return None
+
+
 def newest_file(folder: Path, pattern: str, source: CheckpointSource) -> Path:
     """The most recently modified file matching `pattern` in `folder` (how the originals pick a snapshot)."""
     found = sorted(folder.glob(pattern), key=lambda p: p.stat().st_mtime)
@@ -189,4 +203,4 @@ def load_into(module: torch.nn.Module, state: Mapping[str, torch.Tensor], path: 
 
 
 __all__ = ["CheckpointError", "CheckpointNotFoundError", "CheckpointSource", "MODELS_ENV", "expected_layout",
-           "load_into", "newest_file", "read_checkpoint", "resolve_path", "strip_prefix", "take_state_dict"]
+           "load_into", "locate", "newest_file", "read_checkpoint", "resolve_path", "strip_prefix", "take_state_dict"]

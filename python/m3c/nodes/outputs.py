@@ -162,7 +162,7 @@ class ResultsNode(Node):
         backends = {}
         for name, node in ctx.upstream_nodes().items():
             entry = {"type": node["type"]}
-            for key in ("backend", "method", "static", "enabled"):
+            for key in ("backend", "method", "static", "enabled", "estimators"):
                 if key in node["config"]:
                     entry[key] = node["config"][key]
             backends[name] = entry

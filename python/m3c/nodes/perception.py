@@ -9,6 +9,7 @@ component, reached through m3c.nodes.adapters.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,13 +35,59 @@ class PerceptionNode(Node):
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
     static_camera (contacts from foot speeds in the camera frame), and any other m3c.perception.PerceptionConfig
     setting under `options` (tracker, detect_every, ...).
+
+    The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
+    checkpoints lie in the models folder (--checkpoints / settings.models_dir / $M3C_MODELS, at
+    NETWORK_CHECKPOINTS' paths); named without a `checkpoint` option, they read it from there. The resolved names
+    are written into the node's config, so the cache key and results.json record which backend ran.
     """
 
     type_name = "perception"
     level = "patch"
     inputs = ("video", "camera")
     outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
-    settings = ("body_model",)
+    settings = ("body_model", "models_dir")
+
+    def _network_checkpoints(self, ctx) -> dict:
+        """task -> (estimator name, checkpoint path in the models folder or None)."""
+        from m3c.models.hmr2 import HMR2_SOURCE
+        from m3c.models.vitpose import VITPOSE_SOURCE
+
+        folder = ctx.models_dir()
+        out = {}
+        for task, name, source in (("pose2d", "vitpose", VITPOSE_SOURCE), ("body", "hmr2", HMR2_SOURCE)):
+            out[task] = (name, None if folder is None else folder / source.default_path, source)
+        return out
+
+    def _resolve_networks(self, ctx) -> None:
+        """Picks the networks whose checkpoints are present for tasks left unnamed, and gives named network
+        estimators their checkpoint from the models folder."""
+        estimators = self.config.estimators
+        for task, (name, path, _) in self._network_checkpoints(ctx).items():
+            spec = estimators.get(task)
+            if spec is None:
+                if path is not None and path.is_file():
+                    estimators[task] = {"name": name, "options": {"checkpoint": str(path)}}
+                continue
+            spec = {"name": spec, "options": {}} if isinstance(spec, str) else spec
+            options = spec.get("options") or {} if isinstance(spec, dict) else {}
+            if isinstance(spec, dict) and spec.get("name") == name and "checkpoint" not in options and path:
+                estimators[task] = {"name": name, "options": {**options, "checkpoint": str(path)}}
+
+    def key_config(self, ctx):
+        from m3c.pipeline.cache import file_digest
+
+        self._resolve_networks(ctx)
+        config = super().key_config(ctx)
+        digests = {}
+        for task, spec in self.config.estimators.items():
+            options = spec.get("options") or {} if isinstance(spec, dict) else {}
+            path = options.get("checkpoint")
+            if path and Path(path).is_file():
+                digests[task] = file_digest(path)
+        if digests:
+            config["checkpoint_digests"] = digests
+        return config
 
     @dataclass
     class Config:
@@ -59,20 +106,30 @@ class PerceptionNode(Node):
         except (TypeError, ValueError) as err:
             raise InputError(f"node {self.name!r}: {err}") from None
         body = config.estimators["body"]
-        if body.name == "fit" and body_model is not None and "model_path" not in body.options:
+        if body.name in ("fit", "hmr2") and body_model is not None and "model_path" not in body.options:
             body.options["model_path"] = body_model  # fit with the run's body model
         return config
 
     def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
         from m3c.perception.mediapipe_pose import NAME, mediapipe_available
 
         from m3c.perception import available
 
+        self._resolve_networks(ctx)
         config = self._perception_config()
         for task, spec in config.estimators.items():
             if spec.name not in available(task):
                 raise InputError(f"node {self.name!r}: no {task} estimator named {spec.name!r}; available: "
                                  f"{', '.join(available(task))}")
+        for task, (name, _, source) in self._network_checkpoints(ctx).items():
+            spec = config.estimators[task]
+            if spec.name == name:
+                try:
+                    resolve_path(spec.options.get("checkpoint"), source)
+                except CheckpointNotFoundError as err:
+                    raise ComponentUnavailable(self.name, f"{source.model}'s checkpoint (the {task} estimator)",
+                                               str(err)) from None
         users = sorted(task for task, spec in config.estimators.items() if spec.name == NAME)
         if users and not mediapipe_available():
             raise ComponentUnavailable(self.name, f"MediaPipe (the {', '.join(users)} estimator)",
@@ -85,7 +142,9 @@ class PerceptionNode(Node):
         from m3c.perception import run_perception_frames
 
         video = inputs["video"]
+        self._resolve_networks(ctx)
         config = self._perception_config(inputs["camera"]["intrinsics"], ctx.settings.body_model)
+        ctx.log.info("estimators: %s", ", ".join(f"{t} {s.name}" for t, s in config.estimators.items()))
         T = int(video["num_frames"])
         with ctx.progress("people", T) as bar:
             frames = (cv2.cvtColor(frame, cv2.COLOR_BGR2RGB) for _, frame in stream_frames(ctx, video))
@@ -323,9 +382,11 @@ class VisualOdometryNode(AdapterNode):
 
     backend "patch" (default): M3C's patch visual odometry (m3c.vo), streaming the frames, with every person's
     mask (from the masks and detections inputs) hidden from it, and depth maps when the depth node gives them;
-    options: m3c.vo.VOConfig settings. Any other backend goes through the "vo" adapter. Output cameras:
-    world_from_cam (T, 4, 4), static, source, and points (M, 3) the odometry's map when it gives one. With static: true the
-    camera is taken not to move (identity poses) and no odometry runs."""
+    options: m3c.vo.VOConfig settings. Its front-end (method): "lk" Lucas-Kanade, "dpvo" DPVO's networks
+    (m3c.vo.dpvo, the official dpvo.pth from `checkpoint` or the models folder), "auto" dpvo when that file is
+    there. Any other backend goes through the "vo" adapter. Output cameras: world_from_cam (T, 4, 4), static,
+    source, and points (M, 3) the odometry's map when it gives one. With static: true the camera is taken not to
+    move (identity poses) and no odometry runs."""
 
     type_name = "vo"
     level = "patch"
@@ -333,19 +394,67 @@ class VisualOdometryNode(AdapterNode):
     inputs = ("video", "masks", "detections", "depth", "camera")
     optional_inputs = ("masks", "detections", "depth")
     outputs = ("cameras",)
+    settings = ("models_dir",)
 
     @dataclass
     class Config(BackendConfig):
         backend: str = "patch"
         static: bool = False
+        method: str = "auto"  # front-end of the patch backend: auto, lk or dpvo
+        checkpoint: str | None = None  # dpvo.pth; None = $M3C_MODELS/dpvo/dpvo.pth (or --checkpoints DIR)
+        dpvo_iterations: int = 2  # update-operator steps per measurement
+
+    def _dpvo_checkpoint(self, ctx):
+        """The DPVO file the run uses, or None (method lk, or auto without the file)."""
+        from m3c.models.checkpoint import locate
+        from m3c.models.dpvo import DPVO_SOURCE
+
+        if self.config.static or self.config.backend != "patch" or self.config.method == "lk":
+            return None
+        return locate(self.config.checkpoint, ctx.models_dir(), DPVO_SOURCE, self.config.method == "dpvo")
+
+    def key_config(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError
+        from m3c.pipeline.cache import file_digest
+
+        try:
+            path = self._dpvo_checkpoint(ctx)
+        except CheckpointNotFoundError:  # method dpvo without its file: check() reports it
+            path = None
+        if self.config.method == "auto" and not self.config.static and self.config.backend == "patch":
+            # Resolved once, so the key and results.json name the front-end that runs.
+            self.config.method = "dpvo" if path is not None else "lk"
+        config = super().key_config(ctx)
+        config["dpvo_digest"] = file_digest(path) if path is not None else None
+        return config
 
     def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError
+
         if self.config.static:
             return
+        if self.config.method not in ("auto", "lk", "dpvo"):
+            raise InputError(f"node {self.name!r}: method must be auto, lk or dpvo, got {self.config.method!r}")
         if self.config.backend == "patch":
             self._vo_config()
+            try:
+                self._dpvo_checkpoint(ctx)
+            except CheckpointNotFoundError as err:
+                raise ComponentUnavailable(self.name, "DPVO's checkpoint", str(err)) from None
         else:
             super().check(ctx)
+
+    def load(self, ctx) -> None:
+        self._dpvo = None
+        path = self._dpvo_checkpoint(ctx)
+        if path is not None:
+            from m3c.models.dpvo import load_dpvo
+
+            self._dpvo = load_dpvo(path)
+            ctx.log.info("visual odometry with DPVO's networks from %s", path)
+
+    def unload(self) -> None:
+        self._dpvo = None
 
     def _vo_config(self):
         from m3c.vo import VOConfig
@@ -389,7 +498,14 @@ class VisualOdometryNode(AdapterNode):
         depth = inputs["depth"]
         maps = depth.get("depth") if depth is not None and depth.get("available") else None
         height, width = int(video["height"]), int(video["width"])
-        vo = VisualOdometry(intrinsics=inputs["camera"]["intrinsics"], config=self._vo_config(), bgr=True)
+        network = getattr(self, "_dpvo", None)
+        front_end = None
+        if network is not None:
+            from m3c.vo.dpvo import DPVOFrontEnd
+
+            front_end = DPVOFrontEnd(network, iterations=self.config.dpvo_iterations)
+        vo = VisualOdometry(intrinsics=inputs["camera"]["intrinsics"], config=self._vo_config(), bgr=True,
+                            front_end=front_end)
         with ctx.progress("camera", int(video["num_frames"])) as bar:
             for i, frame in stream_frames(ctx, video):
                 mask = None
@@ -410,5 +526,5 @@ class VisualOdometryNode(AdapterNode):
         if result.static_camera:
             ctx.log.warning("the camera barely moved: odometry gives rotation only (pass --static-camera if it "
                             "stood still)")
-        return {"world_from_cam": result.world_from_cam, "points": result.points,
-                "source": "patch visual odometry (m3c.vo)"}
+        source = "patch visual odometry (m3c.vo)" + (" with DPVO's networks" if front_end is not None else "")
+        return {"world_from_cam": result.world_from_cam, "points": result.points, "source": source}

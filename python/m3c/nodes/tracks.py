@@ -7,9 +7,9 @@ the detected frames (the optimizer keeps one shape per person).
 
 Camera: a body estimated on a patch comes with the patch's weak-perspective camera (s, tx, ty): a body point X
 projects to patch coordinates s * (X_xy + (tx, ty)) in [-1, 1]. crop_to_full_camera turns it into a translation
-in the full image's perspective camera (CLIFF's conversion), so every person sits in one camera frame at its own
-place, and the tracks keep their positions relative to each other (thesis Fig. 4.9) instead of all being centred
-in front of the camera.
+in the full image's perspective camera (CLIFF's conversion, in m3c.perception.boxes), so every person sits in one
+camera frame at its own place, and the tracks keep their positions relative to each other (thesis Fig. 4.9) instead
+of all being centred in front of the camera.
 """
 
 from __future__ import annotations
@@ -20,43 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from m3c.nodes.records import table_length
+from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera  # noqa: F401 (re-exported)
 from m3c.pipeline import InputError, Node, PipelineError, register_node
-
-
-def crop_to_full_camera(crop_cam: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
-    """Weak-perspective patch cameras (N, 3) = (s, tx, ty) of square boxes (N, 4) -> translations (N, 3) in
-    the full-image camera (metres, OpenCV frame).
-
-    The depth makes the body's scale match: tz = 2 f / (b s), with b the box side in pixels and f = (fx + fy) / 2.
-    x and y then make the body origin project where the weak-perspective camera put it, the box centre plus
-    b s (tx, ty) / 2 pixels: t_x = (c_x - p_x + b s tx / 2) tz / fx (p = principal point); for fx = fy this is
-    CLIFF's t_x = tx + 2 (c_x - p_x) / (b s).
-    """
-    crop_cam = np.asarray(crop_cam, dtype=np.float64).reshape(-1, 3)
-    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
-    fx, fy, px, py = (float(v) for v in intrinsics)
-    s, tx, ty = crop_cam.T
-    side = square[:, 2] - square[:, 0]
-    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
-    bs = side * s
-    if (bs <= 0).any() or not np.isfinite(bs).all():
-        raise ValueError("crop camera scale s and box side must be positive and finite")
-    tz = (fx + fy) / bs
-    return np.stack([(centre_x - px + bs * tx / 2) * tz / fx, (centre_y - py + bs * ty / 2) * tz / fy, tz], axis=1)
-
-
-def full_to_crop_camera(transl: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
-    """The inverse of crop_to_full_camera (for tests and for backends that fit in the full image)."""
-    transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
-    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
-    fx, fy, px, py = (float(v) for v in intrinsics)
-    side = square[:, 2] - square[:, 0]
-    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
-    bs = (fx + fy) / transl[:, 2]
-    s = bs / side
-    tx = (transl[:, 0] * fx / transl[:, 2] - centre_x + px) * 2 / bs
-    ty = (transl[:, 1] * fy / transl[:, 2] - centre_y + py) * 2 / bs
-    return np.stack([s, tx, ty], axis=1)
 
 
 def interpolate_linear(times: np.ndarray, values: np.ndarray, query: np.ndarray) -> np.ndarray:

@@ -384,18 +384,10 @@ class LiftNode(Node):
         checkpoint: str | None = None  # WHAM checkpoint file; None = $M3C_MODELS/wham/...
 
     def _wham_checkpoint(self, ctx):
-        from m3c.models.checkpoint import CheckpointNotFoundError, resolve_path
+        from m3c.models.checkpoint import locate
         from m3c.models.wham import WHAM_SOURCE
 
-        path = self.config.checkpoint
-        if path is None and ctx.models_dir() is not None:
-            path = ctx.models_dir() / WHAM_SOURCE.default_path
-        try:
-            return resolve_path(path, WHAM_SOURCE)
-        except CheckpointNotFoundError:
-            if self.config.method == "wham":
-                raise
-            return None
+        return locate(self.config.checkpoint, ctx.models_dir(), WHAM_SOURCE, self.config.method == "wham")
 
     def key_config(self, ctx):
         from m3c.models.checkpoint import CheckpointNotFoundError

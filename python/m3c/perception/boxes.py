@@ -5,6 +5,8 @@ Boxes are (x0, y0, x1, y1) in pixels, x1/y1 exclusive, float. A frame is (H, W, 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 WHITE = 255
@@ -111,3 +113,87 @@ def isolate(patch: np.ndarray, patch_box, other_boxes, focus_mask: np.ndarray | 
             region &= mask
         out[region & ~keep] = WHITE
     return out
+
+
+def crop_to_full_camera(crop_cam: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
+    """Weak-perspective patch cameras (N, 3) = (s, tx, ty) of square boxes (N, 4) -> translations (N, 3) in
+    the full-image camera (metres, OpenCV frame).
+
+    The depth makes the body's scale match: tz = 2 f / (b s), with b the box side in pixels and f = (fx + fy) / 2.
+    x and y then make the body origin project where the weak-perspective camera put it, the box centre plus
+    b s (tx, ty) / 2 pixels: t_x = (c_x - p_x + b s tx / 2) tz / fx (p = principal point); for fx = fy this is
+    CLIFF's t_x = tx + 2 (c_x - p_x) / (b s).
+    """
+    crop_cam = np.asarray(crop_cam, dtype=np.float64).reshape(-1, 3)
+    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
+    fx, fy, px, py = (float(v) for v in intrinsics)
+    s, tx, ty = crop_cam.T
+    side = square[:, 2] - square[:, 0]
+    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
+    bs = side * s
+    if (bs <= 0).any() or not np.isfinite(bs).all():
+        raise ValueError("crop camera scale s and box side must be positive and finite")
+    tz = (fx + fy) / bs
+    return np.stack([(centre_x - px + bs * tx / 2) * tz / fx, (centre_y - py + bs * ty / 2) * tz / fy, tz], axis=1)
+
+
+def full_to_crop_camera(transl: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
+    """The inverse of crop_to_full_camera (for tests and for backends that fit in the full image)."""
+    transl = np.asarray(transl, dtype=np.float64).reshape(-1, 3)
+    square = np.asarray(square, dtype=np.float64).reshape(-1, 4)
+    fx, fy, px, py = (float(v) for v in intrinsics)
+    side = square[:, 2] - square[:, 0]
+    centre_x, centre_y = (square[:, 0] + square[:, 2]) / 2, (square[:, 1] + square[:, 3]) / 2
+    bs = (fx + fy) / transl[:, 2]
+    s = bs / side
+    tx = (transl[:, 0] * fx / transl[:, 2] - centre_x + px) * 2 / bs
+    ty = (transl[:, 1] * fy / transl[:, 2] - centre_y + py) * 2 / bs
+    return np.stack([s, tx, ty], axis=1)
+
+
+@dataclass(frozen=True)
+class NetworkInput:
+    """A person's network input: image (h, w, 3) uint8 RGB, and where it lies in the frame: input pixel (i, j)
+    is frame pixel origin + scale * (i, j) (pixel centres at integers). region: (x0, y0, x1, y1) the frame area
+    the input covers (pixel corners), centred on the patch, with the input's aspect ratio."""
+
+    image: np.ndarray
+    origin: np.ndarray
+    scale: np.ndarray
+    region: np.ndarray
+
+
+def network_input(frame: np.ndarray, box, others=(), focus_mask_in=None, size: tuple[int, int] = (256, 256),
+                  padding: float = 5.0) -> NetworkInput:
+    """The thesis's patch of a person for a network reading `size` = (height, width) pixels.
+
+    The tight `box` becomes the square patch of process_box (padding, squared, shifted inside the frame); the
+    other people's tight boxes `others` (N, 4) are whitened in it except the focused person's mask
+    (`focus_mask_in(patch_box)` -> (h, w) bool, e.g. Person.mask_in, or None); the patch is then widened to the
+    network's aspect ratio around its centre (the added margin is white, nothing is stretched) and resampled
+    bilinearly, the region's corners on the input's corners.
+    """
+    import cv2
+
+    height, width = int(size[0]), int(size[1])
+    if height < 2 or width < 2:
+        raise ValueError(f"size must be at least 2 x 2 pixels, got {size}")
+    patch_box = process_box(box, frame.shape[:2], padding)
+    patch = crop(frame, patch_box)
+    if patch.size == 0:
+        raise ValueError(f"the box {as_box(box)} leaves no pixels of the {frame.shape[1]} x {frame.shape[0]} frame")
+    others = np.asarray(others, dtype=np.float64).reshape(-1, 4)
+    if len(others):
+        patch = isolate(patch, patch_box, others, None if focus_mask_in is None else focus_mask_in(patch_box))
+    ph, pw = patch.shape[:2]
+    # One scale for x and y (nothing stretched): the region is the patch widened to the input's aspect ratio.
+    scale = np.full(2, max(pw / width, ph / height))
+    centre = np.array([patch_box[0] + (pw - 1) / 2.0, patch_box[1] + (ph - 1) / 2.0])
+    origin = centre - 0.5 * scale * np.array([width - 1, height - 1])
+    # Input pixel (i, j) samples patch pixel (origin - patch origin) + scale * (i, j).
+    warp = np.array([[scale[0], 0.0, origin[0] - patch_box[0]], [0.0, scale[1], origin[1] - patch_box[1]]])
+    image = cv2.warpAffine(np.ascontiguousarray(patch), warp, (width, height),
+                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                           borderValue=(WHITE, WHITE, WHITE))
+    region = np.concatenate([origin - 0.5 * scale, origin + scale * np.array([width - 1, height - 1]) + 0.5 * scale])
+    return NetworkInput(image, origin, scale, region)

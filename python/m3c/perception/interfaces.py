@@ -56,10 +56,19 @@ class PoseEstimator2D(Estimator):
 
 
 class BodyEstimator(Estimator):
-    """One track's keypoints -> camera-local body model parameters per frame (in `model`'s parameters)."""
+    """One track's keypoints -> camera-local body model parameters per frame (in `model`'s parameters).
+
+    An estimator that reads pixels (reads_images = True, e.g. HMR 2.0) is also shown every frame's people
+    (`observe`); what it returns for each person is handed back to fit_track as `observations`, in the track's
+    frame order."""
 
     task = "body"
     model = None  # the m3c.body.BodyModel the fits belong to
+    reads_images = False
+
+    def observe(self, ctx: FrameContext, people: list[Person]) -> list:
+        """Per-person results from the frame's pixels (one item per person, None where there is none)."""
+        raise NotImplementedError(f"the body estimator {self.name!r} does not read images")
 
     @abstractmethod
     def fit_track(self, keypoints: np.ndarray, keypoints3d: np.ndarray | None, intrinsics: np.ndarray,

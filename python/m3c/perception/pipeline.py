@@ -290,9 +290,16 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
             t4 = time.perf_counter()
             observations = [Observation(p.box, p.keypoints, rough_location(p.keypoints, p.keypoints3d, intrinsics),
                                         appearance_descriptor(image, p.box, p.mask, p.mask_box)) for p in people]
-            for track_id, person in zip(tracker.update(observations), people):
-                records.setdefault(track_id, []).append((index, person))
+            track_ids = tracker.update(observations)
             t5 = time.perf_counter()
+            # Body estimators that read pixels see every person of the frame now (isolated from the others).
+            regressed = est["body"].observe(ctx, people) if est["body"].reads_images else [None] * len(people)
+            if len(regressed) != len(people):
+                raise ValueError(f"the body estimator {names['body']!r} returned {len(regressed)} results for "
+                                 f"{len(people)} people")
+            for track_id, person, result in zip(track_ids, people, regressed):
+                records.setdefault(track_id, []).append((index, person, result))
+            seconds["body"] += time.perf_counter() - t5
             seconds["tracked_patches"] += t1 - t0
             seconds["detect"] += t2 - t1
             seconds["new_patches"] += t3 - t2
@@ -329,8 +336,8 @@ def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
 
 def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsics: np.ndarray, fps: float,
                   config: PerceptionConfig, seconds: dict) -> PersonTrack:
-    frame_ids = np.array([f for f, _ in entries], dtype=np.int64)
-    people = [p for _, p in entries]
+    frame_ids = np.array([f for f, _, _ in entries], dtype=np.int64)
+    people = [p for _, p, _ in entries]
     n = len(people)
     # Rows: COCO-17, plus the foot points when any frame has them (zero confidence where it does not).
     K = max(len(p.keypoints) for p in people)
@@ -343,7 +350,11 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
     has3d = bool((keypoints3d[..., 3] > 0).any())
     restart = np.concatenate([[True], np.diff(frame_ids) > config.restart_gap + 1])
     t0 = time.perf_counter()
-    bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids)
+    if est["body"].reads_images:
+        bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids,
+                                       observations=[r for _, _, r in entries])
+    else:
+        bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids)
     t1 = time.perf_counter()
     contacts = np.zeros((n, 4))
     valid = bodies.valid

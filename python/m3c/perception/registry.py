@@ -16,7 +16,7 @@ from m3c.perception.interfaces import INTERFACES, TASKS, Estimator
 _FACTORIES: dict[str, dict[str, Callable]] = {task: {} for task in TASKS}
 # Modules whose import registers the built-in estimators; none imports an optional package at import time.
 _BUILTIN_MODULES = ("m3c.perception.mediapipe_pose", "m3c.perception.hog", "m3c.perception.body",
-                    "m3c.perception.contacts", "m3c.perception.simple")
+                    "m3c.perception.contacts", "m3c.perception.simple", "m3c.perception.networks")
 _builtins_loaded = False
 
 

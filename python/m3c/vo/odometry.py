@@ -165,14 +165,24 @@ def run_vo(frames: np.ndarray, masks: np.ndarray | None = None, depths: np.ndarr
 
 
 class VisualOdometry:
-    """Streaming interface: add frames one by one (e.g. while decoding a video), then finish()."""
+    """Streaming interface: add frames one by one (e.g. while decoding a video), then finish().
 
-    def __init__(self, intrinsics=None, config: VOConfig | None = None, bgr: bool = False):
-        self._vo = _core.PatchVO((config or VOConfig()).to_core(), _check_intrinsics(intrinsics), bgr)
+    front_end: None (Lucas-Kanade, in C++) or a Python front-end such as m3c.vo.dpvo.DPVOFrontEnd (DPVO's
+    networks); one with push_image() also receives each colour frame (the C++ side passes it gray)."""
+
+    def __init__(self, intrinsics=None, config: VOConfig | None = None, bgr: bool = False, front_end=None):
+        self._front_end = front_end
+        self._vo = _core.PatchVO((config or VOConfig()).to_core(), _check_intrinsics(intrinsics), bgr, front_end)
+        self._bgr = bgr
 
     def add_frame(self, frame: np.ndarray, mask: np.ndarray | None = None,
                   depth: np.ndarray | None = None) -> None:
-        self._vo.add_frame(np.asarray(frame), mask, depth)
+        frame = np.asarray(frame)
+        push = getattr(self._front_end, "push_image", None)
+        if push is not None:
+            colour = frame if frame.ndim == 3 else np.repeat(frame[..., None], 3, axis=2)
+            push(colour if self._bgr or frame.ndim == 2 else colour[..., ::-1])  # BGR, as DPVO reads frames
+        self._vo.add_frame(frame, mask, depth)
 
     @property
     def num_frames(self) -> int:
