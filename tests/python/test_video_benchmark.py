@@ -234,3 +234,11 @@ def test_short_sequence_through_the_whole_harness(model, tmp_path):
     again = vb.run_video_benchmark(model, config, tmp_path, show_progress=False)
     assert again.sequences[0].render_seconds == 0.0 and again.sequences[0].node_seconds == {}
     assert report.row(seq, "Global Opt")["w_mpjpe"] == again.row(again.sequences[0], "Global Opt")["w_mpjpe"]
+
+
+def test_bad_settings_are_refused_before_anything_runs(model, tmp_path):
+    for kwargs, message in (({"cameras": ("dolly",)}, "camera motions"), ({"width": 321}, "even"),
+                            ({"num_frames": 5}, "at least 10"), ({"max_people": 4}, "max_people")):
+        with pytest.raises(ValueError, match=message):
+            vb.run_video_benchmark(model, vb.VideoBenchmarkConfig(**kwargs), tmp_path, show_progress=False)
+    assert not any(tmp_path.iterdir())

@@ -79,6 +79,10 @@ class VideoBenchmarkConfig:
             raise ValueError(
                 f"camera motions must be among {', '.join(CAMERA_KINDS)}, got {list(self.cameras)}"
             )
+        if self.supersample < 1:
+            raise ValueError(f"supersample must be >= 1, got {self.supersample}")
+        for spec in self.specs():  # sizes and rates, before any sequence runs
+            spec.validate()
 
     def specs(self) -> list[SequenceSpec]:
         return [
