@@ -5,7 +5,10 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
+#include <cmath>
 #include <optional>
+#include <sstream>
 
 #include "bindings/numpy_util.h"
 #include "body/body_model.h"
@@ -74,6 +77,27 @@ Frames<T> ParseFrames(const BodyModel& model, const py::handle& pose, const py::
 }
 
 template <typename T>
+T MaxAbs(const py::array_t<T, py::array::c_style>& a) {
+  T m = 0;
+  for (py::ssize_t i = 0; i < a.size(); ++i) m = std::max(m, std::abs(a.data()[i]));
+  return m;
+}
+
+// Finite inputs can still overflow (an angle of 1e30 rad, betas of 1e200): refuse instead of returning NaN/inf.
+template <typename T>
+void RequireFiniteResult(const Frames<T>& fr, const T* out, py::ssize_t size) {
+  for (py::ssize_t i = 0; i < size; ++i) {
+    if (std::isfinite(out[i])) continue;
+    std::ostringstream s;
+    s << "the result overflowed to " << out[i] << " in " << (sizeof(T) == 4 ? "float32" : "float64")
+      << " arithmetic: the inputs are too large (largest |pose| " << MaxAbs(fr.pose) << " rad, |betas| "
+      << MaxAbs(fr.betas) << ", |transl| " << (fr.has_transl ? MaxAbs(fr.transl) : T(0))
+      << "); poses are axis-angle radians, where |angle| <= pi already describes every rotation";
+    throw py::value_error(s.str());
+  }
+}
+
+template <typename T>
 py::tuple ForwardT(const BodyModel& model, const py::handle& pose, const py::handle& betas, const py::handle& transl,
                    bool with_vertices) {
   Frames<T> fr = ParseFrames<T>(model, pose, betas, transl);
@@ -89,6 +113,8 @@ py::tuple ForwardT(const BodyModel& model, const py::handle& pose, const py::han
     py::gil_scoped_release release;
     body::Forward<T>(model, fr.n, p, b, fr.betas_shared, t, vout, jout);
   }
+  RequireFiniteResult(fr, joints.data(), joints.size());
+  if (with_vertices) RequireFiniteResult(fr, vertices.data(), vertices.size());
   return py::make_tuple(vertices, joints);
 }
 
@@ -105,6 +131,7 @@ py::array_t<T> ForwardKinematicsT(const BodyModel& model, const py::handle& pose
     py::gil_scoped_release release;
     body::ForwardKinematics<T>(model, fr.n, p, b, fr.betas_shared, t, out);
   }
+  RequireFiniteResult(fr, joints.data(), joints.size());
   return joints;
 }
 
@@ -121,6 +148,7 @@ py::array_t<T> KeypointsT(const BodyModel& model, const KeypointRegressor& reg, 
     py::gil_scoped_release release;
     body::Keypoints<T>(model, reg, fr.n, p, b, fr.betas_shared, t, o);
   }
+  RequireFiniteResult(fr, out.data(), out.size());
   return out;
 }
 
@@ -145,6 +173,8 @@ py::tuple KeypointsJacobian(const BodyModel& model, const KeypointRegressor& reg
                                   po + f * 3 * K, jo + f * 3 * K * D);
     }
   }
+  RequireFiniteResult(fr, points.data(), points.size());
+  RequireFiniteResult(fr, jac.data(), jac.size());
   return py::make_tuple(points, jac);
 }
 
@@ -201,9 +231,8 @@ std::unique_ptr<BodyModel> MakeBodyModel(const py::handle& v_template, const py:
   Eigen::MatrixXd sd_m = Eigen::Map<const RowMatrixXd>(sd.data(), 3 * V, sd.shape(2));
   Eigen::MatrixXd pd_m = Eigen::Map<const RowMatrixXd>(pd.data(), 3 * V, pd.shape(2));
   RowMatrixXd w_m = Eigen::Map<const RowMatrixXd>(w.data(), V, J);
-  RowMatrixXi f_m = fc.size() ? RowMatrixXi(Eigen::Map<const Eigen::Matrix<int64_t, Eigen::Dynamic, 3, Eigen::RowMajor>>(
-                                               fc.data(), fc.shape(0), 3)
-                                               .cast<int>())
+  using Faces64 = Eigen::Matrix<int64_t, Eigen::Dynamic, 3, Eigen::RowMajor>;
+  RowMatrixXi f_m = fc.size() ? RowMatrixXi(Eigen::Map<const Faces64>(fc.data(), fc.shape(0), 3).cast<int>())
                               : RowMatrixXi(0, 3);
   SparseRow jr = DenseToSparse(j_regressor, "J_regressor", J, V);
   return std::make_unique<BodyModel>(vt_m, sd_m, pd_m, jr, w_m, par_v, f_m);
@@ -253,7 +282,7 @@ Args:
       "forward",
       [](const BodyModel& model, const py::handle& pose, const py::handle& betas, const py::handle& transl) {
         return PromotesToFloat32({pose, betas, transl}) ? ForwardT<float>(model, pose, betas, transl, true)
-                               : ForwardT<double>(model, pose, betas, transl, true);
+                                                        : ForwardT<double>(model, pose, betas, transl, true);
       },
       py::arg("model"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       R"doc(Linear blend skinning of N frames.
@@ -264,8 +293,10 @@ float16), else float64. Values must be finite.)doc");
   m.def(
       "forward_kinematics",
       [](const BodyModel& model, const py::handle& pose, const py::handle& betas, const py::handle& transl) {
-        return PromotesToFloat32({pose, betas, transl}) ? py::object(ForwardKinematicsT<float>(model, pose, betas, transl))
-                               : py::object(ForwardKinematicsT<double>(model, pose, betas, transl));
+        if (PromotesToFloat32({pose, betas, transl})) {
+          return py::object(ForwardKinematicsT<float>(model, pose, betas, transl));
+        }
+        return py::object(ForwardKinematicsT<double>(model, pose, betas, transl));
       },
       py::arg("model"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       "Posed joints (N, J, 3) without skinning the mesh; arguments as in forward().");
@@ -273,8 +304,10 @@ float16), else float64. Values must be finite.)doc");
       "keypoints",
       [](const BodyModel& model, const KeypointRegressor& reg, const py::handle& pose, const py::handle& betas,
          const py::handle& transl) {
-        return PromotesToFloat32({pose, betas, transl}) ? py::object(KeypointsT<float>(model, reg, pose, betas, transl))
-                               : py::object(KeypointsT<double>(model, reg, pose, betas, transl));
+        if (PromotesToFloat32({pose, betas, transl})) {
+          return py::object(KeypointsT<float>(model, reg, pose, betas, transl));
+        }
+        return py::object(KeypointsT<double>(model, reg, pose, betas, transl));
       },
       py::arg("model"), py::arg("regressor"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       "Keypoints (N, K, 3) posing only the vertices the regressor uses; arguments as in forward().");

@@ -77,8 +77,9 @@ py::array_t<T, py::array::c_style> AsArray(const py::handle& obj, const std::str
   py::array raw = ToNumpy(obj, name, "a float array");
   const char kind = raw.dtype().kind();
   const bool numeric = kind == 'f' || kind == 'i' || kind == 'u' || kind == 'b';
-  const bool ok = numeric && (CanCast(raw, py::dtype::of<T>(), "safe") ||
-                              (cast == Cast::kSameKind && (kind != 'f' || CanCast(raw, py::dtype::of<T>(), "same_kind"))));
+  const py::dtype target_dtype = py::dtype::of<T>();
+  const bool ok = numeric && (CanCast(raw, target_dtype, "safe") ||
+                              (cast == Cast::kSameKind && (kind != 'f' || CanCast(raw, target_dtype, "same_kind"))));
   if (!ok) {
     throw py::value_error(name + " must be a float array (" +
                           (cast == Cast::kSafe ? "float16/32/64, integers or bool: what converts to " + target +
@@ -116,15 +117,16 @@ inline py::array_t<int64_t, py::array::c_style> AsIntegers(const py::handle& obj
   py::array raw = ToNumpy(obj, name, "an integer array");
   const char kind = raw.dtype().kind();
   if (kind != 'i' && kind != 'u' && kind != 'b') {
-    throw py::value_error(name + " must be an integer or boolean array (floats are not rounded to indices), got dtype " +
-                          DtypeString(raw) + ", shape " + ShapeString(raw));
+    throw py::value_error(name + " must be an integer or boolean array (floats are not rounded to indices), got " +
+                          "dtype " + DtypeString(raw) + ", shape " + ShapeString(raw));
   }
   if (kind == 'u' && raw.itemsize() == 8) {
     auto u = Converted<uint64_t>(raw, name);
     const uint64_t* p = u.data();
     for (py::ssize_t i = 0; i < u.size(); ++i) {
       if (p[i] > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) {
-        throw py::value_error(name + " holds " + std::to_string(p[i]) + ", beyond int64's range (an unsigned array cannot hold -1: use a signed integer type)");
+        throw py::value_error(name + " holds " + std::to_string(p[i]) +
+                              ", beyond int64's range (an unsigned array cannot hold -1: use a signed integer type)");
       }
     }
   }

@@ -122,7 +122,8 @@ from m3c.body import default_body_model
 d = default_body_model().data
 _core.BodyModel(d.v_template, d.shapedirs, d.posedirs, d.J_regressor, d.weights, d.parents, d.faces + 10**6)""",
      ["ValueError", "outside [0, V="]),
-    ("dbscan longdouble points", "import numpy as np, m3c.ground as g\ng.dbscan(np.zeros((5, 3), np.longdouble), 0.1, 2)",
+    ("dbscan longdouble points",
+     "import numpy as np, m3c.ground as g\ng.dbscan(np.zeros((5, 3), np.longdouble), 0.1, 2)",
      ["ValueError", "points must be a float array"]),
     ("fit_plane longdouble up", """
 import numpy as np, m3c.ground as g
@@ -171,7 +172,8 @@ config = OptimizerConfig.default()
 
 @pytest.mark.parametrize("threads", [0, -3])
 def test_optimizer_thread_count_is_refused_not_aborted(threads):
-    kind, message = run_isolated(OPTIMIZER + f"config.num_threads = {threads}\noptimize(model, [track], cameras, config)")
+    kind, message = run_isolated(OPTIMIZER + f"config.num_threads = {threads}\n"
+                                 "optimize(model, [track], cameras, config)")
     assert kind == "ValueError" and "num_threads must be an integer >= 1" in message
     # The core refuses it too when the Python check is bypassed (Ceres would abort the process).
     kind, message = run_isolated(OPTIMIZER + f"""

@@ -114,7 +114,8 @@ def test_person_seen_in_two_frames_is_named(small_video, tmp_path, capsys):
         "detections": {"frame": np.array([1, 2]), "box": np.tile([10.0, 5.0, 30.0, 45.0], (rows, 1)).astype(np.float32),
                        "score": np.ones(rows, np.float32)},
         "keypoints": {"keypoints": np.ones((rows, 17, 3), np.float32)},
-        "body": {"pose": np.zeros((rows, 24, 3)), "betas": np.zeros((rows, 10)), "transl": np.tile([0, 0, 4.0], (rows, 1))},
+        "body": {"pose": np.zeros((rows, 24, 3)), "betas": np.zeros((rows, 10)),
+                 "transl": np.tile([0, 0, 4.0], (rows, 1))},
         "tracking": {"track_id": np.array([7, 7])}})
     config = PipelineConfig.default().to_mapping()
     config["nodes"]["perception"] = {"type": "load", "config": {
