@@ -128,3 +128,22 @@ def test_person_seen_in_two_frames_is_named(small_video, tmp_path, capsys):
                            "--static-camera", "--no-progress")
     assert code == 2 and "id 7 in 2 frames" in err and "min_visible_frames" in err, err
     assert "no detections" not in err
+
+
+def test_people_seen_too_briefly_to_track_are_named(small_video, tmp_path, monkeypatch):
+    # Perception saw someone in 2 of the 6 frames but its tracker confirmed no one: the run says so instead of
+    # "no detections". (The perception backend is replaced by its result, so MediaPipe is not needed.)
+    from types import SimpleNamespace
+
+    from m3c.pipeline import InputError, run_pipeline
+
+    def fake_perception(frames, fps, size, config, progress=None, source=None):
+        count = sum(1 for _ in frames)
+        return SimpleNamespace(num_frames=count, tracks=[], seconds={},
+                               people_per_frame=np.array([0, 1, 1, 0, 0, 0][:count]))
+
+    monkeypatch.setattr("m3c.perception.mediapipe_pose.mediapipe_available", lambda: True)
+    monkeypatch.setattr("m3c.perception.run_perception_frames", fake_perception)
+    with pytest.raises(InputError, match=r"people were seen in only 2 of 6 frame\(s\), too few for a person track"):
+        run_pipeline(PipelineConfig.default(), tmp_path / "out", {"video": small_video}, targets=["perception"],
+                     show_progress=False)

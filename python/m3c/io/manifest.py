@@ -9,11 +9,9 @@ are stale, half replaced or modified since, and says which.
 
 from __future__ import annotations
 
-import contextlib
 import fcntl
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -152,8 +150,3 @@ def check_complete(folder: str | Path, needed: tuple[str, ...]) -> FolderState:
     if missing:
         raise IncompleteResults(f"{folder}: the run that published this folder did not write {', '.join(missing)}")
     return state
-
-
-def remove_quietly(path: Path) -> None:
-    with contextlib.suppress(FileNotFoundError):
-        os.unlink(path)
