@@ -135,13 +135,13 @@ class LocalTracksNode(Node):
             frames = len(np.unique(detections["frame"])) if n else 0
             if dropped:
                 raise InputError(f"no person was found in the video for long enough: {n} detection(s) in {frames} "
-                                 f"frame(s); "
-                                 f"{len(dropped)} person track(s) seen in fewer than "
-                                 f"{self.config.min_visible_frames} frames ({seen}); to keep short tracks lower "
-                                 "it, e.g. --set local_tracks.min_visible_frames=2")
-            raise InputError(f"no person was found in the video: {n} detection(s) in {frames} frame(s), none "
-                             "assigned to a person track" if n else "no person was found in the video "
-                             "(no detections)")
+                                 f"frame(s), every person track seen in fewer than "
+                                 f"{self.config.min_visible_frames} frames ({seen}); to keep short tracks, lower "
+                                 "local_tracks.min_visible_frames (e.g. --set local_tracks.min_visible_frames=2)")
+            if n:
+                raise InputError(f"no person was found in the video: {n} detection(s) in {frames} frame(s), none "
+                                 "assigned to a person track")
+            raise InputError("no person was found in the video (no detections)")
         ctx.log.info("%d track(s): %s", len(tracks),
                      ", ".join(f"id {t['track_id']} frames {t['first_frame']}..{t['first_frame'] + t['num_frames'] - 1}"
                                f" ({int(t['visible'].sum())} seen)" for t in tracks))

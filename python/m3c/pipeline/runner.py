@@ -312,6 +312,7 @@ class Runner:
                 shutil.copyfile(source, target)
             files[filename] = manifest_io.file_entry(target, node, key)
         for filename in pending:
+            (self.out_dir / filename).parent.mkdir(parents=True, exist_ok=True)
             os.replace(staging / filename, self.out_dir / filename)
             report.published[filename] = pending[filename][0]
         # Files of the earlier run this run did not write (e.g. it ran --until results): kept when the node that
