@@ -328,10 +328,12 @@ def nn_tests(weights_dir):
 
     def states(d):
         specs = [Arg("trans", (5, 3)), Arg("root_orient", (5, 3)), Arg("pose_body", (5, 21, 3), scale=0.5),
-                 Arg("joints", (5, 22, 3)), Arg("frame_from", (3, 339), scale=0.3)]
+                 Arg("joints", (5, 22, 3)), Arg("frame_from", (3, 339), scale=0.3), Arg("ground_R", (3, 3)),
+                 Arg("ground_t", (3,))]
 
-        def go(trans, root_orient, pose_body, joints, frame_from):
-            x = build_humor_states(trans, root_orient, pose_body, joints, 30.0)
+        def go(trans, root_orient, pose_body, joints, frame_from, ground_R, ground_t):
+            ground = None if ground_R is None or ground_t is None else (ground_R, ground_t)
+            x = build_humor_states(trans, root_orient, pose_body, joints, 30.0, ground)
             return x, canonicalize(x, frame_from)
         check(go, specs, d, "humor states")
 
@@ -367,11 +369,12 @@ def fit_motion_tests(weights_dir):
 
     def fits(d):
         specs = [Arg("keypoints", (n, 17, 3), scale=100, low=0), Arg("intrinsics", (4,), low=50, high=500),
-                 Arg("restart", (n,), kind="bool", low=0, high=1, optional=True),
+                 Arg("keypoints3d", (n, 17, 4), optional=True), Arg("restart", (n,), kind="bool", low=0, high=1,
+                                                                    optional=True),
                  Arg("times", (n,), low=0, high=10, optional=True)]
-        check(lambda keypoints, intrinsics, restart, times: fit_bodies(
-            model, keypoints, intrinsics, restart=restart, config=fit_config, regressor=regressor, times=times),
-            specs, d, "fit_bodies")
+        check(lambda keypoints, intrinsics, keypoints3d, restart, times: fit_bodies(
+            model, keypoints, intrinsics, keypoints3d, restart, fit_config, regressor, times), specs, d,
+            "fit_bodies")
 
     def motion(d):
         specs = [Arg("keypoints", (n, 17, 3), scale=100, low=0), Arg("transl", (n, 3), low=-1, high=1),

@@ -62,10 +62,11 @@ class VOConfig:
 
     def __post_init__(self):
         # The C++ core checks the patch-graph sizes; these would otherwise reach OpenCV or Ceres unchecked.
-        for name in ("num_threads", "max_image_side", "lk_window_px", "final_iterations", "window_iterations"):
+        for name, least in (("num_threads", 1), ("max_image_side", 1), ("lk_window_px", 1), ("init_iterations", 0),
+                            ("window_iterations", 0), ("final_iterations", 0)):
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Integral) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
+                raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
         for name in ("keyframe_threshold_px", "new_keyframe_flow_px", "init_min_flow_px", "loss_scale_px",
                      "outlier_threshold_px", "forward_backward_px", "min_gradient"):
             value = getattr(self, name)
