@@ -53,6 +53,7 @@ inline py::array ToNumpy(const py::handle& obj, const std::string& name, const s
 }
 
 inline bool CanCast(const py::array& from, const py::dtype& to, const char* casting) {
+  if (from.dtype().is(to)) return true;  // the common case, without a call into numpy
   return py::module_::import("numpy").attr("can_cast")(from.dtype(), to, casting).cast<bool>();
 }
 
@@ -73,7 +74,6 @@ py::array_t<T, py::array::c_style> Converted(const py::array& raw, const std::st
 template <typename T>
 py::array_t<T, py::array::c_style> AsArray(const py::handle& obj, const std::string& name, Cast cast = Cast::kSafe) {
   static_assert(std::is_floating_point_v<T>);
-  const std::string target = TypeName(py::dtype::of<T>());
   py::array raw = ToNumpy(obj, name, "a float array");
   const char kind = raw.dtype().kind();
   const bool numeric = kind == 'f' || kind == 'i' || kind == 'u' || kind == 'b';
@@ -81,6 +81,7 @@ py::array_t<T, py::array::c_style> AsArray(const py::handle& obj, const std::str
   const bool ok = numeric && (CanCast(raw, target_dtype, "safe") ||
                               (cast == Cast::kSameKind && (kind != 'f' || CanCast(raw, target_dtype, "same_kind"))));
   if (!ok) {
+    const std::string target = TypeName(target_dtype);
     throw py::value_error(name + " must be a float array (" +
                           (cast == Cast::kSafe ? "float16/32/64, integers or bool: what converts to " + target +
                                                      " without loss"
@@ -95,6 +96,19 @@ py::array_t<T, py::array::c_style> AsArray(const py::handle& obj, const std::str
 // float32 out) and in float64 otherwise (float32 with float64 or int64 gives float64, as in numpy). Arguments
 // that are None are skipped; ones numpy cannot combine leave the decision to AsArray's error.
 inline bool PromotesToFloat32(std::initializer_list<py::handle> objs) {
+  // Fast answers for the common cases (all float32; any float64) without a call into numpy.
+  bool all_float32 = true;
+  for (const py::handle& obj : objs) {
+    if (obj.is_none()) continue;
+    if (!py::isinstance<py::array>(obj)) {
+      all_float32 = false;
+      continue;
+    }
+    const py::dtype d = py::reinterpret_borrow<py::array>(obj).dtype();
+    if (d.is(py::dtype::of<double>())) return false;
+    all_float32 = all_float32 && d.is(py::dtype::of<float>());
+  }
+  if (all_float32) return true;
   py::list arrays;
   for (const py::handle& obj : objs) {
     if (obj.is_none()) continue;
