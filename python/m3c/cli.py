@@ -142,12 +142,17 @@ def output_folder(path: str | Path) -> Path:
 
 
 def _run(args) -> int:
-    from m3c.pipeline import Runner
+    from m3c.io.manifest import mark_failed
+    from m3c.pipeline import PipelineError, Runner
 
     _setup_logging(args.verbose - args.quiet)
-    config = _pipeline_config(args)
     output_folder(args.out)
-    runner = Runner(config, args.out, {"video": Path(args.video)}, show_progress=not args.no_progress)
+    try:
+        runner = Runner(_pipeline_config(args), args.out, {"video": Path(args.video)},
+                        show_progress=not args.no_progress)
+    except (PipelineError, ValueError) as err:
+        mark_failed(args.out, err)  # a folder of an earlier run: its results are not this command's
+        raise
     report = runner.run(args.until)
     print(f"m3c: finished in {sum(r.seconds for r in report.records):.1f} s "
           f"({len(report.ran())} node(s) ran, {len(report.records) - len(report.ran())} reused from the cache)")

@@ -169,3 +169,18 @@ def test_loaders_check_the_manifest(tmp_path):
     seal(folder, ["results.npz", "results.json"])
     assert load_results(folder)[0]["schema"] == SCHEMA
     assert set(ARRAYS) >= {"frame_ids"}
+
+
+def test_rerun_refused_before_it_starts_marks_the_folder_stale(tmp_path, capsys):
+    out = tmp_path / "out"
+    run(pipeline_yaml(), out)
+    config = tmp_path / "pipeline.yaml"
+    config.write_text(pipeline_yaml())
+    # A bad setting: the command fails before anything runs, but the folder no longer holds its results.
+    code = main(["run", str(config), "--out", str(out), "--config", str(config), "--set", "source.nope=1"])
+    assert code == 2 and "unknown setting" in capsys.readouterr().err
+    state = folder_state(out)
+    assert state.status == "failed" and "unknown setting" in state.message
+    assert state.manifest["previous"]["files"]["report.txt"]["sha256"] == sha256(out / "report.txt")
+    # The same command as before makes it complete again (everything is cached).
+    assert run(pipeline_yaml(), out).ran() == [] and folder_state(out).complete

@@ -9,9 +9,12 @@ are stale, half replaced or modified since, and says which.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
+import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,6 +73,43 @@ def seal(folder: str | Path, names: list[str]) -> dict:
     manifest = {"status": "complete", "run_key": run_key(files), "files": files}
     write_manifest(folder, manifest)
     return {"schema": SCHEMA, **manifest}
+
+
+def running_manifest(folder: str | Path, planned: dict[str, dict], pid: int) -> dict:
+    """The "running" manifest of a run that will publish `planned` ({file name: {node, key}}): it names the last
+    complete run, whose files stay in the folder (or are partly replaced if the run is stopped)."""
+    try:
+        old = read_manifest(folder)
+    except IncompleteResults:
+        old = None
+    previous = old if old is not None and old.get("status") == "complete" else (old or {}).get("previous")
+    return {"status": "running", "run_key": run_key(planned) if planned else None,
+            "started": time.strftime("%Y-%m-%d %H:%M:%S %z"), "pid": pid,
+            "previous": {"run_key": previous.get("run_key"), "files": previous.get("files", {})} if previous else None}
+
+
+def failed_manifest(running: dict, error: BaseException) -> dict:
+    reason = "interrupted" if isinstance(error, KeyboardInterrupt) else f"{type(error).__name__}: {error}"
+    return {**running, "status": "failed", "error": reason.splitlines()[0][:500]}
+
+
+def mark_failed(folder: str | Path, error: BaseException) -> bool:
+    """After a run that failed before it started (a bad option, a missing component): if the folder holds an
+    earlier run's results, its manifest now says they are stale. Skipped while another run holds the folder."""
+    folder = Path(folder)
+    if not (folder / MANIFEST).is_file():
+        return False
+    lock = folder / "cache" / ".lock"
+    with contextlib.ExitStack() as stack:
+        if lock.is_file():
+            fh = stack.enter_context(open(lock, "a"))
+            try:
+                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return False
+            stack.callback(fcntl.flock, fh, fcntl.LOCK_UN)
+        write_manifest(folder, failed_manifest(running_manifest(folder, {}, os.getpid()), error))
+    return True
 
 
 def _locked_by_a_run(folder: Path) -> bool:

@@ -223,21 +223,20 @@ class Runner:
         return [n for n in self.graph.order if n in needed]
 
     def run(self, targets: list[str] | None = None) -> RunReport:
-        plan = self.plan(targets)
-        to_run = [n for n, _, cached in plan if not cached]
-        problems = []
-        for name in to_run:
-            try:
-                self.graph.nodes[name].check(RunContext(self, name))
-            except ComponentUnavailable as err:
-                problems.append(err)
-        if problems:
-            err = PipelineUnavailable(problems)
-            if (self.out_dir / manifest_io.MANIFEST).is_file():  # the folder's results are not this config's
-                with contextlib.suppress(PipelineError), self._lock():
-                    if self._mark_running(plan):
-                        self._mark_failed(err)
-            raise err
+        try:
+            plan = self.plan(targets)
+            to_run = [n for n, _, cached in plan if not cached]
+            problems = []
+            for name in to_run:
+                try:
+                    self.graph.nodes[name].check(RunContext(self, name))
+                except ComponentUnavailable as err:
+                    problems.append(err)
+            if problems:
+                raise PipelineUnavailable(problems)
+        except (PipelineError, ValueError, OSError) as err:
+            manifest_io.mark_failed(self.out_dir, err)  # an earlier run's results are not this configuration's
+            raise
 
         created = not self.out_dir.exists()
         report = RunReport(str(self.out_dir))
@@ -269,30 +268,19 @@ class Runner:
                 for filename in self.graph.nodes[name].publish.values()}
 
     def _mark_running(self, plan: list[tuple[str, str, bool]]) -> bool:
-        """Before a run that publishes files other than those the folder's complete manifest vouches for, the
-        manifest says "running" (and names the earlier run), so the old files never look current meanwhile."""
+        """Before a run that publishes files, the manifest says "running" (and names the earlier run), so the old
+        files never look current meanwhile; _publish_all writes the complete one last."""
         planned = self._planned_files(plan)
         if not planned:
             return False
-        try:
-            old = manifest_io.read_manifest(self.out_dir)
-        except manifest_io.IncompleteResults:
-            old = None
-        # The last complete run's files (still in the folder, or partly replaced by a run that was stopped).
-        previous = old if old is not None and old.get("status") == "complete" else (old or {}).get("previous")
-        self._publishing = {"status": "running", "run_key": manifest_io.run_key(planned),
-                            "started": time.strftime("%Y-%m-%d %H:%M:%S %z"), "pid": os.getpid(),
-                            "previous": {"run_key": previous.get("run_key"), "files": previous.get("files", {})}
-                            if previous else None}
+        self._publishing = manifest_io.running_manifest(self.out_dir, planned, os.getpid())
         self.out_dir.mkdir(parents=True, exist_ok=True)
         manifest_io.write_manifest(self.out_dir, self._publishing)
         return True
 
     def _mark_failed(self, err: BaseException) -> None:
-        reason = "interrupted" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
         with contextlib.suppress(OSError):
-            manifest_io.write_manifest(self.out_dir, {**self._publishing, "status": "failed",
-                                                      "error": reason.splitlines()[0][:500]})
+            manifest_io.write_manifest(self.out_dir, manifest_io.failed_manifest(self._publishing, err))
 
     def _publish_all(self, pending: dict[str, tuple[str, str, Path]], report: RunReport) -> None:
         """Links every file into a staging folder, renames them into place, removes the files of earlier runs
