@@ -5,7 +5,10 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
+#include <cmath>
 #include <optional>
+#include <sstream>
 
 #include "bindings/numpy_util.h"
 #include "body/body_model.h"
@@ -43,7 +46,8 @@ Frames<T> ParseFrames(const BodyModel& model, const py::handle& pose, const py::
   } else {
     ShapeError("pose", pose_shape, fr.pose);
   }
-  fr.n = static_cast<int>(fr.pose.shape(0));
+  fr.n = CountOf(fr.pose.shape(0), "pose frames");
+  RequireFinite(fr.pose, "pose");
   fr.betas = AsArray<T>(betas, "betas");
   const std::string beta_shape = "(" + std::to_string(B) + ",) or (N=" + std::to_string(fr.n) + ", " +
                                  std::to_string(B) + ")";
@@ -54,6 +58,7 @@ Frames<T> ParseFrames(const BodyModel& model, const py::handle& pose, const py::
   } else {
     ShapeError("betas", beta_shape, fr.betas);
   }
+  RequireFinite(fr.betas, "betas");
   if (!transl.is_none()) {
     fr.transl = AsArray<T>(transl, "transl");
     if (fr.transl.ndim() == 1 && fr.transl.shape(0) == 3) {
@@ -65,9 +70,31 @@ Frames<T> ParseFrames(const BodyModel& model, const py::handle& pose, const py::
     } else if (!(fr.transl.ndim() == 2 && fr.transl.shape(0) == fr.n && fr.transl.shape(1) == 3)) {
       ShapeError("transl", "(3,) or (N=" + std::to_string(fr.n) + ", 3)", fr.transl);
     }
+    RequireFinite(fr.transl, "transl");
     fr.has_transl = true;
   }
   return fr;
+}
+
+template <typename T>
+T MaxAbs(const py::array_t<T, py::array::c_style>& a) {
+  T m = 0;
+  for (py::ssize_t i = 0; i < a.size(); ++i) m = std::max(m, std::abs(a.data()[i]));
+  return m;
+}
+
+// Finite inputs can still overflow (an angle of 1e30 rad, betas of 1e200): refuse instead of returning NaN/inf.
+template <typename T>
+void RequireFiniteResult(const Frames<T>& fr, const T* out, py::ssize_t size) {
+  for (py::ssize_t i = 0; i < size; ++i) {
+    if (std::isfinite(out[i])) continue;
+    std::ostringstream s;
+    s << "the result overflowed to " << out[i] << " in " << (sizeof(T) == 4 ? "float32" : "float64")
+      << " arithmetic: the inputs are too large (largest |pose| " << MaxAbs(fr.pose) << " rad, |betas| "
+      << MaxAbs(fr.betas) << ", |transl| " << (fr.has_transl ? MaxAbs(fr.transl) : T(0))
+      << "); poses are axis-angle radians, where |angle| <= pi already describes every rotation";
+    throw py::value_error(s.str());
+  }
 }
 
 template <typename T>
@@ -86,6 +113,8 @@ py::tuple ForwardT(const BodyModel& model, const py::handle& pose, const py::han
     py::gil_scoped_release release;
     body::Forward<T>(model, fr.n, p, b, fr.betas_shared, t, vout, jout);
   }
+  RequireFiniteResult(fr, joints.data(), joints.size());
+  if (with_vertices) RequireFiniteResult(fr, vertices.data(), vertices.size());
   return py::make_tuple(vertices, joints);
 }
 
@@ -102,6 +131,7 @@ py::array_t<T> ForwardKinematicsT(const BodyModel& model, const py::handle& pose
     py::gil_scoped_release release;
     body::ForwardKinematics<T>(model, fr.n, p, b, fr.betas_shared, t, out);
   }
+  RequireFiniteResult(fr, joints.data(), joints.size());
   return joints;
 }
 
@@ -118,6 +148,7 @@ py::array_t<T> KeypointsT(const BodyModel& model, const KeypointRegressor& reg, 
     py::gil_scoped_release release;
     body::Keypoints<T>(model, reg, fr.n, p, b, fr.betas_shared, t, o);
   }
+  RequireFiniteResult(fr, out.data(), out.size());
   return out;
 }
 
@@ -142,6 +173,8 @@ py::tuple KeypointsJacobian(const BodyModel& model, const KeypointRegressor& reg
                                   po + f * 3 * K, jo + f * 3 * K * D);
     }
   }
+  RequireFiniteResult(fr, points.data(), points.size());
+  RequireFiniteResult(fr, jac.data(), jac.size());
   return py::make_tuple(points, jac);
 }
 
@@ -151,6 +184,7 @@ SparseRow DenseToSparse(const py::handle& obj, const std::string& name, py::ssiz
     ShapeError(name, "(" + (rows >= 0 ? std::to_string(rows) : std::string("K")) + ", " + std::to_string(cols) + ")",
                a);
   }
+  RequireFinite(a, name);
   Eigen::Map<const RowMatrixXd> m(a.data(), a.shape(0), a.shape(1));
   return m.sparseView(0.0, 0.0);
 }
@@ -162,7 +196,7 @@ std::unique_ptr<BodyModel> MakeBodyModel(const py::handle& v_template, const py:
   auto vt = AsArray<double>(v_template, "v_template");
   if (vt.ndim() != 2 || vt.shape(1) != 3 || vt.shape(0) < 1) ShapeError("v_template", "(V, 3)", vt);
   const py::ssize_t V = vt.shape(0);
-  auto par = AsArray<int64_t>(parents, "parents");
+  auto par = AsIntegers(parents, "parents");
   if (par.ndim() != 1 || par.shape(0) < 1) ShapeError("parents", "(J,)", par);
   const py::ssize_t J = par.shape(0);
   auto sd = AsArray<double>(shapedirs, "shapedirs");
@@ -175,16 +209,31 @@ std::unique_ptr<BodyModel> MakeBodyModel(const py::handle& v_template, const py:
   if (w.ndim() != 2 || w.shape(0) != V || w.shape(1) != J) {
     ShapeError("weights", "(V=" + std::to_string(V) + ", J=" + std::to_string(J) + ")", w);
   }
-  auto fc = AsArray<int32_t>(faces, "faces");
+  auto fc = AsIntegers(faces, "faces");
   if (!(fc.ndim() == 2 && fc.shape(1) == 3) && fc.size() != 0) ShapeError("faces", "(F, 3)", fc);
+  for (py::ssize_t i = 0; i < fc.size(); ++i) {
+    if (fc.data()[i] < 0 || fc.data()[i] >= V) {
+      throw py::value_error("faces hold vertex index " + std::to_string(fc.data()[i]) + ", outside [0, V=" +
+                            std::to_string(V) + ")");
+    }
+  }
+  std::vector<int> par_v(J);
+  for (py::ssize_t j = 0; j < J; ++j) {
+    const int64_t p = par.data()[j];
+    if (p < -1 || p >= J) {
+      throw py::value_error("parents[" + std::to_string(j) + "] = " + std::to_string(p) + " is outside [-1, J=" +
+                            std::to_string(J) + ")");
+    }
+    par_v[j] = static_cast<int>(p);
+  }
 
   RowMatrixXd vt_m = Eigen::Map<const RowMatrixXd>(vt.data(), V, 3);
   Eigen::MatrixXd sd_m = Eigen::Map<const RowMatrixXd>(sd.data(), 3 * V, sd.shape(2));
   Eigen::MatrixXd pd_m = Eigen::Map<const RowMatrixXd>(pd.data(), 3 * V, pd.shape(2));
   RowMatrixXd w_m = Eigen::Map<const RowMatrixXd>(w.data(), V, J);
-  RowMatrixXi f_m = fc.size() ? RowMatrixXi(Eigen::Map<const RowMatrixXi>(fc.data(), fc.shape(0), 3))
+  using Faces64 = Eigen::Matrix<int64_t, Eigen::Dynamic, 3, Eigen::RowMajor>;
+  RowMatrixXi f_m = fc.size() ? RowMatrixXi(Eigen::Map<const Faces64>(fc.data(), fc.shape(0), 3).cast<int>())
                               : RowMatrixXi(0, 3);
-  std::vector<int> par_v(par.data(), par.data() + J);
   SparseRow jr = DenseToSparse(j_regressor, "J_regressor", J, V);
   return std::make_unique<BodyModel>(vt_m, sd_m, pd_m, jr, w_m, par_v, f_m);
 }
@@ -232,19 +281,22 @@ Args:
   m.def(
       "forward",
       [](const BodyModel& model, const py::handle& pose, const py::handle& betas, const py::handle& transl) {
-        return IsFloat32(pose) ? ForwardT<float>(model, pose, betas, transl, true)
-                               : ForwardT<double>(model, pose, betas, transl, true);
+        return PromotesToFloat32({pose, betas, transl}) ? ForwardT<float>(model, pose, betas, transl, true)
+                                                        : ForwardT<double>(model, pose, betas, transl, true);
       },
       py::arg("model"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       R"doc(Linear blend skinning of N frames.
 
 pose (N, J, 3) or (N, 3J) axis-angle, root first; betas (B,) shared or (N, B); transl None, (3,) or (N, 3), metres.
-Returns (vertices (N, V, 3), joints (N, J, 3)); float32 pose gives float32 outputs, else float64.)doc");
+Returns (vertices (N, V, 3), joints (N, J, 3)): float32 when numpy's result type of the inputs is float32 (or
+float16), else float64. Values must be finite.)doc");
   m.def(
       "forward_kinematics",
       [](const BodyModel& model, const py::handle& pose, const py::handle& betas, const py::handle& transl) {
-        return IsFloat32(pose) ? py::object(ForwardKinematicsT<float>(model, pose, betas, transl))
-                               : py::object(ForwardKinematicsT<double>(model, pose, betas, transl));
+        if (PromotesToFloat32({pose, betas, transl})) {
+          return py::object(ForwardKinematicsT<float>(model, pose, betas, transl));
+        }
+        return py::object(ForwardKinematicsT<double>(model, pose, betas, transl));
       },
       py::arg("model"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       "Posed joints (N, J, 3) without skinning the mesh; arguments as in forward().");
@@ -252,8 +304,10 @@ Returns (vertices (N, V, 3), joints (N, J, 3)); float32 pose gives float32 outpu
       "keypoints",
       [](const BodyModel& model, const KeypointRegressor& reg, const py::handle& pose, const py::handle& betas,
          const py::handle& transl) {
-        return IsFloat32(pose) ? py::object(KeypointsT<float>(model, reg, pose, betas, transl))
-                               : py::object(KeypointsT<double>(model, reg, pose, betas, transl));
+        if (PromotesToFloat32({pose, betas, transl})) {
+          return py::object(KeypointsT<float>(model, reg, pose, betas, transl));
+        }
+        return py::object(KeypointsT<double>(model, reg, pose, betas, transl));
       },
       py::arg("model"), py::arg("regressor"), py::arg("pose"), py::arg("betas"), py::arg("transl") = py::none(),
       "Keypoints (N, K, 3) posing only the vertices the regressor uses; arguments as in forward().");

@@ -26,7 +26,7 @@ py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor
   if (keypoints.ndim() != 3 || keypoints.shape(1) != K || keypoints.shape(2) != 3) {
     ShapeError("keypoints", "(N, " + std::to_string(K) + ", 3)", keypoints);
   }
-  const py::ssize_t N = keypoints.shape(0);
+  const py::ssize_t N = CountOf(keypoints.shape(0), "keypoints frames");
   const auto intrinsics = AsArray<double>(intrinsics_obj, "intrinsics");
   const bool shared_intrinsics = intrinsics.ndim() == 1 && intrinsics.shape(0) == 4;
   if (!shared_intrinsics && !(intrinsics.ndim() == 2 && intrinsics.shape(0) == N && intrinsics.shape(1) == 4)) {
@@ -42,16 +42,15 @@ py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor
   }
   std::vector<char> restart;
   if (!restart_obj.is_none()) {
-    const auto flags = py::array_t<bool, py::array::c_style | py::array::forcecast>::ensure(restart_obj);
-    if (!flags || flags.ndim() != 1 || flags.shape(0) != N) {
-      throw py::value_error("restart must be a bool array of shape (N=" + std::to_string(N) + ",)");
-    }
-    restart.assign(flags.data(), flags.data() + N);
+    const auto flags = AsIntegers(restart_obj, "restart");
+    if (flags.ndim() != 1 || flags.shape(0) != N) ShapeError("restart", "(N=" + std::to_string(N) + ",)", flags);
+    for (py::ssize_t i = 0; i < N; ++i) restart.push_back(flags.data()[i] != 0);
   }
   std::vector<double> times;
   if (!times_obj.is_none()) {
     const auto t = AsArray<double>(times_obj, "times");
     if (t.ndim() != 1 || t.shape(0) != N) ShapeError("times", "(N=" + std::to_string(N) + ",)", t);
+    RequireFinite(t, "times");
     times.assign(t.data(), t.data() + N);
   }
   std::vector<FrameObservation> observations(N);

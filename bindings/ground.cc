@@ -28,6 +28,7 @@ using PointsMap = Eigen::Map<const Points3>;
 py::array_t<double, py::array::c_style> ParsePoints(const py::handle& obj, const std::string& name) {
   auto a = AsArray<double>(obj, name);
   if (a.ndim() != 2 || a.shape(1) != 3) ShapeError(name, "(N, 3)", a);
+  CountOf(a.shape(0), name);  // the core checks that the points are finite
   return a;
 }
 
@@ -38,20 +39,14 @@ PointsMap MapPoints(const py::array_t<double, py::array::c_style>& a) {
 Eigen::Vector3d ParseUp(const py::handle& obj) {
   auto a = AsArray<double>(obj, "up");
   if (a.ndim() != 1 || a.shape(0) != 3) ShapeError("up", "(3,)", a);
+  RequireFinite(a, "up");
   return Eigen::Vector3d(a.at(0), a.at(1), a.at(2));
 }
 
-// An integer array of shape (n,) as std::vector<T>; floats are refused so that 0.7 never becomes 0.
+// An integer (or bool) array of shape (n,) as std::vector<T>, each value checked against T's range.
 template <typename T>
 std::vector<T> ParseIntegers(const py::handle& obj, const std::string& name, py::ssize_t n) {
-  py::array raw = py::array::ensure(obj);
-  if (!raw) throw py::value_error(name + " must be an integer array");
-  const char kind = raw.dtype().kind();
-  if (kind != 'i' && kind != 'u' && kind != 'b') {
-    throw py::value_error(name + " must be an integer or boolean array, got dtype " +
-                          std::string(py::str(raw.dtype())));
-  }
-  auto a = py::array_t<int64_t, py::array::c_style>::ensure(raw);
+  auto a = AsIntegers(obj, name);
   if (a.ndim() != 1 || (n >= 0 && a.shape(0) != n)) {
     ShapeError(name, n >= 0 ? "(N=" + std::to_string(n) + ",)" : std::string("(N,)"), a);
   }

@@ -27,6 +27,8 @@ Array Rows(const py::handle& obj, const std::string& what, py::ssize_t dim, py::
   if (a.ndim() != 2 || a.shape(1) != dim || (n >= 0 && a.shape(0) != n)) {
     ShapeError(what, "(" + (n >= 0 ? std::to_string(n) : std::string("N")) + ", " + std::to_string(dim) + ")", a);
   }
+  CountOf(a.shape(0), what);
+  RequireFinite(a, what);
   return a;
 }
 
@@ -109,6 +111,7 @@ Array BuildStates(const py::handle& trans, const py::handle& root_orient, const 
                   const py::handle& joints, double fps, const py::handle& ground_R, const py::handle& ground_t) {
   Array tr = AsArray<double>(trans, "trans");
   if (tr.ndim() != 2 || tr.shape(1) != 3 || tr.shape(0) < 3) ShapeError("trans", "(T >= 3, 3)", tr);
+  RequireFinite(tr, "trans");
   const py::ssize_t T = tr.shape(0);
   const std::string t_str = std::to_string(T);
   Array ro = Rows(root_orient, "root_orient", 3, T);
@@ -117,11 +120,13 @@ Array BuildStates(const py::handle& trans, const py::handle& root_orient, const 
         (pb.ndim() == 3 && pb.shape(0) == T && pb.shape(1) == 21 && pb.shape(2) == 3))) {
     ShapeError("pose_body", "(T=" + t_str + ", 21, 3) or (T, 63)", pb);
   }
+  RequireFinite(pb, "pose_body");
   Array jo = AsArray<double>(joints, "joints");
   if (jo.ndim() != 3 || jo.shape(0) != T || jo.shape(1) < 22 || jo.shape(2) != 3) {
     ShapeError("joints", "(T=" + t_str + ", J >= 22, 3)", jo);
   }
-  if (!(fps > 0)) throw py::value_error("fps must be positive, got " + std::to_string(fps));
+  RequireFinite(jo, "joints");
+  if (!(fps > 0) || !std::isfinite(fps)) throw py::value_error("fps must be positive, got " + std::to_string(fps));
   Array gR, gt;
   bool per_frame = false;
   const bool has_ground = !ground_R.is_none();
@@ -137,6 +142,8 @@ Array BuildStates(const py::handle& trans, const py::handle& root_orient, const 
     if (per_frame ? !(gt.ndim() == 2 && gt.shape(0) == T && gt.shape(1) == 3) : !(gt.ndim() == 1 && gt.shape(0) == 3)) {
       ShapeError("ground_t", per_frame ? "(T=" + t_str + ", 3)" : "(3,)", gt);
     }
+    RequireFinite(gR, "ground_R");
+    RequireFinite(gt, "ground_t");
   }
   Array out({T - 2, py::ssize_t{kStateDim}});
   {
@@ -241,6 +248,7 @@ Returns values (N,), or with_gradient: (values, d/dx_prev (N, 339), d/dz (N, 48)
             if (!((p.ndim() == 2 && p.shape(1) == 3 * J) || (p.ndim() == 3 && p.shape(1) == J && p.shape(2) == 3))) {
               ShapeError("pose_body", "(N, 21, 3) or (N, 63)", p);
             }
+            RequireFinite(p, "pose_body");
             const py::ssize_t n = p.shape(0), L = v.latent_dim();
             Array mean({n, L}), scale({n, L});
             const double* src = p.data();

@@ -3,6 +3,7 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include <limits>
 #include <memory>
 #include <string>
 
@@ -29,12 +30,14 @@ py::array_t<double, py::array::c_style> ParseRows(const py::handle& obj, const s
 render::Intrinsics ParseIntrinsics(const py::handle& obj) {
   auto a = AsArray<double>(obj, "intrinsics");
   if (a.ndim() != 1 || a.shape(0) != 4) ShapeError("intrinsics", "(4,) fx, fy, cx, cy", a);
+  RequireFinite(a, "intrinsics");
   return {a.at(0), a.at(1), a.at(2), a.at(3)};
 }
 
 std::shared_ptr<Texture> MakeTexture(const py::handle& obj) {
-  auto a = AsArray<float>(obj, "texture");
+  auto a = AsArray<float>(obj, "texture", Cast::kSameKind);
   if (a.ndim() != 3 || a.shape(2) != 3) ShapeError("texture", "(H, W, 3) RGB", a);
+  RequireFinite(a, "texture");
   return std::make_shared<Texture>(a.data(), static_cast<int>(a.shape(1)), static_cast<int>(a.shape(0)));
 }
 
@@ -43,15 +46,25 @@ void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices
           const std::shared_ptr<Texture>& texture, const py::handle& uv, const py::handle& face_rgb) {
   const render::Intrinsics K = ParseIntrinsics(intrinsics);
   auto v = ParseRows(vertices, "vertices", 3);
-  auto f_raw = py::array::ensure(faces);
-  if (!f_raw || (f_raw.dtype().kind() != 'i' && f_raw.dtype().kind() != 'u')) {
-    throw py::value_error("faces must be an integer array of shape (F, 3)");
+  // Face ids as int32 for the core; the core checks them against the vertex count.
+  auto f64 = AsIntegers(faces, "faces");
+  if (f64.ndim() != 2 || f64.shape(1) != 3) ShapeError("faces", "(F, 3)", f64);
+  py::array_t<int32_t, py::array::c_style> f({f64.shape(0), py::ssize_t{3}});
+  for (py::ssize_t i = 0; i < f64.size(); ++i) {
+    const int64_t id = f64.data()[i];
+    if (id < 0 || id > std::numeric_limits<int32_t>::max()) {
+      throw py::value_error("faces hold vertex id " + std::to_string(id) + ", outside [0, " +
+                            std::to_string(v.shape(0)) + ")");
+    }
+    f.mutable_data()[i] = static_cast<int32_t>(id);
   }
-  auto f = py::array_t<int32_t, py::array::c_style | py::array::forcecast>::ensure(f_raw);
-  if (f.ndim() != 2 || f.shape(1) != 3) ShapeError("faces", "(F, 3)", f);
-  auto l = ParseRows(py::array::ensure(light).attr("reshape")(1, 3), "light", 3, 1);
+  auto l = AsArray<double>(light, "light");
+  if (l.ndim() != 1 || l.shape(0) != 3) ShapeError("light", "(3,) direction", l);
+  RequireFinite(l, "light");
+  const Eigen::Vector3d light_dir(l.at(0), l.at(1), l.at(2));
+  if (light_dir.norm() == 0.0) throw py::value_error("light must be a non-zero direction");
   render::Material m;
-  m.light = Eigen::Vector3d(l.at(0, 0), l.at(0, 1), l.at(0, 2)).normalized();
+  m.light = light_dir.normalized();
   m.ambient = ambient;
   m.id = id;
   m.cull = cull;
@@ -59,21 +72,25 @@ void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices
   py::array_t<float, py::array::c_style> rgb;
   if (!normals.is_none()) {
     n = ParseRows(normals, "normals", 3, v.shape(0));
+    RequireFinite(n, "normals");
     m.normals = n.data();
   }
   if (texture) {
     t = ParseRows(uv, "uv", 2, v.shape(0));
+    RequireFinite(t, "uv");
     m.texture = texture;
     m.uv = t.data();
   } else {
-    rgb = AsArray<float>(face_rgb, "face_rgb");
+    rgb = AsArray<float>(face_rgb, "face_rgb", Cast::kSameKind);
     if (rgb.ndim() != 2 || rgb.shape(0) != f.shape(0) || rgb.shape(1) != 3) {
       ShapeError("face_rgb", "(F=" + std::to_string(f.shape(0)) + ", 3)", rgb);
     }
+    RequireFinite(rgb, "face_rgb");
     m.face_rgb = rgb.data();
   }
   py::gil_scoped_release release;
-  frame.Draw(K, near, v.data(), static_cast<int>(v.shape(0)), f.data(), static_cast<int>(f.shape(0)), m);
+  const int num_vertices = CountOf(v.shape(0), "vertices"), num_faces = CountOf(f.shape(0), "faces");
+  frame.Draw(K, near, v.data(), num_vertices, f.data(), num_faces, m);
 }
 
 void Resolve(Frame& frame) {
@@ -104,7 +121,7 @@ void BindRender(py::module_& m) {
   py::class_<Frame>(m, "RenderFrame",
                     "Colour, depth and id buffers of one image; draw meshes into it, then read rgb/depth/ids.")
       .def(py::init([](int width, int height, const py::handle& background) {
-             auto b = AsArray<float>(background, "background");
+             auto b = AsArray<float>(background, "background", Cast::kSameKind);
              if (b.ndim() != 1 || b.shape(0) != 3) ShapeError("background", "(3,) RGB", b);
              return std::make_unique<Frame>(width, height, b.data());
            }),

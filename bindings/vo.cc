@@ -25,12 +25,18 @@ using vo::PatchVOResult;
 
 using U8Array = py::array_t<uint8_t, py::array::c_style>;
 
-// A frame as a gray cv::Mat that owns its pixels (the numpy buffer may go away once the GIL is released).
-cv::Mat FrameToGray(const py::array& frame, const std::string& name, bool bgr) {
-  if (frame.dtype().kind() != 'u' || frame.itemsize() != 1) {
-    throw py::value_error(name + " must be uint8, got dtype " + std::string(py::str(frame.dtype())));
+// OpenCV indexes images with int; an empty image has nothing to track.
+void CheckImageSize(py::ssize_t h, py::ssize_t w, const std::string& name) {
+  if (h < 1 || w < 1 || h > 1 << 15 || w > 1 << 15) {
+    throw py::value_error(name + " is " + std::to_string(h) + " x " + std::to_string(w) +
+                          " pixels; expected 1..32768 pixels on each side");
   }
-  U8Array a = U8Array::ensure(frame);
+}
+
+// A frame as a gray cv::Mat that owns its pixels (the numpy buffer may go away once the GIL is released).
+cv::Mat FrameToGray(const py::handle& frame, const std::string& name, bool bgr) {
+  const U8Array a = AsBytes(frame, name, "a uint8 image (H, W) or (H, W, 3)");
+  if (a.ndim() >= 2) CheckImageSize(a.shape(0), a.shape(1), name);
   if (a.ndim() == 2) {
     return cv::Mat(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)), CV_8UC1,
                    const_cast<uint8_t*>(a.data()))
@@ -48,22 +54,16 @@ cv::Mat FrameToGray(const py::array& frame, const std::string& name, bool bgr) {
 
 cv::Mat MaskToMat(const py::handle& obj, const std::string& name, int h, int w) {
   if (obj.is_none()) return cv::Mat();
-  py::array raw = py::array::ensure(obj);
-  if (!raw) throw py::value_error(name + " must be a boolean array");
-  const char kind = raw.dtype().kind();
-  if (!((kind == 'b' || kind == 'u') && raw.itemsize() == 1)) {
-    throw py::value_error(name + " must be bool or uint8, got dtype " + std::string(py::str(raw.dtype())));
+  const U8Array c = AsBytes(obj, name, "a bool or uint8 mask (H, W)");
+  if (c.ndim() != 2 || c.shape(0) != h || c.shape(1) != w) {
+    ShapeError(name, "(" + std::to_string(h) + ", " + std::to_string(w) + ")", c);
   }
-  if (raw.ndim() != 2 || raw.shape(0) != h || raw.shape(1) != w) {
-    ShapeError(name, "(" + std::to_string(h) + ", " + std::to_string(w) + ")", raw);
-  }
-  py::array c = py::array::ensure(raw, py::array::c_style);
-  return cv::Mat(h, w, CV_8UC1, const_cast<void*>(c.data())).clone();
+  return cv::Mat(h, w, CV_8UC1, const_cast<uint8_t*>(c.data())).clone();
 }
 
 cv::Mat DepthToMat(const py::handle& obj, const std::string& name, int h, int w) {
   if (obj.is_none()) return cv::Mat();
-  auto a = AsArray<float>(obj, name);
+  auto a = AsArray<float>(obj, name, Cast::kSameKind);  // stored as float32; non-finite = unknown depth
   if (a.ndim() != 2 || a.shape(0) != h || a.shape(1) != w) {
     ShapeError(name, "(" + std::to_string(h) + ", " + std::to_string(w) + ")", a);
   }
@@ -74,6 +74,7 @@ Intrinsics ParseIntrinsics(const py::handle& obj) {
   if (obj.is_none()) return Intrinsics{};
   auto a = AsArray<double>(obj, "intrinsics");
   if (a.ndim() != 1 || a.shape(0) != 4) ShapeError("intrinsics", "(4,) = (fx, fy, cx, cy)", a);
+  RequireFinite(a, "intrinsics");
   const Intrinsics K{a.at(0), a.at(1), a.at(2), a.at(3)};
   if (!K.Valid()) throw py::value_error("intrinsics must be finite with fx, fy > 0");
   return K;
@@ -235,7 +236,7 @@ class PyPatchVO {
             front_end.is_none() ? nullptr : std::make_unique<PyFrontEnd>(front_end)),
         bgr_(bgr) {}
 
-  void AddFrame(const py::array& frame, const py::handle& mask, const py::handle& depth) {
+  void AddFrame(const py::handle& frame, const py::handle& mask, const py::handle& depth) {
     const std::string idx = "[" + std::to_string(vo_.num_frames()) + "]";
     cv::Mat gray = FrameToGray(frame, "frame" + idx, bgr_);
     cv::Mat m = MaskToMat(mask, "mask" + idx, gray.rows, gray.cols);
@@ -260,42 +261,35 @@ class PyPatchVO {
   bool bgr_;
 };
 
-py::dict RunPatchVO(const py::array& frames_in, const py::handle& masks, const py::handle& depths,
+py::dict RunPatchVO(const py::handle& frames_in, const py::handle& masks, const py::handle& depths,
                     const py::handle& intrinsics, const PatchVOOptions& options, bool bgr) {
-  if (frames_in.dtype().kind() != 'u' || frames_in.itemsize() != 1) {
-    throw py::value_error("frames must be uint8, got dtype " + std::string(py::str(frames_in.dtype())));
+  const U8Array frames = AsBytes(frames_in, "frames", "uint8 frames (T, H, W) or (T, H, W, 3)");
+  if (!(frames.ndim() == 3 || (frames.ndim() == 4 && frames.shape(3) == 3))) {
+    ShapeError("frames", "(T, H, W) or (T, H, W, 3)", frames);
   }
-  if (!(frames_in.ndim() == 3 || (frames_in.ndim() == 4 && frames_in.shape(3) == 3))) {
-    ShapeError("frames", "(T, H, W) or (T, H, W, 3)", frames_in);
-  }
-  const U8Array frames = U8Array::ensure(frames_in);
-  const int T = static_cast<int>(frames.shape(0)), H = static_cast<int>(frames.shape(1)),
-            W = static_cast<int>(frames.shape(2));
+  const int T = CountOf(frames.shape(0), "frames");
+  CheckImageSize(frames.shape(1), frames.shape(2), "each frame");
+  const int H = static_cast<int>(frames.shape(1)), W = static_cast<int>(frames.shape(2));
   const bool color = frames.ndim() == 4;
   const std::string expected =
       "(T=" + std::to_string(T) + ", H=" + std::to_string(H) + ", W=" + std::to_string(W) + ")";
-  py::array mask_arr;
+  U8Array mask_arr;
   if (!masks.is_none()) {
-    mask_arr = py::array::ensure(masks, py::array::c_style);
-    if (!mask_arr) throw py::value_error("masks must be a boolean array");
-    const char kind = mask_arr.dtype().kind();
-    if (!((kind == 'b' || kind == 'u') && mask_arr.itemsize() == 1)) {
-      throw py::value_error("masks must be bool or uint8, got dtype " + std::string(py::str(mask_arr.dtype())));
-    }
+    mask_arr = AsBytes(masks, "masks", "bool or uint8 masks (T, H, W)");
     if (mask_arr.ndim() != 3 || mask_arr.shape(0) != T || mask_arr.shape(1) != H || mask_arr.shape(2) != W) {
       ShapeError("masks", expected, mask_arr);
     }
   }
   py::array_t<float, py::array::c_style> depth_arr;
   if (!depths.is_none()) {
-    depth_arr = AsArray<float>(depths, "depths");
+    depth_arr = AsArray<float>(depths, "depths", Cast::kSameKind);  // stored as float32; non-finite = unknown
     if (depth_arr.ndim() != 3 || depth_arr.shape(0) != T || depth_arr.shape(1) != H || depth_arr.shape(2) != W) {
       ShapeError("depths", expected, depth_arr);
     }
   }
   const Intrinsics K = ParseIntrinsics(intrinsics);
   const uint8_t* fp = frames.data();
-  const uint8_t* mp = masks.is_none() ? nullptr : static_cast<const uint8_t*>(mask_arr.data());
+  const uint8_t* mp = masks.is_none() ? nullptr : mask_arr.data();
   const float* dp = depths.is_none() ? nullptr : depth_arr.data();
   PatchVOResult r;
   {

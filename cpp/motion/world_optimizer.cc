@@ -118,6 +118,8 @@ WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::Keypoin
       config_(std::move(config)) {
   M3C_CHECK(config_.robust_sigma > 0 && config_.min_depth > 0) << "robust_sigma and min_depth must be > 0";
   M3C_CHECK(config_.max_scale_uncertainty > 0) << "max_scale_uncertainty must be > 0";
+  // Ceres aborts the process on num_threads < 1, so it is refused here.
+  M3C_CHECK(config_.num_threads >= 1) << "num_threads must be >= 1, got " << config_.num_threads;
   for (const auto& stage : config_.stages) {
     M3C_CHECK(stage.max_iterations >= 0) << "stage " << stage.name << ": max_iterations must be >= 0";
     for (const auto& [term, weight] : stage.weights) {

@@ -124,7 +124,8 @@ Frame::~Frame() = default;
 
 void Frame::Draw(const Intrinsics& K, double near, const double* vertices, int num_vertices, const int32_t* faces,
                  int num_faces, const Material& m) {
-  M3C_CHECK(near > 0.0) << "near must be positive, got " << near;
+  M3C_CHECK(near > 0.0 && std::isfinite(near)) << "near must be a positive distance, got " << near;
+  M3C_CHECK(m.ambient >= 0.0 && m.ambient <= 1.0) << "ambient must lie in [0, 1], got " << m.ambient;
   M3C_CHECK(K.fx > 0.0 && K.fy > 0.0) << "focal lengths must be positive, got " << K.fx << ", " << K.fy;
   M3C_CHECK((m.texture != nullptr) != (m.face_rgb != nullptr)) << "a material needs a texture or face colours";
   M3C_CHECK(m.texture == nullptr || m.uv != nullptr) << "a textured mesh needs uv coordinates";

@@ -11,23 +11,26 @@ namespace m3c {
 namespace internal {
 class CheckMessage {
  public:
-  CheckMessage(const char* file, int line, const char* condition) {
-    stream_ << condition << " failed (" << file << ":" << line << ")";
-  }
+  CheckMessage(const char* file, int line, const char* condition) : file_(file), line_(line), condition_(condition) {}
   template <typename T>
   CheckMessage& operator<<(const T& value) {
-    if (!has_detail_) {
-      stream_ << ": ";
-      has_detail_ = true;
-    }
-    stream_ << value;
+    detail_ << value;
     return *this;
   }
-  [[noreturn]] void Throw() const { throw std::invalid_argument(stream_.str()); }
+  // The detail (written for people) first, the failed condition and its place after it, for developers.
+  [[noreturn]] void Throw() const {
+    const std::string file(file_);
+    const std::string where = file.substr(file.find_last_of('/') + 1) + ":" + std::to_string(line_);
+    const std::string detail = detail_.str();
+    if (detail.empty()) throw std::invalid_argument(std::string(condition_) + " failed (" + where + ")");
+    throw std::invalid_argument(detail + " [check " + condition_ + " at " + where + "]");
+  }
 
  private:
-  std::ostringstream stream_;
-  bool has_detail_ = false;
+  const char* file_;
+  int line_;
+  const char* condition_;
+  std::ostringstream detail_;
 };
 
 // Lets `M3C_CHECK(c) << "detail";` throw at the end of the full expression.

@@ -859,6 +859,7 @@ PatchVO::PatchVO(const PatchVOOptions& options, const Intrinsics& intrinsics, st
   M3C_CHECK(options.backward_frames >= 0 && options.backward_frames < options.patch_lifetime)
       << "backward_frames must be in [0, patch_lifetime)";
   M3C_CHECK(options.loss_scale_px > 0 && options.outlier_threshold_px > 0) << "loss scale and outlier threshold > 0";
+  M3C_CHECK(options.num_threads >= 1) << "num_threads must be >= 1, got " << options.num_threads;
   const bool given = intrinsics.fx != 0 || intrinsics.fy != 0 || intrinsics.cx != 0 || intrinsics.cy != 0;
   M3C_CHECK(!given || intrinsics.Valid()) << "intrinsics must have finite fx, fy > 0 (got fx=" << intrinsics.fx
                                           << ", fy=" << intrinsics.fy << ")";

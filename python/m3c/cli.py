@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import sys
 from pathlib import Path
 
@@ -44,8 +45,8 @@ def _vo(args) -> int:
     from m3c.io import save_npz_atomic
     from m3c.vo import run_vo_video
 
+    out = output_folder(args.out)
     result = run_vo_video(args.video, intrinsics=args.intrinsics, max_frames=args.max_frames)
-    out = Path(args.out)
     save_npz_atomic(out / "camera_trajectory.npz", world_from_cam=result.world_from_cam.astype(np.float32),
                     intrinsics=result.intrinsics, fps=np.float64(result.extra["fps"]),
                     static_camera=np.bool_(result.static_camera),
@@ -116,12 +117,42 @@ def _setup_logging(verbosity: int) -> None:
     logging.basicConfig(level=level, format="%(name)s: %(message)s", stream=sys.stderr)
 
 
+def output_folder(path: str | Path) -> Path:
+    """`path` as an output folder this process can create and write; ValueError naming the problem otherwise
+    (an existing file, a folder under a file, no write permission, a read-only file system)."""
+    import os
+    import tempfile
+
+    path = Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path} is a file, not a folder; choose a folder (it is created if missing)")
+    existing = path
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"--out {path} lies under {existing}, which is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {path}: no permission to write in {existing}; choose a writable folder")
+    try:
+        with tempfile.TemporaryFile(dir=existing):  # a read-only file system passes os.access for root
+            pass
+    except OSError as err:
+        raise ValueError(f"--out {path}: cannot write in {existing}: {err.strerror or err}") from None
+    return path
+
+
 def _run(args) -> int:
-    from m3c.pipeline import Runner
+    from m3c.io.manifest import mark_failed
+    from m3c.pipeline import PipelineError, Runner
 
     _setup_logging(args.verbose - args.quiet)
-    config = _pipeline_config(args)
-    runner = Runner(config, args.out, {"video": Path(args.video)}, show_progress=not args.no_progress)
+    output_folder(args.out)
+    try:
+        runner = Runner(_pipeline_config(args), args.out, {"video": Path(args.video)},
+                        show_progress=not args.no_progress)
+    except (PipelineError, ValueError) as err:
+        mark_failed(args.out, err)  # a folder of an earlier run: its results are not this command's
+        raise
     report = runner.run(args.until)
     print(f"m3c: finished in {sum(r.seconds for r in report.records):.1f} s "
           f"({len(report.ran())} node(s) ran, {len(report.records) - len(report.ran())} reused from the cache)")
@@ -133,9 +164,14 @@ def _run(args) -> int:
 
 
 def _info(args) -> int:
-    from m3c.io.results import describe
+    from m3c.io.manifest import folder_state
+    from m3c.io.results import PUBLISHED_FILES, describe
 
     print(describe(args.folder))
+    state = folder_state(args.folder, PUBLISHED_FILES)
+    if not state.complete:
+        print(f"m3c: error: {args.folder}: {state.message}", file=sys.stderr)
+        return EXIT_INPUT
     return 0
 
 
@@ -540,6 +576,8 @@ def _add_config_options(parser) -> None:
 # Exit codes: 0 success, 1 internal error (a bug: please report it with the traceback), 2 bad input or
 # configuration, 3 a component or model file the run needs is not available, 130 interrupted.
 EXIT_INPUT, EXIT_UNAVAILABLE = 2, 3
+_USER_OS_ERRORS = {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.ENOTDIR,
+                   errno.EISDIR}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -557,6 +595,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"m3c: error: {err}", file=sys.stderr)
         return EXIT_UNAVAILABLE
     except (PipelineError, FileNotFoundError, ValueError) as err:
+        print(f"m3c: error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as err:
+        if err.errno not in _USER_OS_ERRORS:
+            raise
+        # The file system refused a write or read the user can fix (permissions, a full or read-only disk).
         print(f"m3c: error: {err}", file=sys.stderr)
         return EXIT_INPUT
     except KeyboardInterrupt:

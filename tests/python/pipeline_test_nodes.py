@@ -107,6 +107,23 @@ class ReportNode(Node):
 
 
 @register_node
+class NoteNode(Node):
+    """A second published file (note.txt) from another node, for runs that publish only some of the files."""
+
+    type_name = "t_note"
+    level = "output"
+    inputs = ("x",)
+    outputs = ("note",)
+    publish = {"note": "note.txt"}
+
+    def run(self, ctx, inputs):
+        _log_run(self.name)
+        with open(ctx.work_path("note.txt"), "w") as fh:
+            fh.write(f"sum {float(np.sum(inputs['x']['values'])):.17g}\n")
+        return {"note": FileRef("note.txt")}
+
+
+@register_node
 class ModelNode(Node):
     """Records load/run/unload order to check that models live only while their node runs."""
 

@@ -11,6 +11,7 @@ from m3c.body.joint_names import H36M_TO_J14, J14_PELVIS
 from m3c.eval import metrics as M
 from m3c.eval.threedpw_eval import evaluate_3dpw, format_3dpw_tables
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.io.manifest import seal
 
 
 def make_dataset(root, model, rng, people_per_seq=(2, 1), n=12):
@@ -145,6 +146,7 @@ def test_m3c_run_folders_are_read_as_predictions(tmp_path, synthetic_body_model,
         (runs / name).mkdir(parents=True)
         np.savez(runs / name / "results.npz", **arrays)
         (runs / name / "results.json").write_text(json.dumps({"schema": SCHEMA}))
+        seal(runs / name, ["results.npz", "results.json"])  # as `m3c run` would publish them
     models = {"male": model, "female": model, "neutral": model}
     evaluation = evaluate_3dpw(tmp_path / "3DPW", "test", {"M3C": runs}, models)
     row = evaluation["methods"]["M3C"]

@@ -23,7 +23,10 @@ class BodyModel:
     """SMPL-layout body model evaluated by the C++ core.
 
     pose: N x J x 3 (or N x 3J) axis-angle, root first; betas: B or N x B; transl: None, 3 or N x 3 (metres).
-    float32 inputs give float32 outputs; anything else is computed in float64.
+    Computed in float32 when numpy's result type of pose, betas and transl is float32 (or float16), else in
+    float64 (a float32 pose with float64 betas gives float64, as numpy would); integer and bool arrays convert
+    to float. Other dtypes (longdouble, complex, object), NaN/inf values and results that would overflow raise
+    ValueError naming the argument.
     """
 
     def __init__(self, data: BodyModelData):

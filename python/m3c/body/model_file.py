@@ -220,9 +220,14 @@ def parse_model_arrays(raw: dict, num_betas: int | None = 10, name: str = "unnam
 
     keypoint_ids = {}
     if "keypoint_names" in raw and "keypoint_vertex_ids" in raw:
-        names = [str(n) for n in np.asarray(raw["keypoint_names"]).tolist()]
-        ids = np.asarray(raw["keypoint_vertex_ids"]).astype(int).tolist()
-        keypoint_ids = dict(zip(names, ids))
+        names = [str(n) for n in np.asarray(raw["keypoint_names"]).reshape(-1).tolist()]
+        ids = np.asarray(raw["keypoint_vertex_ids"])
+        integers = ids.dtype.kind in "iu" and ids.shape == (len(names),)
+        if not integers or (ids.size and (ids.min() < 0 or ids.max() >= V)):
+            got = f"values {ids.min()}..{ids.max()}" if integers else f"dtype {ids.dtype}, shape {ids.shape}"
+            raise BodyModelFileError(f"{name}: 'keypoint_vertex_ids' must be {len(names)} integer vertex indices "
+                                     f"(one per keypoint name) in [0, {V}), got {got}")
+        keypoint_ids = dict(zip(names, ids.astype(int).tolist()))
     gender = str(np.asarray(raw["gender"])) if "gender" in raw else "neutral"
     return BodyModelData(v_template, shapedirs, posedirs, J_regressor, weights, parents,
                          faces.astype(np.int32), name=name, gender=gender, keypoint_vertex_ids=keypoint_ids)

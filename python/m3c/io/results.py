@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from m3c.io.manifest import MANIFEST, check_complete, folder_state
+
 SCHEMA = "m3c.results/1"
 
 # name -> (shape, dtype, description); P tracks, T frames, B shape parameters.
@@ -69,13 +71,24 @@ def check_arrays(arrays: dict) -> None:
             raise ValueError(f"results array {name} has dtype {np.asarray(arrays[name]).dtype}, schema says {dtype}")
 
 
-def load_results(folder: str | Path) -> tuple[dict, dict]:
-    """(summary from results.json, arrays from results.npz) of a run's output folder."""
+RESULT_FILES = ("results.npz", "results.json")
+# Every file `m3c run` publishes with the default pipeline, in the order `m3c info` lists them.
+PUBLISHED_FILES = RESULT_FILES + ("overlay.mp4", "world.mp4", "camera_trajectory.png")
+
+
+def load_results(folder: str | Path, check: bool = True) -> tuple[dict, dict]:
+    """(summary from results.json, arrays from results.npz) of a run's output folder.
+
+    check: the folder's manifest must vouch for both files (one complete run wrote them and they are unchanged);
+    raises m3c.io.manifest.IncompleteResults (a ValueError) naming what is wrong otherwise. check=False reads
+    whatever is there."""
     folder = Path(folder)
     json_path, npz_path = folder / "results.json", folder / "results.npz"
     if not json_path.is_file() or not npz_path.is_file():
         raise FileNotFoundError(f"{folder} holds no M3C results (results.json and results.npz); run "
                                 f"`m3c run VIDEO --out {folder}` first")
+    if check:
+        check_complete(folder, RESULT_FILES)
     summary = json.loads(json_path.read_text())
     if summary.get("schema") != SCHEMA:
         raise ValueError(f"{json_path}: schema {summary.get('schema')!r}, this M3C reads {SCHEMA!r}")
@@ -87,9 +100,17 @@ def load_results(folder: str | Path) -> tuple[dict, dict]:
 def describe(folder: str | Path) -> str:
     """A human-readable summary of a result folder (`m3c info`)."""
     folder = Path(folder)
-    summary, arrays = load_results(folder)
+    state = folder_state(folder, PUBLISHED_FILES)
+    if state.status == "empty":
+        raise FileNotFoundError(f"{folder} holds no M3C results; run `m3c run VIDEO --out {folder}` first")
+    if not (folder / "results.json").is_file() or not (folder / "results.npz").is_file():
+        return f"{folder}: {state.message}\nstate       {state.status}; no results.npz/results.json here"
+    summary, arrays = load_results(folder, check=False)
     video, camera = summary["video"], summary["camera"]
     lines = [f"{folder}: M3C {summary['m3c_version']} results ({summary['schema']})",
+             f"state       {state.status}: {state.message}" if not state.complete else
+             f"state       complete (run {state.manifest.get('run_key')}, every file checked against "
+             f"{MANIFEST})",
              f"video       {video['name']}: {video['width']} x {video['height']}, {video['fps']:.3f} fps, frames "
              f"{video['frame_range'][0]}..{video['frame_range'][1] - 1} step {video['frame_range'][2]} "
              f"({video['frames']} processed)",
@@ -119,8 +140,8 @@ def describe(folder: str | Path) -> str:
     for stage in summary["optimization"]["stages"]:
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
                      f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")
-    files = [name for name in ("results.npz", "results.json", "overlay.mp4", "world.mp4", "camera_trajectory.png")
-             if (folder / name).is_file()]
-    lines.append(f"files       {', '.join(files)}")
+    files = [name for name in PUBLISHED_FILES if (folder / name).is_file()]
+    vouched = set(state.files)
+    lines.append(f"files       {', '.join(f if f in vouched or not state.complete else f + ' (stray)' for f in files)}")
     lines.append(f"arrays      {len(arrays)} in results.npz (schema in results.json['arrays'])")
     return "\n".join(lines)

@@ -28,6 +28,8 @@ Bone-length consistency needs no term: one betas per track gives every bone one 
 
 from __future__ import annotations
 
+import math
+from numbers import Integral, Real
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -74,8 +76,32 @@ class OptimizerConfig:
                    core.num_threads, stages)
 
     def validate(self) -> None:
+        """Raises ValueError naming the first bad setting (the C++ core would refuse it later, or worse, Ceres
+        would abort the process on num_threads < 1)."""
+        if isinstance(self.num_threads, bool) or not isinstance(self.num_threads, Integral) or self.num_threads < 1:
+            raise ValueError(f"num_threads must be an integer >= 1, got {self.num_threads!r}")
+        for key in ("robust_sigma", "min_depth", "max_scale_uncertainty"):
+            value = getattr(self, key)
+            if not (isinstance(value, Real) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{key} must be a finite number > 0, got {value!r}")
+        for key in ("min_confidence", "contact_threshold"):
+            value = getattr(self, key)
+            if not (isinstance(value, Real) and 0 <= value <= 1):
+                raise ValueError(f"{key} must lie in [0, 1], got {value!r}")
+        value = self.contact_height_tolerance
+        if not (isinstance(value, Real) and math.isfinite(value) and value >= 0):
+            raise ValueError(f"contact_height_tolerance must be a finite number >= 0, got {value!r}")
         known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
         for stage in self.stages:
+            if isinstance(stage.max_iterations, bool) or not isinstance(stage.max_iterations, Integral) \
+                    or stage.max_iterations < 0:
+                raise ValueError(f"stage {stage.name!r}: max_iterations must be an integer >= 0, "
+                                 f"got {stage.max_iterations!r}")
+            for term, weight in stage.weights.items():
+                if isinstance(weight, bool) or not isinstance(weight, Real) or not math.isfinite(weight) \
+                        or weight < 0:
+                    raise ValueError(f"stage {stage.name!r}: weight of {term} must be a finite number >= 0, "
+                                     f"got {weight!r}")
             unknown = set(stage.free) - set(PARAMETER_GROUPS)
             if unknown:
                 raise ValueError(f"stage {stage.name!r}: unknown parameter groups {sorted(unknown)}; "
@@ -115,8 +141,28 @@ class OptimizerConfig:
             raise ValueError(f"unknown optimizer settings {sorted(unknown)}")
         stages = raw.pop("stages", None)
         for key, value in raw.items():
-            setattr(base, key, type(getattr(base, key))(value))
+            setattr(base, key, _coerce(key, value, type(getattr(base, key))))
         if stages is not None:
-            base.stages = [StageSpec(**s) for s in stages]
+            try:
+                base.stages = [StageSpec(**s) for s in stages]
+            except TypeError as err:
+                raise ValueError(f"stages: each stage takes name, free, weights, max_iterations ({err})") from None
         base.validate()
         return base
+
+
+def _coerce(key: str, value, kind: type):
+    """A YAML value as the setting's type, refusing lossy conversions (0.5 -> 0 threads, "no" -> True)."""
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be true or false, got {value!r}")
+        return value
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{key} must be an integer, got {value!r}")
+        return value
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, Real):
+            raise ValueError(f"{key} must be a number, got {value!r}")
+        return float(value)
+    return value

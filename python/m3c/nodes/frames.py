@@ -58,6 +58,11 @@ class FramesNode(Node):
         if len(frame_ids) == 0:
             raise InputError(f"frame range {self.config.start}:{self.config.stop} selects no frames; {path} has "
                              f"{total} frames (0 .. {total - 1})")
+        if len(frame_ids) < 2:
+            what = f"{path} has only 1 frame" if total == 1 else \
+                f"frame range {self.config.start}:{self.config.stop}:{self.config.step} selects only 1 frame"
+            raise InputError(f"{what}; motion capture needs at least 2 frames (people and camera are tracked "
+                             "over time)")
         ctx.log.info("%s: %d x %d, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
                      info.fps, total, len(frame_ids))
         return {"video": {"path": info.path, "name": Path(info.path).name, "fps": info.fps / self.config.step,
@@ -83,6 +88,11 @@ def default_intrinsics(width: int, height: int) -> np.ndarray:
     diagonal field of view, WHAM's choice) and the principal point at the image centre."""
     focal = float(np.hypot(width, height))
     return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
+# Focal lengths of real cameras in units of the image diagonal: 0.2 is a ~136 degree diagonal field of view
+# (beyond action-camera fisheye), 10 is ~6 degrees (a long telephoto). Outside this range --intrinsics is warned of.
+PLAUSIBLE_FOCAL = (0.2, 10.0)
 
 
 @register_node
@@ -111,6 +121,13 @@ class CameraNode(Node):
             return {"camera": {"intrinsics": default_intrinsics(video["width"], video["height"]),
                                "source": "default"}}
         fx, fy, cx, cy = self.config.intrinsics
+        diagonal = float(np.hypot(video["width"], video["height"]))
+        low, high = PLAUSIBLE_FOCAL
+        for name, f in (("fx", fx), ("fy", fy)):
+            if not low * diagonal <= f <= high * diagonal:
+                ctx.log.warning("%s = %g px is %.3g times the image diagonal (%.0f px); focal lengths of real cameras "
+                                "lie within %g..%g times it (%.0f..%.0f px): check --intrinsics (pixels, not mm)",
+                                name, f, f / diagonal, diagonal, low, high, low * diagonal, high * diagonal)
         if not (0 <= cx <= video["width"] and 0 <= cy <= video["height"]):
             ctx.log.warning("principal point (%.1f, %.1f) lies outside the %d x %d image", cx, cy, video["width"],
                             video["height"])

@@ -16,6 +16,7 @@ white rather than black, which the thesis found the models handle better.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -104,6 +105,10 @@ class BoxesNode(Node):
     @dataclass
     class Config:
         padding: float = 5.0  # pixels
+
+        def __post_init__(self):
+            if not (math.isfinite(self.padding) and self.padding >= 0):
+                raise ValueError(f"padding must be a finite number of pixels >= 0, got {self.padding}")
 
     def run(self, ctx, inputs):
         video, detections = inputs["video"], inputs["detections"]

@@ -154,6 +154,12 @@ class PerceptionNode(Node):
             raise InputError(f"{video['name']}: decoded {result.num_frames} of {T} frames")
         ctx.log.info("%d track(s); seconds per stage: %s", len(result.tracks),
                      ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items() if v >= 0.05))
+        seen = int(np.count_nonzero(result.people_per_frame))
+        if not result.tracks and seen:
+            # People were seen, too briefly for the tracker to confirm anyone: say so, not "no detections".
+            raise InputError(f"people were seen in only {seen} of {T} frame(s), too few for a person track (the "
+                             f"tracker confirms a person after {config.tracker.min_hits} detections); M3C needs a "
+                             "person visible over several frames")
         return self._tables(result)
 
     @staticmethod
@@ -461,7 +467,7 @@ class VisualOdometryNode(AdapterNode):
 
         try:
             return VOConfig(**self.config.options)
-        except TypeError as err:
+        except (TypeError, ValueError) as err:
             raise InputError(f"node {self.name!r}: bad option in vo.options ({err}); options are m3c.vo.VOConfig "
                              "settings") from None
 

@@ -82,23 +82,31 @@ class LocalTracksNode(Node):
         else:
             transl = crop_to_full_camera(body["crop_cam"], boxes["square"], camera["intrinsics"])
         track_ids = np.asarray(tracking["track_id"])
-        tracks, dropped = [], []
+        tracks, dropped = [], {}  # dropped: track id -> frames seen
         for track_id in np.unique(track_ids[track_ids >= 0]):
             rows = np.flatnonzero(track_ids == track_id)
             # One detection per frame: the best-scoring one.
             rows = rows[np.lexsort((-detections["score"][rows], detections["frame"][rows]))]
             rows = rows[np.r_[True, np.diff(detections["frame"][rows]) > 0]]
             if len(rows) < self.config.min_visible_frames:
-                dropped.append(int(track_id))
+                dropped[int(track_id)] = len(rows)
                 continue
             tracks.append(self._gather(int(track_id), rows, detections, boxes, keypoints, body, transl, contacts))
         if dropped:
             ctx.log.info("dropped %d track(s) seen in fewer than %d frames: ids %s", len(dropped),
-                         self.config.min_visible_frames, dropped)
+                         self.config.min_visible_frames, sorted(dropped))
         if not tracks:
-            raise InputError(f"no person was found in the video: {n} detection(s), {len(dropped)} track(s) all "
-                             f"shorter than {self.config.min_visible_frames} frames (local_tracks.min_visible_frames)"
-                             if n else "no person was found in the video (no detections)")
+            seen = ", ".join(f"id {t} in {k} frame{'s' if k != 1 else ''}" for t, k in sorted(dropped.items()))
+            frames = len(np.unique(detections["frame"])) if n else 0
+            if dropped:
+                raise InputError(f"no person was found in the video for long enough: {n} detection(s) in {frames} "
+                                 f"frame(s), every person track seen in fewer than "
+                                 f"{self.config.min_visible_frames} frames ({seen}); to keep short tracks, lower "
+                                 "local_tracks.min_visible_frames (e.g. --set local_tracks.min_visible_frames=2)")
+            if n:
+                raise InputError(f"no person was found in the video: {n} detection(s) in {frames} frame(s), none "
+                                 "assigned to a person track")
+            raise InputError("no person was found in the video (no detections)")
         ctx.log.info("%d track(s): %s", len(tracks),
                      ", ".join(f"id {t['track_id']} frames {t['first_frame']}..{t['first_frame'] + t['num_frames'] - 1}"
                                f" ({int(t['visible'].sum())} seen)" for t in tracks))

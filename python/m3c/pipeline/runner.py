@@ -22,6 +22,7 @@ from typing import Any
 
 import m3c
 from m3c.io import atomic_path
+from m3c.io import manifest as manifest_io
 from m3c.pipeline.cache import Cache, digest, file_digest
 from m3c.pipeline.config import PipelineConfig, Settings
 from m3c.pipeline.graph import Graph
@@ -138,6 +139,7 @@ class Runner:
         self.show_progress = show_progress
         self.progress_stream = progress_stream if progress_stream is not None else sys.stderr
         self._body_model = None
+        self._publishing: dict = {}  # the "running" manifest of this run, once written
         self._setting_digests: dict[str, Any] = {}
 
     # Keys ---------------------------------------------------------------------------------------------------
@@ -171,6 +173,8 @@ class Runner:
         path = self.sources.get(name)
         if path is None:
             raise InputError(f"this pipeline reads the source {name!r}, but the run was not given one")
+        if path.is_dir():
+            raise InputError(f"{name} must be a file, but {path} is a folder")
         if not path.is_file():
             raise InputError(f"{name} file not found: {path}")
         return file_digest(path)
@@ -219,16 +223,20 @@ class Runner:
         return [n for n in self.graph.order if n in needed]
 
     def run(self, targets: list[str] | None = None) -> RunReport:
-        plan = self.plan(targets)
-        to_run = [n for n, _, cached in plan if not cached]
-        problems = []
-        for name in to_run:
-            try:
-                self.graph.nodes[name].check(RunContext(self, name))
-            except ComponentUnavailable as err:
-                problems.append(err)
-        if problems:
-            raise PipelineUnavailable(problems)
+        try:
+            plan = self.plan(targets)
+            to_run = [n for n, _, cached in plan if not cached]
+            problems = []
+            for name in to_run:
+                try:
+                    self.graph.nodes[name].check(RunContext(self, name))
+                except ComponentUnavailable as err:
+                    problems.append(err)
+            if problems:
+                raise PipelineUnavailable(problems)
+        except (PipelineError, ValueError, OSError) as err:
+            manifest_io.mark_failed(self.out_dir, err)  # an earlier run's results are not this configuration's
+            raise
 
         created = not self.out_dir.exists()
         report = RunReport(str(self.out_dir))
@@ -238,7 +246,13 @@ class Runner:
                 if stale:
                     LOG.info("removed %d unfinished file(s) or cache entr%s of an interrupted run", stale,
                              "y" if stale == 1 else "ies")
-                self._execute(plan, report)
+                marked = self._mark_running(plan)
+                try:
+                    self._execute(plan, report)
+                except BaseException as err:
+                    if marked:
+                        self._mark_failed(err)
+                    raise
         except BaseException:
             if created and not any(r.status == "ran" for r in report.records):
                 shutil.rmtree(self.out_dir, ignore_errors=True)  # nothing worth keeping: leave no trace
@@ -248,15 +262,72 @@ class Runner:
                 self._write_report(report)
         return report
 
+    # Publishing: the files of one run appear together, the manifest written last (m3c.io.manifest) -------------
+    def _planned_files(self, plan: list[tuple[str, str, bool]]) -> dict[str, dict]:
+        return {filename: {"node": name, "key": key} for name, key, _ in plan
+                for filename in self.graph.nodes[name].publish.values()}
+
+    def _mark_running(self, plan: list[tuple[str, str, bool]]) -> bool:
+        """Before a run that publishes files, the manifest says "running" (and names the earlier run), so the old
+        files never look current meanwhile; _publish_all writes the complete one last."""
+        planned = self._planned_files(plan)
+        if not planned:
+            return False
+        self._publishing = manifest_io.running_manifest(self.out_dir, planned, os.getpid())
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        manifest_io.write_manifest(self.out_dir, self._publishing)
+        return True
+
+    def _mark_failed(self, err: BaseException) -> None:
+        with contextlib.suppress(OSError):
+            manifest_io.write_manifest(self.out_dir, manifest_io.failed_manifest(self._publishing, err))
+
+    def _publish_all(self, pending: dict[str, tuple[str, str, Path]], report: RunReport) -> None:
+        """Links every file into a staging folder, renames them into place, removes the files of earlier runs
+        that this run does not vouch for, and writes the manifest last."""
+        if not pending:
+            return
+        staging = self.out_dir / f".publish-{os.getpid()}"
+        shutil.rmtree(staging, ignore_errors=True)
+        staging.mkdir(parents=True)
+        files = {}
+        for filename, (node, key, source) in pending.items():
+            target = staging / filename
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                os.link(source, target)  # same bytes, no copy
+            except OSError:
+                shutil.copyfile(source, target)
+            files[filename] = manifest_io.file_entry(target, node, key)
+        for filename in pending:
+            (self.out_dir / filename).parent.mkdir(parents=True, exist_ok=True)
+            os.replace(staging / filename, self.out_dir / filename)
+            report.published[filename] = pending[filename][0]
+        # Files of the earlier run this run did not write (e.g. it ran --until results): kept when the node that
+        # wrote them has the same key now (they are this configuration's), removed otherwise.
+        previous = (self._publishing.get("previous") or {}).get("files", {})
+        current = self._current_keys() if set(previous) - set(files) else {}
+        for filename in sorted(set(previous) - set(files)):
+            entry, path = previous[filename], self.out_dir / filename
+            if path.is_file() and entry.get("node") in current and current[entry["node"]] == entry.get("key") \
+                    and manifest_io.file_entry(path, entry["node"], entry["key"]) == entry:
+                files[filename] = entry
+            elif filename != manifest_io.MANIFEST:
+                path.unlink(missing_ok=True)
+                LOG.info("removed %s of an earlier run with other settings (this run does not write it)", filename)
+        shutil.rmtree(staging, ignore_errors=True)
+        manifest_io.write_manifest(self.out_dir, {"status": "complete", "run_key": manifest_io.run_key(files),
+                                                  "m3c_version": m3c.__version__, "files": files})
+
     def _remove_stale_files(self) -> int:
         """Temporary files a killed run left beside the files written atomically here (atomic_path names them
         .<name>.<random><suffix>): published results, the run report, pictures. Call with the run lock."""
         names = {name for node in self.graph.nodes.values() for name in node.publish.values()}
         stale = [p for name in sorted(names) for p in self.out_dir.glob(f".{name}.*")]
-        stale += list(self.cache.root.glob(".last_run.json.*"))
+        stale += list(self.cache.root.glob(".last_run.json.*")) + list(self.out_dir.glob(f".{manifest_io.MANIFEST}.*"))
         for path in stale:
             path.unlink(missing_ok=True)
-        folders = list((self.out_dir / "viz").glob(".tmp-*"))
+        folders = list((self.out_dir / "viz").glob(".tmp-*")) + list(self.out_dir.glob(".publish-*"))
         for folder in folders:
             shutil.rmtree(folder, ignore_errors=True)
         return len(stale) + len(folders)
@@ -289,6 +360,7 @@ class Runner:
             return values[name]
 
         total = len(plan)
+        pending: dict[str, tuple[str, str, Path]] = {}  # file name -> (node, key, committed file)
         for index, (name, key, cached) in enumerate(plan, 1):
             node = self.graph.nodes[name]
             record = NodeRecord(name, node.type_name, node.level, key, "cached" if cached else "running")
@@ -314,9 +386,10 @@ class Runner:
                 if self.config.settings.visualize:
                     self._visualize(node, key, inputs, outputs_of(name))
             if node.publish:
-                self._publish(node, outputs_of(name), report)
+                pending.update(self._files_to_publish(node, key, outputs_of(name)))
             if consumers.get(name, 0) <= 0:
                 values.pop(name, None)
+        self._publish_all(pending, report)
 
     def _gather_inputs(self, name: str, outputs_of) -> dict[str, Any]:
         node = self.graph.nodes[name]
@@ -351,19 +424,22 @@ class Runner:
             writer.discard()
             raise
 
-    def _publish(self, node: Node, outputs: dict[str, Any], report: RunReport) -> None:
+    def _current_keys(self) -> dict[str, str]:
+        """Every node's key under this configuration (empty when some node's key cannot be computed here)."""
+        try:
+            return self.keys(list(self.graph.order))
+        except PipelineError:
+            return {}
+
+    @staticmethod
+    def _files_to_publish(node: Node, key: str, outputs: dict[str, Any]) -> dict[str, tuple[str, str, Path]]:
+        files = {}
         for output, filename in node.publish.items():
             ref = outputs[output]
             if not isinstance(ref, FileRef):
                 raise PipelineError(f"node {node.name!r}: published output {output!r} is not a file")
-            target = self.out_dir / filename
-            with atomic_path(target) as tmp:
-                tmp.unlink()
-                try:
-                    os.link(ref.path, tmp)  # same bytes, no copy
-                except OSError:
-                    shutil.copyfile(ref.path, tmp)
-            report.published[filename] = node.name
+            files[filename] = (node.name, key, Path(ref.path))
+        return files
 
     def _visualize(self, node: Node, key: str, inputs: dict[str, Any], outputs: dict[str, Any]) -> None:
         folder = self.out_dir / "viz" / node.name

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
+from numbers import Integral, Real
 
 import numpy as np
 
@@ -57,6 +59,19 @@ class VOConfig:
                   "seed": "seed"}
     _SAMPLING_FIELDS = {"mask_dilation_px": "mask_dilation_px", "gradient_pool_px": "pool_px",
                         "min_gradient": "min_gradient"}
+
+    def __post_init__(self):
+        # The C++ core checks the patch-graph sizes; these would otherwise reach OpenCV or Ceres unchecked.
+        for name, least in (("num_threads", 1), ("max_image_side", 1), ("lk_window_px", 1), ("init_iterations", 0),
+                            ("window_iterations", 0), ("final_iterations", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
+                raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
+        for name in ("keyframe_threshold_px", "new_keyframe_flow_px", "init_min_flow_px", "loss_scale_px",
+                     "outlier_threshold_px", "forward_backward_px", "min_gradient"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
     def to_core(self) -> _core.PatchVOOptions:
         options = _core.PatchVOOptions()

@@ -52,7 +52,8 @@ TEST_P(VPoserTermTest, ResidualIsTheEncoderMeanAndItsJacobianIsExact) {
     const int blocks = static_cast<int>(cost->parameter_block_sizes().size());
     std::vector<std::vector<double>> x = {a, b}, jac(blocks, std::vector<double>(6 * kBodySize));
     std::vector<const double*> params = {x[0].data(), x[1].data()};
-    std::vector<double*> jp = {jac[0].data(), jac[1].data()};
+    std::vector<double*> jp;  // one Jacobian per block (the prior has one: jac[1] would read past jac's end)
+    for (auto& j : jac) jp.push_back(j.data());
     ASSERT_TRUE(cost->Evaluate(params.data(), r.data(), jp.data()));
     for (int blk = 0; blk < blocks; ++blk) {
       for (int k = 0; k < kBodySize; ++k) {
