@@ -1,4 +1,5 @@
-"""Session-wide synthetic fixtures: nothing here needs a licensed file or a download."""
+"""Session-wide fixtures: synthetic models, the shipped open body model and mocap clips; nothing here needs a
+licensed file or a download."""
 
 import numpy as np
 import pytest
@@ -38,3 +39,19 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def open_model():
+    """M3C's shipped open body model."""
+    from m3c.body import default_body_model
+
+    return default_body_model()
+
+
+@pytest.fixture(scope="session")
+def mocap_clips():
+    """The shipped retargeted CMU clips of the benchmarks."""
+    from m3c.eval.benchmark import load_clips
+
+    return load_clips()

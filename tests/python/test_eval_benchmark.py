@@ -6,9 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from m3c.body import default_body_model
 from m3c.eval import metrics as M
-from m3c.eval.benchmark import BenchmarkConfig, load_clips, make_sequence, run_benchmark
+from m3c.eval.benchmark import BenchmarkConfig, make_sequence, run_benchmark
 from m3c.eval.benchmark import _eval_tracks
 from m3c.eval.evaluate import evaluate_sequence
 from m3c.eval.scenes import project
@@ -21,13 +20,13 @@ PERFECT = dict(keypoint_noise_px=0.0, outlier_rate=0.0, occluded_noise_px=0.0, d
 
 
 @pytest.fixture(scope="module")
-def model():
-    return default_body_model()
+def model(open_model):
+    return open_model
 
 
 @pytest.fixture(scope="module")
-def clips():
-    return load_clips()
+def clips(mocap_clips):
+    return mocap_clips
 
 
 def test_shipped_clips_are_plausible_motion(clips):

@@ -6,21 +6,19 @@ import json
 import cv2
 import numpy as np
 import pytest
-from m3c.body import default_body_model
 from m3c.eval import video_benchmark as vb
-from m3c.eval.benchmark import load_clips
 from m3c.eval.scenes import project
 from m3c.synth import CAMERA_KINDS, SequenceSpec, make_video, setup_sequence
 
 
 @pytest.fixture(scope="module")
-def model():
-    return default_body_model()
+def model(open_model):
+    return open_model
 
 
 @pytest.fixture(scope="module")
-def clips():
-    return load_clips()
+def clips(mocap_clips):
+    return mocap_clips
 
 
 @pytest.fixture(scope="module")
