@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from m3c.io.manifest import seal
 from m3c.io.npz import write_npz
 from m3c.nodes.outputs import build_results
 
@@ -50,7 +51,7 @@ def make_tracks(num_frames: int, seed: int):
 
 
 def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, ground: bool = True) -> Path:
-    """Writes folder/results.npz and results.json; returns folder."""
+    """Writes folder/results.npz and results.json under a complete manifest; returns folder."""
     folder.mkdir(parents=True, exist_ok=True)
     tracks = make_tracks(num_frames, seed)
     centres = np.stack([np.linspace(0.0, 0.8, num_frames), np.full(num_frames, 1.5), np.zeros(num_frames)], 1)
@@ -69,4 +70,5 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
                                     result, {})
     write_npz(folder / "results.npz", arrays)
     (folder / "results.json").write_text(json.dumps(summary, indent=1) + "\n")
+    seal(folder, ["results.npz", "results.json"])  # as `m3c run` would publish them
     return folder
