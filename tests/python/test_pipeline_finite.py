@@ -47,6 +47,8 @@ def test_declared_nonfinite_paths_pass_and_finite_outputs_are_unchanged():
         check_outputs("optimize", "optimize", outputs, (), LOG)
     checked = check_outputs("optimize", "optimize", outputs, ("result.stages", "result.keypoints"), LOG)
     assert checked["result"]["stages"] is outputs["result"]["stages"]
+    empty = {"box": np.zeros((0, 4), np.float32)}
+    assert check_outputs("n", "t", {"d": empty}, (), LOG)["d"]["box"] is empty["box"]
     ints = {"frame": np.arange(4), "label": "x"}  # integer arrays and strings are not floats to check
     checked = check_outputs("n", "t", {"d": ints}, (), LOG)["d"]
     assert checked == {"frame": ints["frame"], "label": "x"} and checked["frame"] is ints["frame"]

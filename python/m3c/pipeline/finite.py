@@ -34,6 +34,8 @@ def index_ranges(indices: np.ndarray, limit: int = 6) -> str:
 
 def _bad_rows(value: np.ndarray) -> np.ndarray:
     """Indices along the first axis holding a non-finite value (index 0 for a 0-d array)."""
+    if value.size == 0:
+        return np.zeros(0, dtype=np.int64)
     bad = ~np.isfinite(value)
     if value.ndim == 0:
         return np.array([0]) if bad else np.zeros(0, dtype=np.int64)
