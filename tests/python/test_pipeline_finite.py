@@ -62,7 +62,13 @@ def test_a_track_with_nan_is_dropped_with_a_warning_naming_it(caplog):
                             LOG)
     assert [t["track_id"] for t in out["tracks"]["tracks"]] == [3]
     assert "track 7 dropped: transl is not finite in frames 21-22" in caplog.text
+    tracks[0]["betas"] = np.array([0.0, np.nan])  # not per frame: its rows are no frames
+    with caplog.at_level(logging.WARNING, logger="test"):
+        out = check_outputs("lift", "lift", {"world": {"tracks": tracks[:1] + [_track(9, 0, 3)]}}, (), LOG)
+    assert [t["track_id"] for t in out["world"]["tracks"]] == [9]
+    assert "track 3 dropped: betas is not finite in rows 1" in caplog.text
     tracks[0]["transl"][0] = np.inf
+    del tracks[0]["betas"]
     with pytest.raises(PipelineError, match="every track in tracks.tracks"):
         check_outputs("local_tracks", "local_tracks", {"tracks": {"tracks": tracks}}, (), LOG)
 

@@ -43,10 +43,10 @@ def _bad_rows(value: np.ndarray) -> np.ndarray:
 
 
 def nonfinite_values(value: Any, path: str, allowed: tuple[str, ...] = (),
-                     pattern_path: str | None = None) -> list[tuple[str, np.ndarray]]:
-    """(path, bad first-axis indices) of every float array or float under `value` that holds NaN/inf and whose
+                     pattern_path: str | None = None) -> list[tuple[str, np.ndarray, int]]:
+    """(path, bad first-axis indices, first-axis length) of every float array or float under `value` that holds NaN/inf and whose
     path in pattern form (pattern_path, default `path`; list indices as "[]") matches none of `allowed`."""
-    found: list[tuple[str, np.ndarray]] = []
+    found: list[tuple[str, np.ndarray, int]] = []
 
     def visit(v: Any, shown: str, pattern_path: str) -> None:
         if any(fnmatch.fnmatchcase(pattern_path, p) for p in allowed):
@@ -60,9 +60,9 @@ def nonfinite_values(value: Any, path: str, allowed: tuple[str, ...] = (),
         elif isinstance(v, np.ndarray) and v.dtype.kind in "fc":
             rows = _bad_rows(v)
             if len(rows):
-                found.append((shown, rows))
+                found.append((shown, rows, len(v) if v.ndim else 0))
         elif isinstance(v, (float, np.floating)) and not np.isfinite(v):
-            found.append((shown, np.zeros(0, dtype=np.int64)))
+            found.append((shown, np.zeros(0, dtype=np.int64), 0))
 
     visit(value, path, path if pattern_path is None else pattern_path)
     return found
@@ -94,16 +94,19 @@ def check_outputs(node_name: str, type_name: str, outputs: dict[str, Any], allow
                 if not bad:
                     kept.append(track)
                     continue
-                first = int(track["first_frame"]) if "first_frame" in track else None
-                reasons = "; ".join(_describe(p.removeprefix(f"{path}[{i}]."), r, first) for p, r in bad)
+                first, n = track.get("first_frame"), track.get("num_frames")
+                # Rows of a per-frame array (as long as the track) are reported as video frames.
+                reasons = "; ".join(_describe(p.removeprefix(f"{path}[{i}]."), r,
+                                              int(first) if first is not None and length == n else None)
+                                    for p, r, length in bad)
                 log.warning("%s: track %s dropped: %s", who, track["track_id"], reasons)
             if not kept:
                 raise PipelineError(f"{who}: every track in {path} holds non-finite values and was dropped (see the "
                                     "warnings above); the node's inputs or its computation produced NaN/inf")
             return kept
-        bad = nonfinite_values(v, path, allowed)
+        bad = nonfinite_values(v, path, allowed, pattern_path)
         if bad:
-            details = "; ".join(_describe(p, r, None) for p, r in bad[:5])
+            details = "; ".join(_describe(p, r, None) for p, r, _ in bad[:5])
             more = f" (and {len(bad) - 5} more)" if len(bad) > 5 else ""
             raise PipelineError(f"{who} produced NaN/inf: {details}{more}. This is a bug in the node or in its "
                                 "inputs; no later node would see it as anything but a NaN result")
