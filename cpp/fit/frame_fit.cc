@@ -323,12 +323,17 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
     result.warm_started = true;
     Measure(obs, m, &result);
     if (result.reprojection_error_px > options_.reinit_error_px) {
-      // Compare under the same objective (temporal priors included).
-      BodyState cold = cold_fit(&result.iterations);
-      const double cold_cost = Solve(obs, m, previous, predicted_transl, true, true, &cold, &result.iterations);
-      if (cold_cost < result.cost) {
-        result.state = cold;
-        result.cost = cold_cost;
+      // A warm fit this far off the keypoints means the track's motion no longer predicts it (a fast turn, or a
+      // depth that drifted: depth is weakly observed, and a constant-velocity prediction of a drifting depth
+      // feeds the drift, metres per frame). The cold fit is solved without that prediction and kept when it
+      // matches the keypoints better; comparing with the prediction's cost included would keep the drift.
+      FrameFitResult cold;
+      cold.state = cold_fit(&result.iterations);
+      cold.cost = Solve(obs, m, previous, nullptr, true, true, &cold.state, &result.iterations);
+      Measure(obs, m, &cold);
+      if (cold.reprojection_error_px < result.reprojection_error_px) {
+        result.state = cold.state;
+        result.cost = cold.cost;
         result.warm_started = false;
       }
     }
@@ -369,7 +374,11 @@ std::vector<FrameFitResult> BodyFitter::FitSequence(const std::vector<FrameObser
       prediction = &predicted;
     }
     results.push_back(Fit(observations[i], previous, prediction));
-    if (results.back().status == "ok") before_last = last, last = static_cast<int>(i);
+    if (results.back().status == "ok") {
+      // A cold fit starts the motion afresh: the jump from the last frame is no velocity to extrapolate.
+      before_last = results.back().warm_started ? last : -1;
+      last = static_cast<int>(i);
+    }
   }
   return results;
 }

@@ -51,6 +51,18 @@ ARRAYS: dict[str, tuple[str, str, str]] = {
 }
 
 
+def json_ready(value):
+    """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
+    (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
+    if isinstance(value, dict):
+        return {key: json_ready(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(item) for item in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    return value
+
+
 def schema_markdown() -> str:
     """The README table of results.npz."""
     lines = ["| array | shape | dtype | meaning |", "|---|---|---|---|"]

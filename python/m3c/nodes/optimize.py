@@ -12,6 +12,7 @@ import yaml
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
 from m3c.nodes.world import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
+from m3c.pipeline.finite import index_ranges
 
 
 def optimizer_config(overrides: dict) -> OptimizerConfig:
@@ -38,6 +39,26 @@ def to_motion_track(track: dict, metric_world_from_cam: np.ndarray) -> Track:
                  np.asarray(track["betas"]), normal, offset, track.get("contacts"))
 
 
+def unusable_reason(model, track: Track, metric_world_from_cam: np.ndarray, config: OptimizerConfig) -> str | None:
+    """Why the optimizer cannot use a track (None when it can): no keypoint it would score (confidence >=
+    config.min_confidence), or a scored keypoint of the starting body at or behind its camera (closer than
+    config.min_depth): the reprojection cost cannot be evaluated there, and a stage whose start cannot be evaluated
+    fails for every track (a NaN objective)."""
+    scored = np.asarray(track.keypoints)[..., 2] >= config.min_confidence
+    if not scored.any():
+        return f"none of its {track.num_frames} frames has a keypoint of confidence >= {config.min_confidence}"
+    pose = np.concatenate([np.asarray(track.root_orient)[:, None], np.asarray(track.body_pose)], axis=1)
+    points = model.keypoints(model.coco17_regressor(), pose, np.asarray(track.betas), np.asarray(track.transl))
+    cams = metric_world_from_cam[track.first_frame:track.first_frame + track.num_frames]
+    depth = np.einsum("ni,nki->nk", cams[:, :3, 2], points - cams[:, None, :3, 3])
+    close = np.flatnonzero((scored & ~(depth > config.min_depth)).any(axis=1))
+    if len(close):
+        return (f"its starting body puts keypoints at or behind the camera (depth <= {config.min_depth} m, as close "
+                f"as {float(np.min(depth[close])):.2f} m) in frames {index_ranges(close + track.first_frame)}: a "
+                "camera-local body estimate that failed there")
+    return None
+
+
 @register_node
 class OptimizeNode(Node):
     """Output result: tracks (the lift's tracks with optimised transl, root_orient, body_pose, betas),
@@ -50,6 +71,7 @@ class OptimizeNode(Node):
     inputs = ("video", "camera", "world")
     outputs = ("result",)
     settings = ("body_model", "models_dir")
+    nonfinite_outputs = ("result.stages",)  # a failed stage reports the objective it could not evaluate as NaN
 
     @dataclass
     class Config:
@@ -110,7 +132,19 @@ class OptimizeNode(Node):
             for stage in config.stages:
                 stage.free = [v for v in stage.free if v != "scale"]
         metric = metric_cameras(world_from_cam, cameras.initial_scale)
-        motion_tracks = [to_motion_track(t, metric) for t in tracks]
+        motion_tracks, usable = [], []
+        for track in tracks:
+            motion = to_motion_track(track, metric)
+            reason = unusable_reason(ctx.body_model(), motion, metric, config)
+            if reason is not None:
+                ctx.log.warning("track %s dropped: the optimizer cannot use it: %s", track["track_id"], reason)
+                continue
+            motion_tracks.append(motion)
+            usable.append(track)
+        if not usable:
+            raise PipelineError(f"none of the {len(tracks)} track(s) can be optimised (see the warnings above); "
+                                "disable the optimization (--set optimize.enabled=false) to keep the world lift")
+        tracks = usable
         motion_prior = self._weights(ctx, "motion_prior", "humor.safetensors")
         pose_prior = self._weights(ctx, "pose_prior", "vposer.safetensors")
         for name, path in (("HuMoR motion prior", motion_prior), ("VPoser pose prior", pose_prior)):

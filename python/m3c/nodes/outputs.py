@@ -12,7 +12,7 @@ import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval.plausibility import results_plausibility
 from m3c.io.npz import write_npz
-from m3c.io.results import ARRAYS, SCHEMA, check_arrays
+from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
 from m3c.io.video import VideoWriter
 from m3c.nodes.frames import stream_frames
 from m3c.nodes.world import metric_cameras
@@ -73,7 +73,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         arrays[name] = np.full((P, T) + shape, nan)
     regressor = model.coco17_regressor()
     summary_tracks = []
-    for p, (track, lifted) in enumerate(zip(tracks, world["tracks"])):
+    lifted_by_id = {t["track_id"]: t for t in world["tracks"]}  # the optimizer may have dropped tracks
+    for p, track in enumerate(tracks):
+        lifted = lifted_by_id[track["track_id"]]
         frames = _frames(track)
         betas = np.asarray(track["betas"], dtype=np.float64)
         pose = _poses(track)
@@ -170,7 +172,7 @@ class ResultsNode(Node):
                                         inputs["scale"], inputs["ground"], inputs["world"], inputs["result"],
                                         backends)
         write_npz(ctx.work_path("results.npz"), arrays, compress=True)
-        ctx.work_path("results.json").write_text(json.dumps(summary, indent=1, allow_nan=False) + "\n")
+        ctx.work_path("results.json").write_text(json.dumps(json_ready(summary), indent=1, allow_nan=False) + "\n")
         return {"npz": FileRef("results.npz"), "json": FileRef("results.json")}
 
 

@@ -47,6 +47,7 @@ class PerceptionNode(Node):
     inputs = ("video", "camera")
     outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
     settings = ("body_model", "models_dir")
+    version = "2"  # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

@@ -60,6 +60,8 @@ class Node:
     settings: global settings this node reads (e.g. "body_model"); their fingerprints enter its cache key.
     sources: run sources this node reads (e.g. "video"); their content fingerprints enter its cache key.
     publish: output name -> file name under the run's output folder, for outputs that are FileRefs.
+    nonfinite_outputs: output paths where NaN/inf is legal; elsewhere the runner stops the run (or drops the person
+    track) at the first non-finite value, naming the node, the array and the frames.
     version: bump when the node's behaviour changes through code outside the class (its own source is hashed).
     """
 
@@ -73,6 +75,9 @@ class Node:
     sources: ClassVar[tuple[str, ...]] = ()
     publish: ClassVar[dict[str, str]] = {}
     version: ClassVar[str] = "1"
+    # Output paths that may hold NaN/inf by design (fnmatch patterns, list indices as "[]", e.g.
+    # "result.stages[].objective_before"); every other float must be finite (m3c.pipeline.finite).
+    nonfinite_outputs: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, name: str, config: Any = None):
         self.name = name

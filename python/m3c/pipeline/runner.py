@@ -25,6 +25,7 @@ from m3c.io import atomic_path
 from m3c.io import manifest as manifest_io
 from m3c.pipeline.cache import Cache, digest, file_digest
 from m3c.pipeline.config import PipelineConfig, Settings
+from m3c.pipeline.finite import check_outputs
 from m3c.pipeline.graph import Graph
 from m3c.pipeline.node import ComponentUnavailable, FileRef, InputError, Node, PipelineError, config_to_dict
 from m3c.pipeline.progress import Progress
@@ -414,6 +415,7 @@ class Runner:
                 got = sorted(outputs) if isinstance(outputs, dict) else type(outputs).__name__
                 raise PipelineError(f"node {node.name!r} ({node.type_name}) must return its outputs "
                                     f"{list(node.outputs)}, returned {got}")
+            outputs = check_outputs(node.name, node.type_name, outputs, node.nonfinite_outputs, ctx.log)
             meta = {"node": node.name, "type": node.type_name, "key": key, "code": node.code_version(),
                     "config": node.key_config(ctx), "m3c": m3c.__version__,
                     "inputs": {e.slot: f"{e.source}.{e.output}@{keys[e.source]}"

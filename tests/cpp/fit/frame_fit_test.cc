@@ -207,6 +207,38 @@ TEST(BodyFitter, TranslationPriorExtrapolatesAtConstantVelocityOverTheFrameTimes
   EXPECT_THROW(fitter.FitSequence(obs, {}, {0.0, 2.0, 1.0}), std::invalid_argument);
 }
 
+TEST(BodyFitter, DriftingWarmStartRestartsColdWithoutTheVelocityPrediction) {
+  // A person 1.5 m closer in the first frame than in all the others: the velocity of the first two frames,
+  // extrapolated, pulls the depth away while the keypoints say it stays. Once the warm fit is more than
+  // reinit_error_px off, the cold fit (without the prediction) must win and restart the velocity; compared with the
+  // prediction's cost included, the drift was kept and grew by metres per frame.
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = JointPicks(model);
+  const BodyFitter fitter(&model, &reg, FitOptions());
+  Truth base = MakeTruth(model, reg, 60, 0.2, {0.0, 0.0, 4.0});
+  base.state.betas.setZero();
+  std::vector<FrameObservation> obs;
+  const int n = 30;
+  for (int f = 0; f < n; ++f) {
+    Truth t = base;
+    t.state.transl.z() = f == 0 ? 1.5 : 4.0;
+    t.points = FittedPoints(model, reg, t.state);
+    obs.push_back(Observe(t, kCamera, 0.5, 0.01, false, 300 + f));
+  }
+  const auto results = fitter.FitSequence(obs, {});
+  bool restarted = false;
+  for (int f = 2; f < n; ++f) restarted |= !results[f].warm_started;
+  EXPECT_TRUE(restarted);
+  for (int f = 1; f < n; ++f) {
+    EXPECT_LT(results[f].state.transl.z(), 8.0) << f;
+    EXPECT_LE(results[f].reprojection_error_px, FitOptions().reinit_error_px) << f;
+  }
+  for (int f = n - 10; f < n; ++f) {
+    EXPECT_LT(results[f].reprojection_error_px, 2.0) << f;
+    EXPECT_LT(std::abs(results[f].state.transl.z() - 4.0), 0.5) << f;
+  }
+}
+
 TEST(BodyFitter, RejectsBadInput) {
   const body::BodyModel model = MakeTestModel();
   const auto reg = JointPicks(model);
