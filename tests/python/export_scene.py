@@ -60,8 +60,9 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
              "height": HEIGHT, "name": "synthetic.mp4", "start": 0, "stop": 2 * num_frames, "step": 2}
     # The world lift: a little off the final motion (newer result schemas also store its pose, shape, cameras).
     world = {"method": "test", "world_from_cam": world_from_cam, "initial_scale": 1.0,
-             "tracks": [{"root_orient": t["root_orient"] + 0.01, "transl": t["transl"] + 0.05,
-                         "body_pose": t["body_pose"] + 0.02, "betas": t["betas"]} for t in tracks]}
+             "tracks": [{"track_id": t["track_id"], "root_orient": t["root_orient"] + 0.01,
+                         "transl": t["transl"] + 0.05, "body_pose": t["body_pose"] + 0.02, "betas": t["betas"]}
+                        for t in tracks]}
     result = {"tracks": tracks, "world_from_cam": world_from_cam, "camera_scale": 1.0,
               "camera_offset": np.zeros(3), "optimized": True, "stopped_early": False, "stages": []}
     arrays, summary = build_results(model, video, {"intrinsics": INTRINSICS, "source": "test"},
