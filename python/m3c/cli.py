@@ -164,9 +164,9 @@ def _run(args) -> int:
 
 
 def _batch(args) -> int:
-    from m3c.pipeline.batch import collect_videos, run_batch
-
     import logging
+
+    from m3c.pipeline.batch import collect_videos, run_batch
 
     _setup_logging(args.verbose - args.quiet)
     if args.verbose - args.quiet <= 0:  # one line per video, not one per node of every video

@@ -4,11 +4,16 @@ others go on, re-runs served from the caches. Sequential always; on Ray when it 
 example, so the real default pipeline (MediaPipe perception) runs in a few seconds each."""
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import cv2
+import m3c
 import pytest
-
 from m3c.cli import main
 from m3c.io.manifest import folder_state
 from m3c.io.results import PUBLISHED_FILES
@@ -17,6 +22,8 @@ from m3c.pipeline import PipelineConfig
 from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
+# The subprocess imports the same m3c as this process (the source tree in development, the installed package in CI).
+PYTHON_DIR = str(Path(m3c.__file__).resolve().parents[1])
 needs_mediapipe = pytest.mark.skipif(not mediapipe_available(), reason="needs mediapipe (pip install "
                                                                        "'m3c[perception]')")
 
@@ -142,3 +149,43 @@ def test_ray_request_no_node_can_hold_is_refused(videos, tmp_path, local_ray):
     with pytest.raises(ValueError, match="no Ray node .* can run one video.*Lower --cpus-per-video"):
         run_batch(PipelineConfig.default(), [videos / "broken.mp4"], tmp_path / "out", cpus_per_video=64,
                   show_progress=False)
+
+
+def start_batch(videos: Path, out: Path, *extra: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([PYTHON_DIR, os.environ.get("PYTHONPATH", "")]))
+    return subprocess.Popen([sys.executable, "-m", "m3c", "batch", str(videos), "--out", str(out), "--no-progress",
+                             "-q", *extra], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def wait_for(predicate, proc: subprocess.Popen, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        assert proc.poll() is None, "the batch ended before the moment to kill it"
+        assert time.monotonic() < end, "timed out waiting for the moment to kill the batch"
+        time.sleep(0.01)
+
+
+@needs_mediapipe
+@pytest.mark.slow
+def test_batch_killed_mid_video_resumes_to_identical_results(videos, reference, tmp_path):
+    out = tmp_path / "batch"
+    proc = start_batch(videos, out, "--sequential")
+    try:
+        # Videos run in sorted order (broken, walk_a, walk_b): kill while walk_b is half done (a node entry
+        # committed, later ones not).
+        entries = out / "walk_b" / "cache" / "perception"
+        wait_for(lambda: entries.is_dir() and any(p.name[0] != "." for p in entries.iterdir()), proc)
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert not (out / SUMMARY).exists()
+    assert not folder_state(out / "walk_b", PUBLISHED_FILES).complete
+
+    assert main(["batch", str(videos), "--out", str(out), "--sequential", "--no-progress", "-q"]) == 1
+    summary = json.loads((out / SUMMARY).read_text())
+    by_name = {v["name"]: v for v in summary["videos"]}
+    assert by_name["walk_a"]["nodes_ran"] == 0  # finished before the kill
+    assert by_name["walk_b"]["nodes_cached"] > 0 and by_name["walk_b"]["nodes_ran"] > 0  # resumed
+    for stem, folder in reference.items():
+        assert published_bytes(out / stem) == published_bytes(folder), stem
