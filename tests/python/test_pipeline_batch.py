@@ -189,3 +189,13 @@ def test_batch_killed_mid_video_resumes_to_identical_results(videos, reference, 
     assert by_name["walk_b"]["nodes_cached"] > 0 and by_name["walk_b"]["nodes_ran"] > 0  # resumed
     for stem, folder in reference.items():
         assert published_bytes(out / stem) == published_bytes(folder), stem
+
+
+def test_without_ray_the_batch_runs_here_and_says_so(videos, tmp_path, monkeypatch, caplog):
+    monkeypatch.setattr("m3c.pipeline.batch.ray_available", lambda: False)
+    with caplog.at_level("WARNING", logger="m3c.batch"):
+        report = run_batch(PipelineConfig.default(), [videos / "broken.mp4"], tmp_path / "out", show_progress=False)
+    assert "Ray is not installed" in caplog.text and "one after another" in caplog.text
+    assert report.engine == "sequential" and [o.name for o in report.failed] == ["broken"]
+    with pytest.raises(ImportError, match="--address needs Ray"):
+        run_batch(PipelineConfig.default(), [videos / "broken.mp4"], tmp_path / "out", address="10.0.0.1:6379")
