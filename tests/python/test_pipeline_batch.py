@@ -125,7 +125,8 @@ def test_sequential_batch_reports_the_failure_and_reuses_the_cache(videos, refer
 @pytest.fixture(scope="module")
 def local_ray():
     ray = pytest.importorskip("ray", reason="needs Ray (pip install 'm3c[batch]')")
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+    # address="local": a new instance of the test's own, even when another Ray runs on this machine.
+    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
     yield ray
     ray.shutdown()
 

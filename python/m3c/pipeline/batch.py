@@ -217,8 +217,9 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
 
     started_here = not ray.is_initialized()
     if started_here:
-        # A local instance when address is None; the m3c of this process must be importable on the workers
-        # (installed there, or on PYTHONPATH, which local workers inherit).
+        # address None: Ray's own choice ($RAY_ADDRESS, else a Ray already running on this machine, else a new
+        # local instance). The m3c of this process must be importable on the workers (installed there, or on
+        # PYTHONPATH, which local workers inherit).
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
     try:
         resources = {"num_cpus": cpus_per_video, "memory": int(memory_per_video_gb * 2**30)}
@@ -240,8 +241,7 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
                     outcome = VideoOutcome(str(video), names[video], "failed",
                                            error=f"{type(err).__name__}: {str(err).splitlines()[0]}")
                 finished(video, outcome)
-        where = f"cluster {address}" if address else "local instance"
-        return f"ray, {where}, {int(ray.cluster_resources().get('CPU', 0))} CPU(s)"
+        return f"ray at {ray.get_runtime_context().gcs_address}, {int(ray.cluster_resources().get('CPU', 0))} CPU(s)"
     finally:
         if started_here:
             ray.shutdown()
@@ -254,7 +254,7 @@ def _check_feasible(ray, resources: dict, address: str | None) -> None:
     if any(all(node.get(k, 0) >= v for k, v in wanted.items()) for node in nodes):
         return
     largest = max(nodes, key=lambda n: (n.get("CPU", 0), n.get("memory", 0)), default={})
-    raise ValueError(f"no Ray node of {'cluster ' + address if address else 'the local instance'} can run one "
+    raise ValueError(f"no Ray node of {'cluster ' + address if address else 'this Ray instance'} can run one "
                      f"video: each asks for {wanted['CPU']:g} CPU(s), {wanted['memory'] / 2**30:.1f} GB"
                      f"{', 1 GPU' if wanted['GPU'] else ''}; the largest node has {largest.get('CPU', 0):g} CPU(s), "
                      f"{largest.get('memory', 0) / 2**30:.1f} GB, {largest.get('GPU', 0):g} GPU(s). Lower "
