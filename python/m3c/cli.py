@@ -453,7 +453,8 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument("inputs", nargs="+", metavar="INPUT",
                        help="video files, folders of videos, or .txt files listing one video or folder per line")
     batch.add_argument("--out", required=True, help="output folder (one result folder per video)")
-    batch.add_argument("--address", help="Ray cluster address (default: start a local Ray instance)")
+    batch.add_argument("--address", help="Ray cluster address, or auto for the one running on this machine "
+                       "(default: start a local Ray instance for this batch)")
     batch.add_argument("--sequential", action="store_true", help="run the videos one after another here, not on Ray")
     batch.add_argument("--cpus-per-video", type=float, default=2.0, help="CPUs Ray reserves per video (default 2)")
     batch.add_argument("--memory-per-video", type=float, default=4.0, metavar="GB",

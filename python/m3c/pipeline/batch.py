@@ -217,10 +217,11 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
 
     started_here = not ray.is_initialized()
     if started_here:
-        # address None: Ray's own choice ($RAY_ADDRESS, else a Ray already running on this machine, else a new
-        # local instance). The m3c of this process must be importable on the workers (installed there, or on
-        # PYTHONPATH, which local workers inherit).
-        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
+        # address None: a new local instance, never one Ray finds by itself (a stale record of a stopped cluster
+        # makes ray.init() wait for it for ever); "auto" joins the one running here. The m3c of this process must be
+        # importable on the workers (installed there, or on PYTHONPATH, which local workers inherit).
+        local = {} if address else {"include_dashboard": False}
+        ray.init(address=address or "local", logging_level=logging.WARNING, log_to_driver=False, **local)
     try:
         resources = {"num_cpus": cpus_per_video, "memory": int(memory_per_video_gb * 2**30)}
         if config.settings.device.startswith("cuda"):
