@@ -48,6 +48,12 @@ if [ "${M3C_NO_VIEWER:-0}" != "1" ]; then
       echo "setup: chromium not installed; the viewer's browser test will skip" >&2
   fi
 fi
+# `m3c batch` on Ray (the m3c[batch] extra; ray and msgpack, no torch). Its tests skip when this fails; without
+# Ray `m3c batch` runs the videos one after another. M3C_NO_RAY=1 leaves it out.
+if [ "${M3C_NO_RAY:-0}" != "1" ]; then
+  "$PY" -m pip install --quiet "ray>=2.9" ||
+    echo "setup: ray not installed; the Ray batch tests will skip (m3c batch runs videos one after another)" >&2
+fi
 # FBX export and the Blender round-trip tests: Blender as a Python module (bpy 5.0.1, Python 3.11 only, pins
 # numpy<2) in its own virtual environment, which M3C runs in a subprocess (about 25 s, 1 GB). Failure only
 # skips those tests. M3C_NO_BLENDER=1 leaves it out; M3C_BLENDER_PYTHON picks another interpreter with bpy.

@@ -163,6 +163,26 @@ def _run(args) -> int:
     return 0
 
 
+def _batch(args) -> int:
+    import logging
+
+    from m3c.pipeline.batch import collect_videos, run_batch
+
+    _setup_logging(args.verbose - args.quiet)
+    if args.verbose - args.quiet <= 0:  # one line per video, not one per node of every video
+        for name in ("m3c.pipeline", "m3c.nodes"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    output_folder(args.out)
+    videos = collect_videos(args.inputs)
+    config = _pipeline_config(args)
+    report = run_batch(config, videos, args.out, use_ray=not args.sequential, address=args.address,
+                       cpus_per_video=args.cpus_per_video, memory_per_video_gb=args.memory_per_video,
+                       show_progress=not args.no_progress)
+    print(report.table())
+    print(f"wrote {Path(args.out) / 'batch_summary.json'}")
+    return 1 if report.failed else 0
+
+
 def _info(args) -> int:
     from m3c.io.manifest import folder_state
     from m3c.io.results import PUBLISHED_FILES, describe
@@ -424,6 +444,35 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-v", "--verbose", action="count", default=0)
     run.add_argument("-q", "--quiet", action="count", default=0)
     run.set_defaults(func=_run)
+
+    batch = sub.add_parser("batch", help="run the pipeline on many videos (on Ray when installed)",
+                           description="Runs every video of INPUTS as `m3c run` would, into OUT/<video name>/ (each "
+                                       "with its own cache: a re-run skips finished videos and resumes unfinished "
+                                       "ones). Failed videos are reported and the others go on; OUT/batch_summary.json "
+                                       "holds every video's outcome. Exit status 1 when any video failed.")
+    batch.add_argument("inputs", nargs="+", metavar="INPUT",
+                       help="video files, folders of videos, or .txt files listing one video or folder per line")
+    batch.add_argument("--out", required=True, help="output folder (one result folder per video)")
+    batch.add_argument("--address", help="Ray cluster address, or auto for the one running on this machine "
+                       "(default: start a local Ray instance for this batch)")
+    batch.add_argument("--sequential", action="store_true", help="run the videos one after another here, not on Ray")
+    batch.add_argument("--cpus-per-video", type=float, default=2.0, help="CPUs Ray reserves per video (default 2)")
+    batch.add_argument("--memory-per-video", type=float, default=4.0, metavar="GB",
+                       help="memory Ray reserves per video, GB (default 4)")
+    _add_config_options(batch)
+    batch.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
+                       help="camera intrinsics in pixels, the same for every video")
+    batch.add_argument("--static-camera", action="store_true", help="the cameras do not move (no visual odometry)")
+    batch.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
+                       help="process frames START..STOP-1 (every STEP-th) of each video")
+    batch.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "
+                                                            "model)")
+    batch.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: "
+                                                            "$M3C_MODELS)")
+    batch.add_argument("--no-progress", action="store_true", help="no progress lines")
+    batch.add_argument("-v", "--verbose", action="count", default=0)
+    batch.add_argument("-q", "--quiet", action="count", default=0)
+    batch.set_defaults(func=_batch)
 
     info = sub.add_parser("info", help="summarise the results in an output folder")
     info.add_argument("folder")

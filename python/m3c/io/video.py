@@ -27,13 +27,25 @@ def _cv2():
     return cv2
 
 
+def open_capture(path: str | Path):
+    """cv2.VideoCapture of `path` that applies the file's rotation metadata (phone videos recorded upright store
+    landscape pixels and a rotation flag): frames, width and height come out as the video is meant to be seen.
+    OpenCV's FFmpeg backend does this by default; it is asked for here so no reader depends on that default."""
+    cv2 = _cv2()
+    cap = cv2.VideoCapture(str(path))
+    if cap.isOpened():
+        cap.set(cv2.CAP_PROP_ORIENTATION_AUTO, 1)
+    return cap
+
+
 @dataclass(frozen=True)
 class VideoInfo:
     path: str
     fps: float
-    width: int
+    width: int  # as displayed: after the rotation metadata is applied
     height: int
     frame_count_hint: int  # from the container; count_frames() decodes to get the exact number
+    rotation: int = 0  # clockwise degrees (0/90/180/270) the stored pixels are turned for display (file metadata)
 
 
 def probe_video(path: str | Path) -> VideoInfo:
@@ -44,7 +56,7 @@ def probe_video(path: str | Path) -> VideoInfo:
         raise VideoError(f"video not found: {path}")
     if not path.is_file():
         raise VideoError(f"not a video file: {path} is a folder")
-    cap = cv2.VideoCapture(str(path))
+    cap = open_capture(path)
     try:
         if not cap.isOpened():
             raise VideoError(f"cannot open {path} as a video (OpenCV/FFmpeg found no decodable stream); "
@@ -58,15 +70,15 @@ def probe_video(path: str | Path) -> VideoInfo:
                              "(ffmpeg -i IN -r 30 OUT.mp4)")
         height, width = frame.shape[:2]
         return VideoInfo(str(path.resolve()), fps, int(width), int(height),
-                         int(max(cap.get(cv2.CAP_PROP_FRAME_COUNT), 0)))
+                         int(max(cap.get(cv2.CAP_PROP_FRAME_COUNT), 0)),
+                         int(cap.get(cv2.CAP_PROP_ORIENTATION_META)) % 360)
     finally:
         cap.release()
 
 
 def count_frames(path: str | Path, progress=None) -> int:
     """Number of decodable frames (grabs every frame; no pixel conversion)."""
-    cv2 = _cv2()
-    cap = cv2.VideoCapture(str(path))
+    cap = open_capture(path)
     n = 0
     try:
         while cap.grab():
@@ -81,10 +93,9 @@ def count_frames(path: str | Path, progress=None) -> int:
 def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step: int = 1) \
         -> Iterator[tuple[int, np.ndarray]]:
     """Yields (video frame id, BGR uint8 H x W x 3 frame) for ids start, start + step, ... < stop."""
-    cv2 = _cv2()
     if start < 0 or step < 1 or (stop is not None and stop < start):
         raise ValueError(f"bad frame range start={start} stop={stop} step={step}")
-    cap = cv2.VideoCapture(str(path))
+    cap = open_capture(path)
     if not cap.isOpened():
         raise VideoError(f"cannot open {path} as a video")
     try:

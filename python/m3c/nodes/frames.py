@@ -17,8 +17,8 @@ class FramesNode(Node):
     """Reads the video's frame rate and size and counts its frames; selects frames start, start + step, ...
     < stop. Frames themselves are never stored: nodes that need pixels stream them with stream_frames().
 
-    Output video: path, name, fps (of the processed frames: source fps / step), source_fps, width, height,
-    num_frames (T), frame_ids (T,) video frame id of each processed frame, start, stop, step.
+    Output video: path, name, fps (of the processed frames: source fps / step), source_fps, width, height (as
+    displayed: a phone video's rotation metadata is applied to every frame read), rotation (its degrees), num_frames (T), frame_ids (T,) video frame id of each processed frame, start, stop, step.
     """
 
     type_name = "frames"
@@ -63,11 +63,12 @@ class FramesNode(Node):
                 f"frame range {self.config.start}:{self.config.stop}:{self.config.step} selects only 1 frame"
             raise InputError(f"{what}; motion capture needs at least 2 frames (people and camera are tracked "
                              "over time)")
-        ctx.log.info("%s: %d x %d, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
-                     info.fps, total, len(frame_ids))
+        ctx.log.info("%s: %d x %d%s, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
+                     f" (turned {info.rotation} degrees as its metadata says)" if info.rotation else "", info.fps,
+                     total, len(frame_ids))
         return {"video": {"path": info.path, "name": Path(info.path).name, "fps": info.fps / self.config.step,
                           "source_fps": info.fps, "width": info.width, "height": info.height,
-                          "num_frames": int(len(frame_ids)), "total_frames": int(total), "frame_ids": frame_ids,
+                          "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total), "frame_ids": frame_ids,
                           "start": self.config.start, "stop": int(stop), "step": self.config.step}}
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from m3c.io.video import open_capture
 from m3c.perception._cv import import_cv2
 
 
@@ -25,7 +26,7 @@ def _open(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video not found: {path}")
-    capture = cv2.VideoCapture(str(path))
+    capture = open_capture(path)
     if not capture.isOpened():
         raise ValueError(f"{path}: OpenCV cannot decode this video (is its codec supported by the installed "
                          "OpenCV build?)")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from m3c.io.video import open_capture
 from m3c.vo.odometry import VisualOdometry, VOConfig, VOResult
 
 
@@ -22,7 +23,7 @@ def video_info(path: str | Path) -> dict:
     """{'width', 'height', 'fps', 'frame_count'} as the container reports them (frame_count may be
     approximate)."""
     cv2 = _cv2()
-    cap = cv2.VideoCapture(str(path))
+    cap = open_capture(path)
     if not cap.isOpened():
         raise FileNotFoundError(f"cannot open video {path}: missing file or a codec OpenCV cannot read")
     try:
@@ -40,7 +41,7 @@ def iter_video_frames(path: str | Path, gray: bool = True, max_frames: int | Non
     if stride < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
     cv2 = _cv2()
-    cap = cv2.VideoCapture(str(path))
+    cap = open_capture(path)
     if not cap.isOpened():
         raise FileNotFoundError(f"cannot open video {path}: missing file or a codec OpenCV cannot read")
     try:
