@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
@@ -44,11 +46,13 @@ def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 
     if chromium is None:
         raise FileNotFoundError("no Chromium found; install it (Debian: apt-get install chromium)")
     port = free_port()
-    with tempfile.TemporaryDirectory(prefix="m3c-chromium-") as profile:
+    # Chromium's helper processes (crash handler, GPU) may still write into the profile while they exit: a leftover
+    # file must not fail the screenshot.
+    with tempfile.TemporaryDirectory(prefix="m3c-chromium-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen([chromium, "--headless", "--no-sandbox", "--use-angle=swiftshader",
                                  "--enable-unsafe-swiftshader", f"--window-size={width},{height}",
                                  f"--remote-debugging-port={port}", f"--user-data-dir={profile}", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             target = None
             deadline = time.monotonic() + 30.0
@@ -87,7 +91,12 @@ def screenshot_page(url: str, png: str | Path, width: int = 1400, height: int = 
                         break
                     time.sleep(2.0)
         finally:
-            proc.kill()  # our own headless instance with a throw-away profile: nothing to save
+            # Our own headless instance with a throw-away profile, in its own process group: nothing to save, and
+            # its helper processes go with it.
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
             proc.wait()
     png = Path(png)
     png.write_bytes(data)
