@@ -294,21 +294,30 @@ def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def _benchmark_clips(model, args, log) -> list[str]:
+    """The benchmarks' motions: --clips, plus the shipped CMU clips unless --clips alone was given, plus every BVH
+    under each --mocap folder (retargeted once, cached)."""
+    from m3c.eval.benchmark import retarget_folder, shipped_clip_paths
+
+    clips = [str(c) for c in args.clips or []]
+    if not clips or args.mocap:
+        clips = [str(c) for c in shipped_clip_paths()] + clips
+    for folder in args.mocap or []:
+        clips += [str(p) for p in retarget_folder(model, folder, args.cache, log)]
+    return clips
+
+
 def _eval_benchmark(args) -> int:
     import json
 
     from m3c.body import default_body_model
-    from m3c.eval.benchmark import (BenchmarkConfig, run_benchmark, retarget_folder, shipped_clip_paths)
+    from m3c.eval.benchmark import BenchmarkConfig, run_benchmark
     from m3c.io.atomic import atomic_path
     from m3c.motion import OptimizerConfig
 
     model = default_body_model(args.body_model)
     log = None if args.quiet else _log
-    clips = list(args.clips or [])
-    if not clips or args.mocap:
-        clips = list(shipped_clip_paths()) + clips
-    for folder in args.mocap or []:
-        clips += retarget_folder(model, folder, args.cache, log)
+    clips = _benchmark_clips(model, args, log)
     config = BenchmarkConfig(num_sequences=args.sequences, num_frames=args.frames, seed=args.seed,
                              max_people=args.max_people, camera_motions=tuple(args.cameras.split(",")),
                              clip_paths=tuple(str(c) for c in clips),
@@ -325,16 +334,11 @@ def _eval_benchmark(args) -> int:
 
 def _eval_video_benchmark(args) -> int:
     from m3c.body import default_body_model
-    from m3c.eval.benchmark import retarget_folder, shipped_clip_paths
     from m3c.eval.video_benchmark import VideoBenchmarkConfig, run_video_benchmark, write_json
 
     model = default_body_model(args.body_model)
     log = None if args.quiet else _log
-    clips = [str(c) for c in args.clips or []]
-    if not clips or args.mocap:
-        clips = [str(c) for c in shipped_clip_paths()] + clips
-    for folder in args.mocap or []:
-        clips += [str(p) for p in retarget_folder(model, folder, args.cache, log)]
+    clips = _benchmark_clips(model, args, log)
     config = VideoBenchmarkConfig(num_sequences=args.sequences, num_frames=args.frames,
                                   cameras=tuple(c.strip() for c in args.cameras.split(",") if c.strip()),
                                   max_people=args.people, seed=args.seed, width=args.size[0], height=args.size[1],
