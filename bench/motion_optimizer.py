@@ -3,8 +3,10 @@ the CPU) on the same objective, on a synthetic multi-person scene (m3c.eval.scen
 motion-prior term (random weights of the official size, exported to safetensors: the timing is what a real
 checkpoint costs, the motion it prefers is not).
 
-Each stage runs as its own optimizer call from the previous stage's Ceres result; torch starts from the same state
-(after the scale's closed-form initialisation, for stages that free the scale) and runs until an evaluated state
+The scene's lift (camera-local bodies placed with the odometry at scale 1) first goes through M3C's scale estimator
+(m3c.motion.scale, planted feet), as the pipeline's scale node does; the optimizer starts there, with the
+estimate's uncertainty as its scale prior. Each stage runs as its own optimizer call from the previous stage's
+Ceres result; torch starts from the same state and runs until an evaluated state
 reaches the Ceres stage's final cost, or a time limit. The objective is m3c.motion.torch_objective, which the tests
 check equals the C++ one. Stages before the first motion-prior stage are shared by both variants and run once.
 Both sides use 2 threads.
@@ -32,6 +34,7 @@ from m3c.body import BodyModel
 from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import OptimizerConfig, StageSpec, optimize, track_joints
+from m3c.motion.scale import estimate_scale, rescaled
 from m3c.motion.torch_objective import StageObjective, TorchState, run_lbfgs
 
 
@@ -43,7 +46,7 @@ def world_error_mm(model, tracks, truth) -> float:
 def full_run(model, scene, label, **kwargs) -> None:
     """The staged optimizer in one call, as the pipeline runs it."""
     t0 = time.perf_counter()
-    res = optimize(model, scene.init, scene.cameras_vo, fps=scene.fps, **kwargs)
+    res = optimize(model, scene.init, scene.cameras_vo, fps=scene.fps, **kwargs)  # scene: at the estimated scale
     total = time.perf_counter() - t0
     print(f"\n{label}: {total:.1f} s total, camera scale {res.camera_scale:.3f} (true {scene.vo_scale}), "
           f"world joint error {world_error_mm(model, res.tracks, scene.truth):.0f} mm "
@@ -82,10 +85,6 @@ class Chain:
 
     def stage(self, point: Point, spec: StageSpec) -> Point:
         args = self.args
-        if "scale" in spec.free and not self.scene.cameras_vo.static:
-            # The stage initialises the scale in closed form before solving (idempotent): start torch there too.
-            res, _ = self.call(point, spec, 0)
-            point = Point(res.tracks, res.camera_scale)
         res, config = self.call(point, spec, spec.max_iterations)
         report = res.stages[0]
         after = Point(res.tracks, res.camera_scale)
@@ -171,6 +170,12 @@ def main() -> None:
             spec.max_iterations = min(spec.max_iterations, args.max_iterations)
     model = BodyModel(make_synthetic_model())
     scene = make_scene(model, num_people=args.people, num_frames=args.frames, seed=args.seed)
+    estimate = estimate_scale(model, scene.init, scene.cameras_vo)
+    init, cameras_vo = rescaled(scene.init, scene.cameras_vo, estimate)
+    print(f"scale estimate (planted feet): {estimate.value:.3f} +- {100 * (estimate.sigma or 0):.1f}% "
+          f"(true {scene.vo_scale}); the lift at scale 1: world joint error "
+          f"{world_error_mm(model, scene.init, scene.truth):.0f} mm")
+    scene = dataclasses.replace(scene, init=init, cameras_vo=cameras_vo)
     print(f"scene: {args.people} people x {args.frames} frames at {scene.fps:.0f} fps, body V={model.num_vertices}, "
           f"initial world joint error {world_error_mm(model, scene.init, scene.truth):.0f} mm, true camera scale "
           f"{scene.vo_scale}; Ceres and torch {torch.get_num_threads()} threads; torch limit per stage "

@@ -34,7 +34,8 @@ void BindMotion(py::module_& m) {
       .def_readwrite("contact_height_tolerance", &OptimizerConfig::contact_height_tolerance)
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
-      .def_readwrite("max_scale_uncertainty", &OptimizerConfig::max_scale_uncertainty)
+      .def_readwrite("world_check", &OptimizerConfig::world_check)
+      .def_readwrite("max_world_increase", &OptimizerConfig::max_world_increase)
       .def_readwrite("latent_pose", &OptimizerConfig::latent_pose)
       .def_readwrite("num_threads", &OptimizerConfig::num_threads)
       .def_readwrite("stages", &OptimizerConfig::stages);
@@ -60,7 +61,8 @@ void BindMotion(py::module_& m) {
       .def_readwrite("world_from_cam", &CameraInput::world_from_cam)
       .def_readwrite("intrinsics", &CameraInput::intrinsics)
       .def_readwrite("static_camera", &CameraInput::static_camera)
-      .def_readwrite("initial_scale", &CameraInput::initial_scale);
+      .def_readwrite("initial_scale", &CameraInput::initial_scale)
+      .def_readwrite("scale_sigma", &CameraInput::scale_sigma);
 
   py::class_<TermCost>(m, "TermCost")
       .def_readonly("term", &TermCost::term)
@@ -73,6 +75,8 @@ void BindMotion(py::module_& m) {
       .def_readonly("iterations", &StageReport::iterations)
       .def_readonly("seconds", &StageReport::seconds)
       .def_readonly("objective_before", &StageReport::objective_before)
+      .def_readonly("world_before", &StageReport::world_before)
+      .def_readonly("world_after", &StageReport::world_after)
       .def_readonly("objective_after", &StageReport::objective_after)
       .def_readonly("scale", &StageReport::scale)
       .def_readonly("terms", &StageReport::terms);

@@ -205,6 +205,17 @@ bool GaussianPriorCost::Evaluate(double const* const* parameters, double* residu
   return true;
 }
 
+LogPriorCost::LogPriorCost(double log_mean, double sigma, double weight)
+    : log_mean_(log_mean), factor_(std::sqrt(weight) / sigma) {}
+
+bool LogPriorCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  const double x = parameters[0][0];
+  if (!(x > 0)) return false;  // outside the prior's domain: Ceres rejects the step
+  residuals[0] = factor_ * (std::log(x) - log_mean_);
+  if (jacobians && jacobians[0]) jacobians[0][0] = factor_ / x;
+  return true;
+}
+
 BlockDifferenceCost::BlockDifferenceCost(int size, double weight) : sqrt_weight_(std::sqrt(weight)) {
   set_num_residuals(size);
   mutable_parameter_block_sizes()->assign({size, size});

@@ -88,6 +88,17 @@ class GaussianPriorCost : public ceres::CostFunction {
   double sqrt_weight_;
 };
 
+// sqrt(weight) (log(x) - log_mean) / sigma for a positive scalar x: a log-normal prior (the camera scale around
+// its estimate, whose uncertainty is relative).
+class LogPriorCost : public ceres::SizedCostFunction<1, 1> {
+ public:
+  LogPriorCost(double log_mean, double sigma, double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  double log_mean_, factor_;
+};
+
 // sqrt(weight) (x_b - x_a) for two blocks of equal size (temporal smoothness of a parameter block).
 class BlockDifferenceCost : public ceres::CostFunction {
  public:

@@ -53,10 +53,17 @@ class StageCallback : public ceres::EvaluationCallback {
 OptimizerConfig DefaultOptimizerConfig() {
   // The thesis's stages (i)-(v) as Ceres solves, with SLAHMR's weights. Departures, each measured on the
   // synthetic scenes (m3c.eval.scenes) and the ground-truth benchmark (m3c eval benchmark):
-  //  - with a camera that follows its subject, any smoothness of world-frame joints is cheaper in a smaller
-  //    world, so the camera scale is free only in stages without such terms: it is initialised in closed form
-  //    from stance feet and refined from foot contacts and the camera's height above each person's ground
-  //    ("camera_scale"), and again with the motion prior; a last "refine" stage smooths with the scale frozen;
+  //  - the camera scale is M3C's one scale estimator's (m3c.vo.scale; CameraInput::initial_scale) and no stage
+  //    frees it: with a camera that follows its subject any smoothness of world-frame joints is cheaper in a
+  //    smaller world (freeing it with the motion prior moved a 600-frame scene's scale from 2.01 to 2.46 and its
+  //    world error from 110 to 1683 mm, bench/motion_optimizer.py), and a stage that refined it from the
+  //    contacts without smoothing made the world jitter (its world check doubled). A configuration that frees
+  //    it gets "scale_prior", the estimator's log-normal uncertainty (CameraInput::scale_sigma);
+  //  - the foot contacts ("contacts" stage, then every later stage) hold planted feet still and on the ground;
+  //  - the shape prior is 10x SLAHMR's: at 0.05 the shape stage traded the people's size against their depth
+  //    and raised a 600-frame scene's world error by 6% (bench/motion_optimizer.py; 231 -> 157 mm at 0.5);
+  //  - every stage is checked against the world (world_check: the images, jitter, planted feet, the ground at
+  //    the recipe's weights) and reverted when it makes the world worse by more than 5%;
   //  - joints are smoothed by their acceleration, not their velocity: SLAHMR's first-order |J_{t+1} - J_t|^2
   //    pulls every person towards standing still, and with its weight it cost more PA-MPJPE than the
   //    keypoints could win back (starting from the truth: 0 -> 69 mm). The acceleration term is also active
@@ -68,39 +75,39 @@ OptimizerConfig DefaultOptimizerConfig() {
   //    hid that); SLAHMR's VPoser prior is added when VPoser weights are given ("pose_prior", with "latent_
   //    smoothness" in its own stage). The old zero-mean L2 on axis-angle pulled every joint to the T-pose.
   OptimizerConfig config;
-  const double reprojection = 1e-3, shape = 0.05, accel = 10.0, pose = 0.04, anchor = 1.0;
+  const double reprojection = 1e-3, shape = 0.5, accel = 10.0, pose = 0.04, anchor = 1.0;
   using W = std::map<std::string, double>;
-  const W fit = {{"reprojection", reprojection}};
-  W root_fit = fit, scale_fit = fit, shaped = fit;
-  root_fit.insert({"joint_acceleration", accel});
-  scale_fit.insert({{"shape_prior", shape}, {"contact_velocity", 100.0}, {"contact_height", 10.0}});
-  shaped.insert({"shape_prior", shape});
-  W smoothed = shaped, motion = shaped;  // motion: no joint smoothness while the scale is free
-  shaped.insert({"joint_acceleration", accel});
-  smoothed.insert({{"joint_acceleration", accel}, {"pose_anchor", anchor}, {"pose_prior", pose}});
-  W posed = smoothed;
+  const W contacts = {{"contact_velocity", 100.0}, {"contact_height", 10.0}};
+  W root_fit = {{"reprojection", reprojection}, {"joint_acceleration", accel}};
+  W contact_fit = root_fit, shaped = root_fit;
+  contact_fit.insert(contacts.begin(), contacts.end());
+  contact_fit.insert({"shape_prior", shape});
+  shaped = contact_fit;
+  W smoothed = shaped;
+  smoothed.insert({{"pose_anchor", anchor}, {"pose_prior", pose}});
+  W posed = smoothed, motion = smoothed;
   posed.insert({"latent_smoothness", 1.0});
-  motion.insert({{"pose_anchor", anchor}, {"pose_prior", pose}, {"motion_prior", 0.075}, {"contact_velocity", 100.0},
-                 {"contact_height", 10.0}});
-  W refine = motion;
-  refine.insert({"joint_acceleration", accel});
+  motion.insert({"motion_prior", 0.075});
+  config.world_check = {{"reprojection", reprojection}, {"joint_acceleration", accel}, {"contact_velocity", 100.0},
+                        {"contact_height", 10.0}};
+  // Groups freed: transl, root, body, betas, scale, offset. The scale is freed nowhere (see above); a
+  // configuration that frees it gets "scale_prior" to keep it within the estimate's uncertainty.
   config.stages = {
       {"root_translation", true, false, false, false, false, false, root_fit, 10},
       {"root_orientation", true, true, false, false, false, true, root_fit, 20},
-      {"camera_scale", true, true, false, false, true, true, scale_fit, 20},
+      {"contacts", true, true, false, false, false, true, contact_fit, 20},
       {"shape", true, true, false, true, false, true, shaped, 20},
       {"joint_smoothness", true, true, true, true, false, true, smoothed, 30},
       {"pose_prior", true, true, true, true, false, true, posed, 20},
-      {"motion_prior", true, true, true, true, true, true, motion, 30},
-      {"refine", true, true, true, true, false, true, refine, 20},
+      {"motion_prior", true, true, true, true, false, true, motion, 30},
   };
   return config;
 }
 
 const std::vector<std::string>& WorldOptimizer::BuiltinTerms() {
-  static const std::vector<std::string> names = {"reprojection",     "shape_prior",      "joint_smoothness",
-                                                  "joint_acceleration", "pose_anchor",      "pose_smoothness",
-                                                  "contact_velocity",   "contact_height"};
+  static const std::vector<std::string> names = {"reprojection",       "shape_prior",    "joint_smoothness",
+                                                  "joint_acceleration", "pose_anchor",    "pose_smoothness",
+                                                  "contact_velocity",   "contact_height", "scale_prior"};
   return names;
 }
 
@@ -117,7 +124,10 @@ WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::Keypoin
       joint_regressor_(std::make_unique<body::KeypointRegressor>(body::IdentityJointRegressor(*model))),
       config_(std::move(config)) {
   M3C_CHECK(config_.robust_sigma > 0 && config_.min_depth > 0) << "robust_sigma and min_depth must be > 0";
-  M3C_CHECK(config_.max_scale_uncertainty > 0) << "max_scale_uncertainty must be > 0";
+  M3C_CHECK(config_.max_world_increase >= 0) << "max_world_increase must be >= 0";
+  for (const auto& [term, weight] : config_.world_check) {
+    M3C_CHECK(weight >= 0 && std::isfinite(weight)) << "world_check: weight of " << term << " must be finite and >= 0";
+  }
   // Ceres aborts the process on num_threads < 1, so it is refused here.
   M3C_CHECK(config_.num_threads >= 1) << "num_threads must be >= 1, got " << config_.num_threads;
   for (const auto& stage : config_.stages) {
@@ -292,6 +302,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                                          config_.robust_sigma, config_.min_depth),
                     {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
         }
+      } else if (term == "scale_prior") {
+        if (i > 0 || !(cameras.scale_sigma > 0) || !std::isfinite(cameras.scale_sigma)) continue;  // once
+        problem->AddResidualBlock(new LogPriorCost(std::log(cameras.initial_scale), cameras.scale_sigma, weight),
+                                  nullptr, vars.scale);
       } else if (term == "shape_prior") {
         problem->AddResidualBlock(new GaussianPriorCost(Eigen::VectorXd::Zero(B), weight * n), nullptr,
                                   vars.betas[i]);
@@ -428,79 +442,18 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return cost;
   };
 
-  // Closed-form scale from stance feet: a foot in contact at t and t+1 is static in the world, and its world
-  // position is p_t = scale * c_t + offset + q_t with q_t fixed by the image (camera-relative). Least squares
-  // over all such pairs: scale = -sum dc.dq / sum |dc|^2. Translations are shifted so that every person keeps
-  // its camera-relative position. When the camera barely translates (panning, a tripod) the fit is noise over
-  // a tiny baseline and so is any later scale estimate: if its standard error, from the fit's residuals,
-  // exceeds max_scale_uncertainty of its value, the scale is kept and frozen (*unobservable = true).
-  // Returns a message, empty if there was nothing to go on.
-  auto initialise_scale = [&](bool* unobservable) -> std::string {
-    *unobservable = false;
-    if (!contact_regressor_ || cameras.static_camera) return "";
-    struct Pair {
-      double w;
-      Eigen::Vector3d dc, dq;
-    };
-    std::vector<Pair> pairs;
-    body::BlockPoints a, b;
-    for (size_t i = 0; i < tracks.size(); ++i) {
-      const TrackInput& tr = tracks[i];
-      if (tr.contacts.size() == 0) continue;
-      for (int f = 0; f + 1 < static_cast<int>(tr.transl.rows()); ++f) {
-        const Eigen::Vector3d c0 = cameras.world_from_cam[tr.first_frame + f].topRightCorner<3, 1>();
-        const Eigen::Vector3d c1 = cameras.world_from_cam[tr.first_frame + f + 1].topRightCorner<3, 1>();
-        bool evaluated = false;
-        for (int k = 0; k < tr.contacts.cols(); ++k) {
-          const double w = std::min(tr.contacts(f, k), tr.contacts(f + 1, k));
-          if (w < config_.contact_threshold) continue;
-          if (!evaluated) {
-            a.Evaluate(*model_, *contact_regressor_, {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]}, false);
-            b.Evaluate(*model_, *contact_regressor_, {vars.transl[i][f + 1], vars.root[i][f + 1], vars.body[i][f + 1], vars.betas[i]}, false);
-            evaluated = true;
-          }
-          const Eigen::Vector3d dq = (b.point(k) - state.scale * c1) -
-                                     (a.point(k) - state.scale * c0);
-          pairs.push_back({w, c1 - c0, dq});
-        }
-      }
+  // The world check's value at the current state: every term of config_.world_check over all people and frames.
+  auto world_value = [&]() {
+    ceres::Problem::Options check_options;
+    check_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+    ceres::Problem check(check_options);
+    for (const auto& [term, weight] : config_.world_check) {
+      if (weight > 0 && is_builtin(term)) add_builtin(term, weight, &check);
     }
-    double num = 0.0, den = 0.0, weights = 0.0, den2 = 0.0;
-    for (const Pair& p : pairs) {
-      num += p.w * p.dc.dot(p.dq);
-      den += p.w * p.dc.squaredNorm();
-      den2 += p.w * p.w * p.dc.squaredNorm();
-      weights += p.w;
-    }
-    if (pairs.size() < 3 || den <= 1e-12) return "";
-    const double fitted = -num / den;
-    if (!(fitted > 1e-3) || !std::isfinite(fitted)) return "";
-    double sq = 0.0;
-    for (const Pair& p : pairs) sq += p.w * (fitted * p.dc + p.dq).squaredNorm();
-    const double variance = sq / (3.0 * weights);  // per coordinate, of dq
-    const double relative_error = std::sqrt(variance * den2) / den / fitted;
-    std::ostringstream msg;
-    if (!(relative_error <= config_.max_scale_uncertainty)) {
-      *unobservable = true;
-      msg << "scale kept at " << state.scale << " and frozen: unobservable from " << pairs.size()
-          << " stance-foot pairs (fit " << fitted << " with relative standard error " << relative_error << ")";
-      return msg.str();
-    }
-    const double old_scale = state.scale;
-    for (size_t i = 0; i < tracks.size(); ++i) {
-      for (int f = 0; f < state.transl[i].rows(); ++f) {
-        state.transl[i].row(f) += (fitted - old_scale) *
-                                  cameras.world_from_cam[tracks[i].first_frame + f].topRightCorner<3, 1>().transpose();
-      }
-    }
-    state.scale = fitted;
-    msg << "scale initialised from " << pairs.size() << " stance-foot pairs: " << old_scale << " -> " << fitted
-        << " (relative standard error " << relative_error << ")";
-    return msg.str();
+    return cost_of(&check);
   };
 
   OptimizerResult result;
-  bool scale_was_free = false, scale_unobservable = false;
   for (const StageConfig& stage : config_.stages) {
     StageReport report;
     report.name = stage.name;
@@ -549,18 +502,13 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       const bool free = (g == Group::kTransl && stage.transl) || (g == Group::kRoot && stage.root) ||
                         (g == Group::kBody && stage.body && !decoder) || (g == Group::kLatent && stage.body) ||
                         (g == Group::kBetas && stage.betas) ||
-                        (g == Group::kScale && stage.scale && !cameras.static_camera && !scale_unobservable) ||
+                        (g == Group::kScale && stage.scale && !cameras.static_camera) ||
                         (g == Group::kOffset && stage.offset && config_.optimize_offset);
       if (!free) problem.SetParameterBlockConstant(block);
       if (g == Group::kScale && free) problem.SetParameterLowerBound(block, 0, 1e-3);
     }
     const State checkpoint = state;
-    if (stage.scale && !scale_was_free && !cameras.static_camera) {
-      const std::string msg = initialise_scale(&scale_unobservable);
-      if (!msg.empty()) report.message += (report.message.empty() ? "" : "; ") + msg;
-      scale_was_free = true;
-      if (scale_unobservable && problem.HasParameterBlock(vars.scale)) problem.SetParameterBlockConstant(vars.scale);
-    }
+    report.world_before = world_value();
     report.objective_before = cost_of(&problem);
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = blocks_cost(&problem, term_blocks[k]);
 
@@ -586,12 +534,21 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       }
     }
     if (decoder) decoder->DecodeAll(false);  // the body blocks may hold a rejected trial point's pose
-    if (!failure.empty()) {
+    report.world_after = failure.empty() ? world_value() : report.world_before;
+    std::string worse;  // the stage's own objective fell, but the world got worse: revert it and go on
+    if (failure.empty() && !(report.world_after <= report.world_before * (1.0 + config_.max_world_increase))) {
+      std::ostringstream msg;
+      msg << "reverted: the world check rose from " << report.world_before << " to " << report.world_after;
+      worse = msg.str();
+    }
+    if (!failure.empty() || !worse.empty()) {
       state = checkpoint;
+      if (decoder) decoder->DecodeAll(false);
       report.status = "reverted";
-      report.message += (report.message.empty() ? "" : "; ") + failure;
+      report.message += (report.message.empty() ? "" : "; ") + (failure.empty() ? worse : failure);
       report.objective_after = report.objective_before;
-      result.stopped_early = true;
+      report.world_after = report.world_before;
+      if (!failure.empty()) result.stopped_early = true;
     } else {
       report.status = "ok";
     }

@@ -37,6 +37,10 @@ struct CameraInput {
   RowMatrixXd intrinsics;                       // (T, 4): fx, fy, cx, cy
   bool static_camera = false;                   // freezes the scale (it is unobservable)
   double initial_scale = 1.0;                   // metric translation = scale * VO translation, at the start
+  // Standard deviation of log(initial_scale), the scale estimator's uncertainty (m3c.vo.scale): the
+  // "scale_prior" term holds the scale to the estimate within it. <= 0 or non-finite: no prior (the term adds
+  // nothing).
+  double scale_sigma = 0.0;
 };
 
 // Which parameter groups a stage frees and which terms it minimises (weight 0 = inactive).
@@ -54,9 +58,12 @@ struct OptimizerConfig {
   double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
   double min_depth = 0.05;            // metres in front of the camera
   bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
-  // Relative standard error of the closed-form scale fit from stance feet above which the camera scale is
-  // deemed unobservable (a camera that barely translates) and frozen at its initial value.
-  double max_scale_uncertainty = 0.25;
+  // A stage must not make the world worse: after each stage the world check (these terms at these weights,
+  // evaluated over every person and frame: the images, jitter, planted feet, the ground) is compared with its
+  // value before the stage, and a stage that raised it by more than max_world_increase (relative) is reverted
+  // and the next stage goes on from the state before it.
+  std::map<std::string, double> world_check;
+  double max_world_increase = 0.05;
   // With a VPoser (SetPosePrior), the body pose of joints 1..21 is optimised as VPoser latents, SLAHMR's pose
   // variables (initialised by encoding the initial pose; SMPL's hand joints stay fixed); otherwise as axis-angle
   // under the VPoser prior on the encoded pose.
@@ -77,6 +84,7 @@ struct TermCost {
 struct StageReport {
   std::string name;
   std::string status;  // "ok", "reverted", "skipped"
+  double world_before = 0.0, world_after = 0.0;  // the world check (OptimizerConfig::world_check)
   std::string message;
   int iterations = 0;
   double seconds = 0.0;

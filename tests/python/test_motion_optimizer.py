@@ -9,6 +9,7 @@ from m3c.body import BodyModel
 from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import Cameras, OptimizerConfig, StageSpec, optimize, track_joints
+from m3c.motion.scale import estimate_scale, rescaled
 
 
 @pytest.fixture(scope="module")
@@ -22,8 +23,14 @@ def scene(model):
 
 
 @pytest.fixture(scope="module")
-def result(model, scene):
-    return optimize(model, scene.init, scene.cameras_vo)
+def start(model, scene):
+    """As the pipeline: M3C's scale estimator on the lift, then the optimizer from there."""
+    return rescaled(scene.init, scene.cameras_vo, estimate_scale(model, scene.init, scene.cameras_vo))
+
+
+@pytest.fixture(scope="module")
+def result(model, start):
+    return optimize(model, *start)
 
 
 def world_mpjpe(model, tracks, truth):
@@ -32,14 +39,17 @@ def world_mpjpe(model, tracks, truth):
                           for a, b in zip(tracks, truth)]))
 
 
-def test_recovers_world_motion_and_camera_scale(model, scene, result):
-    before = world_mpjpe(model, scene.init, scene.truth)
+def test_recovers_world_motion_and_camera_scale(model, scene, start, result):
+    tracks, cameras = start
+    # The lift's depth errors (15% per person) bias the planted feet; the stated uncertainty covers it.
+    assert abs(np.log(cameras.initial_scale / scene.vo_scale)) < 2 * cameras.scale_sigma < 0.3
+    before = world_mpjpe(model, tracks, scene.truth)  # the lift at the estimated scale
     after = world_mpjpe(model, result.tracks, scene.truth)
-    assert after < 0.5 * before, (before, after)
+    assert after < 0.6 * before, (before, after)
     assert after < 0.25  # metres
-    assert abs(result.camera_scale / scene.vo_scale - 1.0) < 0.05
-    # The optimised cameras are the true ones (up to the recovered scale).
-    cams = result.world_from_cam(scene.cameras_vo)
+    assert result.camera_scale == cameras.initial_scale  # the recipe frees the scale nowhere
+    # The optimised cameras are the true ones (up to the estimated scale).
+    cams = result.world_from_cam(cameras)
     assert np.abs(cams[:, :3, 3] - scene.cameras_true.world_from_cam[:, :3, 3]).max() < 0.05 * 6.0
 
 
@@ -62,12 +72,13 @@ def test_every_stage_lowers_its_objective_and_reports_terms(result):
         assert stage.status == "ok", (stage.name, stage.message)
         assert stage.objective_after <= stage.objective_before + 1e-9, stage.name
         assert stage.terms and all(np.isfinite(v).all() for v in stage.terms.values())
-        # The per-term costs add up to the stage's objective, before (after any scale initialisation) and after.
+        # The per-term costs add up to the stage's objective, before and after.
         assert sum(b for b, _ in stage.terms.values()) == pytest.approx(stage.objective_before, rel=1e-9)
         assert sum(a for _, a in stage.terms.values()) == pytest.approx(stage.objective_after, rel=1e-9)
+        # No accepted stage makes the world check worse by more than max_world_increase.
+        assert stage.world_after <= stage.world_before * 1.05, stage.name
     # The motion prior is not configured: reported, not silently dropped.
-    assert "motion_prior unavailable" in result.stages[-2].message
-    assert "scale initialised from" in result.stages[2].message
+    assert "motion_prior unavailable" in result.stages[-1].message
 
 
 def test_static_camera_keeps_the_scale(model, scene):
@@ -227,19 +238,13 @@ def test_pose_anchor_holds_the_initial_pose_not_the_t_pose(model, scene):
         np.testing.assert_array_equal(a.body_pose, b.body_pose)
 
 
-def test_scale_of_a_camera_that_barely_translates_is_frozen(model, scene):
-    """A camera that only turns (its VO centre is still up to millimetre noise) gives the stance-feet scale fit
-    no baseline: the scale is kept at its initial value and frozen, and the stage says why."""
+def test_scale_of_a_camera_that_barely_translates_is_unmeasured(model, scene):
+    """A camera that only turns (its VO centre still up to millimetre noise) gives the planted feet no
+    baseline: the estimator measures nothing (or an uncertainty far above the walking camera's)."""
     rng = np.random.default_rng(0)
     world_from_cam = np.array(scene.cameras_vo.world_from_cam, copy=True)
     world_from_cam[:, :3, 3] = world_from_cam[0, :3, 3] + 1e-3 * rng.normal(size=(len(world_from_cam), 3))
-    config = OptimizerConfig.default()
-    config.stages = config.stages[:3]
-    res = optimize(model, scene.init, Cameras(world_from_cam, scene.cameras_vo.intrinsics, initial_scale=1.5),
-                   config)
-    assert "unobservable" in res.stages[2].message, res.stages[2].message
-    assert res.camera_scale == 1.5
-    # With the real (walking) camera the same stages fit it.
-    res = optimize(model, scene.init, scene.cameras_vo, config)
-    assert "scale initialised from" in res.stages[2].message
-    assert abs(res.camera_scale / scene.vo_scale - 1.0) < 0.1
+    turning = estimate_scale(model, scene.init, Cameras(world_from_cam, scene.cameras_vo.intrinsics))
+    walking = estimate_scale(model, scene.init, scene.cameras_vo)
+    assert walking.sigma < 0.2
+    assert turning.sigma is None or turning.sigma > 5 * walking.sigma, turning

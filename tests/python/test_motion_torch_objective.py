@@ -200,7 +200,7 @@ def test_unknown_terms_are_refused(model, scene):
 
 
 def test_static_camera_keeps_the_scale_fixed(model, scene):
-    spec = next(s for s in OptimizerConfig.default().stages if s.name == "camera_scale")
+    spec = StageSpec("scale", ["transl", "scale"], {"reprojection": 1e-3, "scale_prior": 1.0})
     cameras = Cameras(scene.cameras_vo.world_from_cam, scene.cameras_vo.intrinsics, static=True)
     objective = StageObjective(model, scene.init, cameras, OptimizerConfig.default(), spec)
     assert "scale" not in objective.free and "transl" in objective.free

@@ -127,6 +127,10 @@ def test_scores_see_errors(model, follow_video):
     cams[:, :3, 3] *= 2.0
     arrays["world_from_cam"] = cams
     assert vb.camera_scores(cams, truth["world_from_cam"])["scale_error_pct"] == pytest.approx(100.0)
+    # Jitter is not scale: 2 cm of noise per frame lengthens the path several times, the scale stays.
+    shaken = truth["world_from_cam"].copy()
+    shaken[:, :3, 3] += 0.02 * np.random.default_rng(0).standard_normal(shaken[:, :3, 3].shape)
+    assert abs(vb.camera_scores(shaken, truth["world_from_cam"])["scale_error_pct"]) < 2.0
     half = truth["transl"].copy()
     half[..., [0, 2]] = half[:, :1, [0, 2]] + 0.5 * (half[..., [0, 2]] - half[:, :1, [0, 2]])
     arrays["world_transl"] = half

@@ -1,9 +1,12 @@
-"""Metric VO scale from the ground: synthetic scenes of known scale, and the patch VO's own map of a room."""
+"""M3C's camera scale estimator (m3c.vo.scale): each observation on synthetic scenes of known scale, their fusion, and
+the ground observation on the patch VO's own map of a room."""
 
 import numpy as np
 import pytest
 
-from m3c.vo import ground_in_camera, relative_ate, run_vo, scale_from_ground, umeyama_sim3
+from m3c.vo import (fuse, map_ground_plane, relative_ate, run_vo, scale_from_camera_height, scale_from_depth,
+                    scale_from_planted_feet, umeyama_sim3)
+from m3c.vo.scale import DEPTH_WEIGHT, PERSON_SIZE_SIGMA, ScaleObservation
 from m3c.vo.synthetic import ROOM_MAX, forward_trajectory, look_rotation, render_sequence
 
 GROUND_Y = 1.5  # metric world: OpenCV-like, y down, ground plane y = GROUND_Y, cameras near y = 0
@@ -54,76 +57,172 @@ def _ground_in_cameras(poses_m):
     return normals, heights
 
 
-def test_recovers_scale_with_clutter_and_noise():
+def _contacts_in_cameras(poses_m, rng, per_frame=6, noise=0.01):
+    """Per frame, soles on the ground 2.5-4 m ahead of the camera, in that camera's coordinates (metres)."""
+    out = []
+    for pose in poses_m:
+        ahead = pose[:3, 3] + pose[:3, 2] * rng.uniform(2.5, 4.0, (per_frame, 1))
+        world = np.column_stack([ahead[:, 0] + rng.uniform(-0.3, 0.3, per_frame), np.full(per_frame, GROUND_Y),
+                                 ahead[:, 2]])
+        cam = (world - pose[:3, 3]) @ pose[:3, :3]
+        out.append(cam + noise * rng.standard_normal(cam.shape))
+    return out
+
+
+def _vo_up(seed=3):
+    """UP expressed in the VO frame that _to_vo(seed) builds."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    return (q * np.sign(np.linalg.det(q))) @ UP
+
+
+def _tilted(up, degrees, seed=0):
+    axis = np.cross(up, np.random.default_rng(seed).standard_normal(3))
+    axis /= np.linalg.norm(axis)
+    angle = np.radians(degrees)
+    return up * np.cos(angle) + np.cross(axis, up) * np.sin(angle)
+
+
+def test_map_ground_plane_among_clutter():
     rng = np.random.default_rng(0)
     poses_m = _metric_cameras()
-    points_m = np.concatenate([_ground_points(rng, 300), _clutter(rng, 600)])
-    points_m += 0.01 * rng.standard_normal(points_m.shape)  # 1 cm noise on every point
-    true_scale = 2.7
-    points_vo, poses_vo = _to_vo(points_m, poses_m, true_scale)
-    normals, heights = _ground_in_cameras(poses_m)
-    # The ground is known in every third frame only.
-    frames = np.arange(0, len(poses_m), 3)
-    scale, info = scale_from_ground(points_vo, poses_vo, normals[frames], heights[frames], frames)
-    assert scale == pytest.approx(true_scale, rel=0.02), info
-    assert info.reason == ""
-    assert info.points > 100 and info.frames == len(frames)
-    assert info.spread < 0.03
-    assert info.contrast > 2.0
+    ground, clutter = _ground_points(rng, 300), _clutter(rng, 600)
+    points_m = np.concatenate([ground, clutter]) + 0.01 * rng.standard_normal((900, 3))
+    points_vo, poses_vo = _to_vo(points_m, poses_m, 2.7)
+    # The people's upright direction is only roughly the ground's normal.
+    normal, offset, inliers = map_ground_plane(points_vo, poses_vo, _tilted(_vo_up(), 12.0))
+    assert np.degrees(np.arccos(min(1.0, normal @ _vo_up()))) < 1.0
+    assert inliers[:300].mean() > 0.9 and inliers[300:].mean() < 0.1
+    # The plane lies below every camera, at the cameras' height in VO units.
+    np.testing.assert_allclose(poses_vo[:, :3, 3] @ normal + offset, (GROUND_Y - poses_m[:, 1, 3]) / 2.7, rtol=0.02)
 
 
-def test_unnormalised_normals_and_unusable_frames_are_handled():
-    rng = np.random.default_rng(1)
-    poses_m = _metric_cameras()
-    points_vo, poses_vo = _to_vo(_ground_points(rng, 200), poses_m, 0.4)
-    normals, heights = _ground_in_cameras(poses_m)
-    heights[::2] = np.nan  # frames without a ground measurement are skipped
-    scale, info = scale_from_ground(points_vo, poses_vo, 3.0 * normals, heights)
-    assert scale == pytest.approx(0.4, rel=1e-6)
-    assert info.frames == len(poses_m) // 2
-
-
-@pytest.mark.parametrize("seed", range(6))
-def test_no_support_without_ground_points(seed):
-    # Nothing within 0.3 m of the ground. (Clutter reaching down to the ground, e.g. the feet of walls, can
-    # form a peak of its own there: that is the ground's height too, within the clutter's clearance.)
-    rng = np.random.default_rng(seed)
-    poses_m = _metric_cameras()
-    points_vo, poses_vo = _to_vo(_clutter(rng, 900, clearance=0.3), poses_m, 2.7)
-    normals, heights = _ground_in_cameras(poses_m)
-    scale, info = scale_from_ground(points_vo, poses_vo, normals, heights)
-    assert scale is None, info
-    assert info.candidates > 1000  # plenty of points below the camera, just not at one height
-    assert "height" in info.reason
-
-
-def test_no_support_when_nothing_is_below_the_camera():
+def test_map_ground_plane_needs_a_plane_below_the_cameras():
     rng = np.random.default_rng(4)
     poses_m = _metric_cameras()
     ceiling = _ground_points(rng, 200) - [0.0, 2 * GROUND_Y, 0.0]
     points_vo, poses_vo = _to_vo(ceiling, poses_m, 1.0)
-    normals, heights = _ground_in_cameras(poses_m)
-    scale, info = scale_from_ground(points_vo, poses_vo, normals, heights)
-    assert scale is None and info.candidates == 0
-    assert "min_support" in info.reason
+    assert map_ground_plane(points_vo, poses_vo, _vo_up()) is None
+    walls = _clutter(rng, 400)[:200]  # the wall beside the path: vertical, not a ground
+    points_vo, poses_vo = _to_vo(walls, poses_m, 1.0)
+    assert map_ground_plane(points_vo, poses_vo, _vo_up()) is None
 
 
-def test_shapes_are_checked():
-    poses = np.tile(np.eye(4), (3, 1, 1))
-    with pytest.raises(ValueError, match=r"\(M, 3\)"):
-        scale_from_ground(np.zeros((4, 2)), poses, np.zeros((3, 3)), np.ones(3))
-    with pytest.raises(ValueError, match=r"\(F, 3\)"):
-        scale_from_ground(np.zeros((4, 3)), poses, np.zeros((2, 3)), np.ones(3))
-    with pytest.raises(ValueError, match="index"):
-        scale_from_ground(np.zeros((4, 3)), poses, np.zeros((1, 3)), np.ones(1), frames=[5])
+def test_scale_from_camera_height_recovers_the_scale():
+    rng = np.random.default_rng(1)
+    poses_m = _metric_cameras(60)
+    true_scale = 0.4
+    points_vo, poses_vo = _to_vo(np.concatenate([_ground_points(rng, 300), _clutter(rng, 300)]), poses_m, true_scale)
+    plane = map_ground_plane(points_vo, poses_vo, _vo_up())
+    contacts = _contacts_in_cameras(poses_m, rng)
+    for t in range(0, 60, 2):
+        contacts[t] = np.zeros((0, 3))  # frames without a planted foot are skipped
+    obs = scale_from_camera_height(contacts, poses_vo, plane[:2])
+    assert obs.value == pytest.approx(true_scale, rel=0.01), obs
+    assert obs.frames == 30 and obs.person_size
+    assert 0 < obs.sigma < 0.02  # 1 cm of sole noise at 1.5 m, over 30 frames
+    few = scale_from_camera_height(contacts[:8] + [np.zeros((0, 3))] * 52, poses_vo, plane[:2])
+    assert few.value is None and "fewer than" in few.reason
+    with pytest.raises(ValueError, match="frames"):
+        scale_from_camera_height(contacts[:10], poses_vo, plane[:2])
 
 
-def test_ground_in_camera_heights():
-    normals = np.tile([0.0, -1.0, 0.0], (3, 1))
-    contacts = [np.array([[0.1, 1.6, 3.0], [0.3, 1.6, 3.5]]), np.zeros((0, 3)), np.array([[0.0, 1.2, 2.0]])]
-    frames, heights = ground_in_camera(contacts, normals)
-    np.testing.assert_array_equal(frames, [0, 2])
-    np.testing.assert_allclose(heights, [1.6, 1.2])
+def _planted_feet_scene(true_scale, depth_error, rng, T=60):
+    """A camera walking forward and sideways past two people's feet, each planted for 10 frames at a time;
+    the camera-local feet carry 1 cm image-plane noise and `depth_error` (relative) along the camera's z."""
+    vo = np.tile(np.eye(4), (T, 1, 1))
+    vo[:, :3, 3] = np.column_stack([0.3 * np.sin(np.linspace(0, 3, T)), np.zeros(T), np.linspace(0, 2.0, T)])
+    joints, planted, frames = [], [], []
+    for person in range(2):
+        spots = np.column_stack([rng.uniform(-1, 1, T // 10), np.full(T // 10, 1.6),
+                                 true_scale * 2.0 + rng.uniform(2, 5, T // 10)])
+        world = np.repeat(spots, 10, axis=0)[:, None].repeat(4, axis=1)  # (T, 4, 3), the 4 contact joints
+        cam = world - true_scale * vo[:, None, :3, 3]
+        cam[..., :2] += 0.01 * rng.standard_normal(cam[..., :2].shape)
+        cam[..., 2] *= 1.0 + depth_error * rng.standard_normal((T, 1))
+        joints.append(cam)
+        mask = np.ones((T, 4), bool)
+        mask[9::10] = False  # the step between two plants
+        planted.append(mask)
+        frames.append(np.arange(T))
+    return joints, planted, frames, vo
+
+
+def test_scale_from_planted_feet_recovers_the_scale():
+    rng = np.random.default_rng(2)
+    joints, planted, frames, vo = _planted_feet_scene(1.7, 0.0, rng)
+    obs = scale_from_planted_feet(joints, planted, frames, vo)
+    assert obs.value == pytest.approx(1.7, rel=0.01), obs
+    assert obs.sigma < 0.02 and obs.detail["runs"] == 2 * 4 * 6
+    # A static camera measures nothing.
+    static = scale_from_planted_feet(joints, planted, frames, np.tile(np.eye(4), (60, 1, 1)))
+    assert static.value is None and "does not move" in static.reason
+    assert scale_from_planted_feet(joints, [np.zeros_like(m) for m in planted], frames, vo).reason == \
+        "no planted foot"
+
+
+def test_planted_feet_trust_the_image_plane_over_depth():
+    """The stated noise model: a monocular body's depth is noisier than its image-plane position. With 10% depth
+    noise per frame, the depth-weighted fit is closer to the truth than an isotropic one, and its bootstrap
+    uncertainty covers its error."""
+    errors = {DEPTH_WEIGHT: [], 1.0: []}
+    for seed in range(6):
+        joints, planted, frames, vo = _planted_feet_scene(1.7, 0.10, np.random.default_rng(seed))
+        for weight in errors:
+            obs = scale_from_planted_feet(joints, planted, frames, vo, depth_weight=weight)
+            errors[weight].append(abs(np.log(obs.value / 1.7)))
+            if weight == DEPTH_WEIGHT:
+                assert errors[weight][-1] < 3 * obs.sigma + 0.01
+    assert np.mean(errors[DEPTH_WEIGHT]) < 0.5 * np.mean(errors[1.0])
+
+
+def test_fuse_weights_by_uncertainty_and_shares_the_person_size_error():
+    feet = ScaleObservation("planted feet", 2.2, 0.2, 100)
+    ground = ScaleObservation("ground", 2.0, 0.02, 100)
+    est = fuse([feet, ground])
+    w = np.array([1 / 0.2 ** 2, 1 / 0.02 ** 2])
+    mean = (w * np.log([2.2, 2.0])).sum() / w.sum()
+    assert est.value == pytest.approx(np.exp(mean), rel=1e-12)
+    assert est.sigma == pytest.approx(np.hypot(1 / np.sqrt(w.sum()), PERSON_SIZE_SIGMA), rel=1e-12)
+    assert est.source == "planted feet+ground" and est.consistent
+    # A depth map is independent of the people's size: it is fused with their group's mean.
+    depth = ScaleObservation("depth map", 1.98, 0.03, 50, person_size=False)
+    est = fuse([feet, ground, depth])
+    group = (mean, np.hypot(1 / np.sqrt(w.sum()), PERSON_SIZE_SIGMA))
+    w2 = np.array([1 / group[1] ** 2, 1 / 0.03 ** 2])
+    assert est.value == pytest.approx(np.exp((w2 * [group[0], np.log(1.98)]).sum() / w2.sum()), rel=1e-12)
+    assert est.sigma == pytest.approx(1 / np.sqrt(w2.sum()), rel=1e-12)
+    # Disagreement beyond 3 combined standard deviations is flagged and widens the uncertainty by the Birge
+    # ratio; nothing usable gives the default.
+    apart = fuse([ScaleObservation("planted feet", 5.0, 0.05), ground])
+    w = np.array([1 / 0.05 ** 2, 1 / 0.02 ** 2])
+    mean = (w * np.log([5.0, 2.0])).sum() / w.sum()
+    birge = np.sqrt(((np.log([5.0, 2.0]) - mean) ** 2 * w).sum())
+    assert not apart.consistent and birge > 1
+    assert apart.sigma == pytest.approx(np.hypot(1 / np.sqrt(w.sum()), PERSON_SIZE_SIGMA) * birge, rel=1e-12)
+    none = fuse([ScaleObservation("ground", reason="no map points")], default=1.0)
+    assert none.value == 1.0 and none.sigma is None and none.source == "default"
+
+
+def test_scale_from_depth_maps():
+    rng = np.random.default_rng(5)
+    poses_m = _metric_cameras(10)
+    true_scale = 3.0
+    points_m = _ground_points(rng, 400)
+    points_vo, poses_vo = _to_vo(points_m, poses_m, true_scale)
+    W, H, f = 320, 240, 250.0
+    maps = np.zeros((10, H, W))
+    for t, pose in enumerate(poses_m):  # the metric depth of every map point at its pixel
+        cam = (points_m - pose[:3, 3]) @ pose[:3, :3]
+        front = cam[:, 2] > 0.1
+        u = np.round(f * cam[front, 0] / cam[front, 2] + W / 2).astype(int)
+        v = np.round(f * cam[front, 1] / cam[front, 2] + H / 2).astype(int)
+        ok = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        maps[t, v[ok], u[ok]] = cam[front][ok, 2] * (1 + 0.02 * rng.standard_normal(ok.sum()))
+    obs = scale_from_depth(points_vo, poses_vo, maps, [f, f, W / 2, H / 2])
+    assert obs.value == pytest.approx(true_scale, rel=0.01) and not obs.person_size
+    blank = scale_from_depth(points_vo, poses_vo, np.zeros((10, H, W)), [f, f, W / 2, H / 2])
+    assert blank.value is None and "known depth" in blank.reason
 
 
 def test_scale_of_the_patch_vo_map_of_a_room():
@@ -132,9 +231,14 @@ def test_scale_of_the_patch_vo_map_of_a_room():
     seq = render_sequence(forward_trajectory(60), seed=0)
     result = run_vo(seq.frames, intrinsics=seq.intrinsics)
     assert relative_ate(result.world_from_cam, seq.world_from_cam) <= 0.01
-    true_scale, _, _ = umeyama_sim3(result.camera_centres, seq.camera_centres)
-    normals = np.einsum("tji,j->ti", seq.world_from_cam[:, :3, :3], UP)
-    heights = ROOM_MAX[1] - seq.camera_centres[:, 1]
-    scale, info = scale_from_ground(result.points, result.world_from_cam, normals, heights)
-    assert scale == pytest.approx(true_scale, rel=0.02), info
-    assert info.points >= 20
+    true_scale, rotation, _ = umeyama_sim3(result.camera_centres, seq.camera_centres)
+    plane = map_ground_plane(result.points, result.world_from_cam, rotation.T @ UP)
+    assert plane is not None
+    rng = np.random.default_rng(0)
+    contacts = []
+    for pose in seq.world_from_cam:  # soles on the floor 1.5-3 m ahead, in each camera
+        ahead = pose[:3, 3] + pose[:3, 2] * rng.uniform(1.5, 3.0, (4, 1))
+        ahead[:, 1] = ROOM_MAX[1]
+        contacts.append((ahead - pose[:3, 3]) @ pose[:3, :3])
+    obs = scale_from_camera_height(contacts, result.world_from_cam, plane[:2])
+    assert obs.value == pytest.approx(true_scale, rel=0.02), obs

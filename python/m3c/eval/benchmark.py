@@ -42,6 +42,7 @@ from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.motion.scale import estimate_scale, rescaled
 from m3c.nn import VPoser
 from m3c.synth.cameras import ou_noise
 from m3c.synth.people import true_contacts
@@ -436,8 +437,11 @@ def run_sequence(model: BodyModel, seq: BenchmarkSequence, optimizer: OptimizerC
         log(f"{seq.name}: Local done ({report.seconds['Local']:.1f} s)")
 
     start = time.perf_counter()
-    result = optimize(model, local, seq.cameras_vo, optimizer or OptimizerConfig.default(), pose_prior=pose_prior)
-    cams = result.world_from_cam(seq.cameras_vo)
+    # As the pipeline: the scale estimator (its planted-feet source: the simulation has no map points), then the
+    # optimizer from there.
+    lifted, cameras = rescaled(local, seq.cameras_vo, estimate_scale(model, local, seq.cameras_vo))
+    result = optimize(model, lifted, cameras, optimizer or OptimizerConfig.default(), pose_prior=pose_prior)
+    cams = result.world_from_cam(cameras)
     opt_eval = _eval_tracks(model, result.tracks, cams)
     report.results["Global Opt"] = evaluate_sequence(gt, opt_eval, seq.fps, name=seq.name)
     report.seconds["Global Opt"] = time.perf_counter() - start

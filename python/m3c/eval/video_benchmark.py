@@ -208,14 +208,16 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
 
 
 def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarray) -> dict:
-    """Camera errors of one method: ATE after Sim(3) (moving cameras), scale error of the path length, camera
-    height above the ground (y = 0 in both worlds) and tilt of the camera to gravity (world y)."""
+    """Camera errors of one method: ATE after Sim(3) (moving cameras), scale error (the Sim(3) alignment's scale:
+    the path length would count a trajectory's jitter as scale), camera height above the ground (y = 0 in both
+    worlds) and tilt of the camera to gravity (world y)."""
     out = {}
     true_path = float(np.linalg.norm(np.diff(true_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
     pred_path = float(np.linalg.norm(np.diff(pred_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
     if true_path >= MIN_CAMERA_PATH:
         out["ate_mm"] = float(np.sqrt((M.camera_ate(pred_world_from_cam, true_world_from_cam) ** 2).mean()))
-        out["scale_error_pct"] = 100.0 * (pred_path / true_path - 1.0)
+        align, _, _ = M.umeyama(pred_world_from_cam[:, :3, 3], true_world_from_cam[:, :3, 3], with_scale=True)
+        out["scale_error_pct"] = 100.0 * (1.0 / align - 1.0)
     out["camera_path_m"] = pred_path
     out["ground_height_error_m"] = float(
         np.abs(pred_world_from_cam[:, 1, 3] - true_world_from_cam[:, 1, 3]).mean()

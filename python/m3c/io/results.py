@@ -51,6 +51,11 @@ ARRAYS: dict[str, tuple[str, str, str]] = {
 }
 
 
+def _scale_uncertainty(camera: dict) -> str:
+    sigma = (camera.get("scale_estimate") or {}).get("sigma")
+    return f", +-{100 * sigma:.1f}%" if sigma else ""
+
+
 def json_ready(value):
     """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
     (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
@@ -129,7 +134,7 @@ def describe(folder: str | Path) -> str:
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
              f"camera      {'static' if camera['static'] else 'moving'}, intrinsics {camera['intrinsics_source']} "
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}], odometry: {camera['odometry']}, scale "
-             f"{camera['scale']:.4f} m/unit ({camera['scale_source']})",
+             f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
              f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}",
              f"lift        {summary['lift']['method']}; optimization: "
              f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"

@@ -17,6 +17,8 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
+  scale_prior       ((log s - log s0) / sigma)^2: the camera scale s held to the scale estimator's s0 within its
+                    uncertainty sigma (Cameras.initial_scale, scale_sigma; no residual without sigma)
 Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
 unavailable otherwise and runs without them):
   pose_prior        |z_t|^2, z_t frame t's VPoser latent (latent_pose, SLAHMR's pose variables) or, with
@@ -56,9 +58,10 @@ class OptimizerConfig:
     contact_height_tolerance: float = 0.08
     min_depth: float = 0.05
     optimize_offset: bool = False
-    # Relative standard error of the stance-feet scale fit above which the camera scale is deemed unobservable
-    # (a camera that barely translates, e.g. panning) and frozen at its initial value.
-    max_scale_uncertainty: float = 0.25
+    # After each stage the world check (these terms at these weights over every person and frame) is compared
+    # with its value before; a stage that raised it by more than max_world_increase (relative) is reverted.
+    world_check: dict[str, float] = field(default_factory=dict)
+    max_world_increase: float = 0.05
     # With VPoser weights (optimize(pose_prior=...)), body joints 1..21 are optimised as VPoser latents
     # (SLAHMR's pose variables, initialised by encoding the initial pose; the hand joints stay fixed); False keeps
     # axis-angle poses under the VPoser prior on their encoding.
@@ -72,15 +75,15 @@ class OptimizerConfig:
         stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
                   for s in core.stages]
         return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
-                   core.min_depth, core.optimize_offset, core.max_scale_uncertainty, core.latent_pose,
-                   core.num_threads, stages)
+                   core.min_depth, core.optimize_offset, dict(core.world_check), core.max_world_increase,
+                   core.latent_pose, core.num_threads, stages)
 
     def validate(self) -> None:
         """Raises ValueError naming the first bad setting (the C++ core would refuse it later, or worse, Ceres
         would abort the process on num_threads < 1)."""
         if isinstance(self.num_threads, bool) or not isinstance(self.num_threads, Integral) or self.num_threads < 1:
             raise ValueError(f"num_threads must be an integer >= 1, got {self.num_threads!r}")
-        for key in ("robust_sigma", "min_depth", "max_scale_uncertainty"):
+        for key in ("robust_sigma", "min_depth"):
             value = getattr(self, key)
             if not (isinstance(value, Real) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{key} must be a finite number > 0, got {value!r}")
@@ -88,10 +91,19 @@ class OptimizerConfig:
             value = getattr(self, key)
             if not (isinstance(value, Real) and 0 <= value <= 1):
                 raise ValueError(f"{key} must lie in [0, 1], got {value!r}")
-        value = self.contact_height_tolerance
-        if not (isinstance(value, Real) and math.isfinite(value) and value >= 0):
-            raise ValueError(f"contact_height_tolerance must be a finite number >= 0, got {value!r}")
+        for key in ("contact_height_tolerance", "max_world_increase"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not (isinstance(value, Real) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{key} must be a finite number >= 0, got {value!r}")
         known_terms = set(_core.builtin_optimizer_terms()) | set(_core.learned_optimizer_terms())
+        builtin = set(_core.builtin_optimizer_terms())
+        if not isinstance(self.world_check, dict):
+            raise ValueError(f"world_check must map term names to weights, got {self.world_check!r}")
+        for term, weight in self.world_check.items():
+            if term not in builtin:
+                raise ValueError(f"world_check: unknown term {term!r}; choose from {sorted(builtin)}")
+            if isinstance(weight, bool) or not isinstance(weight, Real) or not math.isfinite(weight) or weight < 0:
+                raise ValueError(f"world_check: weight of {term} must be a finite number >= 0, got {weight!r}")
         for stage in self.stages:
             if isinstance(stage.max_iterations, bool) or not isinstance(stage.max_iterations, Integral) \
                     or stage.max_iterations < 0:
@@ -114,8 +126,9 @@ class OptimizerConfig:
         self.validate()
         core = _core.OptimizerConfig()
         for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
-                    "optimize_offset", "max_scale_uncertainty", "latent_pose", "num_threads"):
+                    "optimize_offset", "max_world_increase", "latent_pose", "num_threads"):
             setattr(core, key, getattr(self, key))
+        core.world_check = {k: float(v) for k, v in self.world_check.items()}
         stages = []
         for spec in self.stages:
             s = _core.StageConfig()

@@ -44,12 +44,15 @@ class Track:
 @dataclass
 class Cameras:
     """world_from_cam: T x 4 x 4 (VO, translation up to scale); intrinsics: T x 4 or 4 (fx, fy, cx, cy).
-    initial_scale: the metric size of one VO unit to start from (optimised unless static)."""
+    initial_scale: the metric size of one VO unit to start from (m3c.vo.scale's estimate; refined by stages that
+    free the scale, unless static); scale_sigma: its uncertainty, the standard deviation of log(initial_scale)
+    (the "scale_prior" term; None: no prior)."""
 
     world_from_cam: np.ndarray
     intrinsics: np.ndarray
     static: bool = False
     initial_scale: float = 1.0
+    scale_sigma: float | None = None
 
 
 @dataclass
@@ -62,6 +65,8 @@ class StageResult:
     objective_before: float
     objective_after: float
     camera_scale: float  # after the stage
+    world_before: float  # the world check (OptimizerConfig.world_check) before and after the stage
+    world_after: float
     terms: dict  # term -> (before, after)
 
 
@@ -135,6 +140,7 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
     core_cams.intrinsics = intrinsics
     core_cams.static_camera = bool(cameras.static)
     core_cams.initial_scale = float(cameras.initial_scale)
+    core_cams.scale_sigma = float(cameras.scale_sigma) if cameras.scale_sigma is not None else 0.0
     contact_regressor = None
     if any(t.contacts is not None for t in tracks):
         jw = np.zeros((len(CONTACT_JOINTS), model.num_joints))
@@ -157,7 +163,8 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
                                 res.body.reshape(n, -1, 3).copy(), res.betas.copy(), track.ground_normal,
                                 track.ground_offset, track.contacts))
     stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
-                          s.objective_after, s.scale, {t.term: (t.before, t.after) for t in s.terms})
+                          s.objective_after, s.scale, s.world_before, s.world_after,
+                          {t.term: (t.before, t.after) for t in s.terms})
               for s in result.stages]
     latents = [res.latent.copy() if res.latent.size else None for res in result.tracks]
     return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early),

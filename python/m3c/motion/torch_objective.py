@@ -28,7 +28,7 @@ from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness",
-               "joint_acceleration", "contact_velocity", "contact_height", "motion_prior")
+               "joint_acceleration", "contact_velocity", "contact_height", "motion_prior", "scale_prior")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -184,6 +184,7 @@ class StageObjective:
         self.kp_vertex_weights = as_t(vw[:, self.vertex_ids])
         self.kp_joint_weights = as_t(jw)
 
+        self.cameras = cameras
         world_from_cam = np.asarray(cameras.world_from_cam, dtype=np.float64)
         T = len(world_from_cam)
         intrinsics = np.asarray(cameras.intrinsics, dtype=np.float64)
@@ -294,6 +295,10 @@ class StageObjective:
                 out[term] = 0.5 * w * (conf ** 2 * gm).sum()
             elif term == "shape_prior":
                 out[term] = 0.5 * w * (self.frames_per_track * (state.betas ** 2).sum(-1)).sum()
+            elif term == "scale_prior":
+                sigma = self.cameras.scale_sigma
+                out[term] = (0.5 * w * ((torch.log(state.scale) - np.log(self.cameras.initial_scale)) / sigma) ** 2
+                             if sigma is not None and np.isfinite(sigma) and sigma > 0 else state.scale.new_zeros(()))
             elif term == "pose_anchor":
                 out[term] = 0.5 * w * ((state.body - self.anchor) ** 2).sum()
             elif term in ("pose_prior", "latent_smoothness"):

@@ -77,10 +77,9 @@ class OptimizeNode(Node):
     class Config:
         enabled: bool = True
         optimizer: dict[str, Any] = field(default_factory=dict)  # OptimizerConfig fields to override
-        # free: the stages that free the camera scale estimate it; fixed: it stays at the lift's; auto: fixed when
-        # it was measured against the ground (the contacts' speed is a weaker cue: leg swing along the view
-        # direction is barely seen), free otherwise.
-        scale: Literal["auto", "free", "fixed"] = "auto"
+        # free: the stages that free the camera scale refine the scale estimator's value within its uncertainty
+        # (scale_prior); fixed: it stays at the estimator's.
+        scale: Literal["free", "fixed"] = "free"
         # Exported weights (python -m m3c.models.export --out DIR): humor.safetensors adds HuMoR's motion prior,
         # vposer.safetensors VPoser's pose prior (with latent pose variables). None: $M3C_MODELS/export/<file>
         # when it is there, else the stages run without the term (and report it unavailable).
@@ -118,7 +117,8 @@ class OptimizeNode(Node):
         world = inputs["world"]
         world_from_cam = np.asarray(world["world_from_cam"], dtype=np.float64)
         cameras = Cameras(world_from_cam, np.asarray(inputs["camera"]["intrinsics"], dtype=np.float64),
-                          static=bool(world["static"]), initial_scale=float(world["initial_scale"]))
+                          static=bool(world["static"]), initial_scale=float(world["initial_scale"]),
+                          scale_sigma=world.get("scale_sigma"))
         tracks = world["tracks"]
         if not self.config.enabled or not tracks:
             if tracks:
@@ -128,7 +128,7 @@ class OptimizeNode(Node):
                                "camera_offset": np.zeros(3), "stages": [],
                                "stopped_early": False, "optimized": False}}
         config = optimizer_config(self.config.optimizer)
-        if self.config.scale == "fixed" or (self.config.scale == "auto" and world.get("scale_source") == "ground"):
+        if self.config.scale == "fixed":
             for stage in config.stages:
                 stage.free = [v for v in stage.free if v != "scale"]
         metric = metric_cameras(world_from_cam, cameras.initial_scale)
@@ -167,7 +167,8 @@ class OptimizeNode(Node):
             # Stage times stay in the log: results depend only on the inputs.
             stages.append({"name": stage.name, "status": stage.status, "message": stage.message,
                            "iterations": int(stage.iterations), "objective_before": float(stage.objective_before),
-                           "objective_after": float(stage.objective_after),
+                           "objective_after": float(stage.objective_after), "scale": float(stage.camera_scale),
+                           "world_before": float(stage.world_before), "world_after": float(stage.world_after),
                            "terms": {k: [float(v[0]), float(v[1])] for k, v in stage.terms.items()}})
         if result.stopped_early:
             ctx.log.warning("optimization stopped early (a stage failed); results are from the last good step")

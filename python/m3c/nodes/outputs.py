@@ -139,7 +139,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                        "num_joints": int(J)},
         "camera": {"intrinsics": [float(v) for v in camera["intrinsics"]], "intrinsics_source": camera["source"],
                    "static": bool(cameras["static"]), "odometry": cameras["source"],
-                   "scale": float(result["camera_scale"]), "scale_source": scale["source"]},
+                   "scale": float(result["camera_scale"]), "scale_source": scale["source"],
+                   # m3c.vo.scale's estimate: value, sigma (standard deviation of log(value)), every observation
+                   "scale_estimate": json_ready(scale)},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"]},
@@ -153,6 +155,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 
 @register_node
 class ResultsNode(Node):
+    version = "2"  # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")

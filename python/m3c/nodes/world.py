@@ -19,6 +19,8 @@ from m3c.ground import (CAMERA_UP, ContactTrack, GroundParams, estimate_ground_p
                         level_with_body_up)
 from m3c.motion import CONTACT_JOINTS
 from m3c.pipeline import ComponentUnavailable, Node, PipelineError, register_node
+from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
+                          scale_from_depth, scale_from_planted_feet)
 
 
 def _poses(track: dict) -> np.ndarray:
@@ -35,63 +37,98 @@ def contact_joints_in_camera(model, track: dict) -> np.ndarray:
     return joints[:, list(CONTACT_JOINTS)]
 
 
-def estimate_vo_scale(model, tracks: list[dict], world_from_cam: np.ndarray, threshold: float = 0.5,
-                      huber: float = 0.05, iterations: int = 10) -> tuple[float | None, int]:
-    """Metric size of one VO translation unit from planted feet.
-
-    While a contact joint stays planted (a run of detected frames with contact probability >= threshold), its
-    world position R_t x_t + s c_t is the same point w in every frame of the run (x_t: joint in the camera frame,
-    metres; R_t, c_t: VO rotation and camera centre). Eliminating w per run (centring over the run) leaves
-    a_t + s b_t = 0 with a_t = R_t x_t - mean(R x) and b_t = c_t - mean(c); s minimises sum |a_t + s b_t|^2 with
-    Huber weights (huber metres). Whole runs rather than consecutive frames give baselines long enough for the
-    camera's motion to stand out of the per-frame depth noise of camera-local bodies.
-    Returns (s, or None when the camera does not move or no foot is planted; number of frames used).
-    """
-    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
-    a_all, b_all = [], []
-    for track in tracks:
-        if "contacts" not in track:
+def contact_vertices_in_camera(model, track: dict, threshold: float) -> list[np.ndarray]:
+    """Per frame of a camera-frame track, its foot vertices in contact (the contact joint that moves a vertex most
+    has probability > threshold, in detected frames), in that frame's camera (metres)."""
+    n = track["num_frames"]
+    points = [np.zeros((0, 3)) for _ in range(n)]
+    if "contacts" not in track:
+        return points
+    foot_ids = foot_vertex_ids(model.data.weights)
+    foot_joint = np.argmax(model.data.weights[foot_ids][:, list(CONTACT_JOINTS)], axis=1)
+    in_contact = (track["contacts"] > threshold) & track["visible"][:, None]
+    frames = np.flatnonzero(in_contact.any(axis=1))
+    poses = _poses(track)
+    for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
+        if len(chunk) == 0:
             continue
-        frames = _track_frames(track)
-        world_dir = np.einsum("nij,nkj->nki", R[frames], contact_joints_in_camera(model, track))  # R_t x_t
-        planted = (track["contacts"] >= threshold) & track["visible"][:, None]
-        for j in range(planted.shape[1]):
-            for run in _runs(planted[:, j]):
-                if len(run) < 2:
-                    continue
-                a = world_dir[run, j]
-                b = c[frames[run]]
-                a_all.append(a - a.mean(axis=0))
-                b_all.append(b - b.mean(axis=0))
-    if not a_all:
-        return None, 0
-    a, b = np.concatenate(a_all), np.concatenate(b_all)
-    bb = np.einsum("ij,ij->i", b, b)
-    if bb.sum() < 1e-12:
-        return None, len(a)
-    weights = np.ones(len(a))
-    s = 0.0
-    for _ in range(iterations):
-        s = -np.sum(weights * np.einsum("ij,ij->i", a, b)) / max(np.sum(weights * bb), 1e-30)
-        residual = np.linalg.norm(a + s * b, axis=1)
-        weights = np.where(residual <= huber, 1.0, huber / np.maximum(residual, 1e-12))
-    return (float(s) if s > 0 and np.isfinite(s) else None), len(a)
+        verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
+        for k, i in enumerate(chunk):
+            points[i] = verts[k][in_contact[i][foot_joint]]
+    return points
 
 
-def _runs(mask: np.ndarray) -> list[np.ndarray]:
-    """Index arrays of the maximal runs of True in a 1-D bool array."""
-    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
-    return [np.arange(start, stop) for start, stop in zip(edges[::2], edges[1::2])]
+def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray:
+    """Mean unit pelvis-to-neck direction of every visible person-frame in the frame of world_from_cam (camera
+    rotations only, so the same at any scale)."""
+    directions = []
+    for track in tracks:
+        frames = np.flatnonzero(track["visible"])
+        joints = model.joints(_poses(track)[frames], track["betas"], track["transl"][frames])
+        spine = joints[:, 12] - joints[:, 0]
+        spine /= np.linalg.norm(spine, axis=1, keepdims=True)
+        rotations = world_from_cam[track["first_frame"] + frames, :3, :3]
+        directions.append(np.einsum("nij,nj->ni", rotations, spine))
+    mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
+    return mean / max(np.linalg.norm(mean), 1e-12)
+
+
+def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_threshold: float = 0.5,
+                          depth: dict | None = None, intrinsics=None, log=None) -> ScaleEstimate:
+    """The camera scale from every observation that carries it (m3c.vo.scale): the planted feet against the
+    camera's motion, the camera's height above the ground (contacts) against the map's ground, and metric
+    depth maps when given. cameras: the vo node's output (world_from_cam, points, static)."""
+    vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
+    observations = []
+    feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
+                                   [(t["contacts"] >= contact_threshold) & t["visible"][:, None]
+                                    if "contacts" in t else np.zeros((t["num_frames"], len(CONTACT_JOINTS)), bool)
+                                    for t in tracks],
+                                   [_track_frames(t) for t in tracks], vo)
+    observations.append(feet)
+    points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    plane = map_ground_plane(points, vo, body_up(model, tracks, vo)) if tracks else None
+    if plane is None:
+        observations.append(ScaleObservation("ground", reason="no ground plane among the odometry's "
+                                             f"{len(points)} map points"))
+    else:
+        per_frame = [[] for _ in range(len(vo))]
+        for track in tracks:
+            for i, p in enumerate(contact_vertices_in_camera(model, track, contact_threshold)):
+                if len(p):
+                    per_frame[track["first_frame"] + i].append(p)
+        contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
+        ground = scale_from_camera_height(contacts, vo, plane[:2])
+        ground.detail["map_points"] = int(plane[2].sum())
+        observations.append(ground)
+    if depth is not None and depth.get("available") and depth.get("metric"):
+        observations.append(scale_from_depth(points, vo, depth["depth"], intrinsics))
+    estimate = fuse(observations)
+    if log is not None:
+        for o in observations:
+            if o.usable():
+                log.info("camera scale from %s: %.4g m per VO unit (+-%.1f%%, %d frames)", o.source, o.value,
+                         100 * o.sigma, o.frames)
+            else:
+                log.info("camera scale from %s: not measured (%s)", o.source, o.reason)
+        if not estimate.consistent:
+            log.warning("the camera scale's sources disagree beyond their uncertainty: %s", ", ".join(
+                f"{o.source} {o.value:.4g}" for o in observations if o.usable()))
+    return estimate
 
 
 @register_node
 class ScaleNode(Node):
-    """The metric size of one visual-odometry translation unit (estimate_vo_scale), the optimizer's start.
-    Output scale: value, source ("given", "planted feet", "static camera", "default")."""
+    """The metric size of one visual-odometry translation unit: M3C's one scale estimator (m3c.vo.scale, whose
+    docstring states the model), fusing every observation that carries scale with its uncertainty.
+    Output scale: value, sigma (standard deviation of log(value); None when nothing measured it), source
+    ("given", "static camera", "default", or the sources used, e.g. "planted feet+ground"), consistent,
+    observations (per source: value, sigma, frames, reason)."""
 
     type_name = "scale"
     level = "track"
-    inputs = ("tracks", "cameras")
+    inputs = ("tracks", "cameras", "depth", "camera")
+    optional_inputs = ("depth", "camera")
     outputs = ("scale",)
     settings = ("body_model",)
 
@@ -99,24 +136,25 @@ class ScaleNode(Node):
     class Config:
         value: float | None = None  # fixed metres per VO unit; None = estimate
         contact_threshold: float = 0.5
-        huber: float = 0.05  # metres
 
     def run(self, ctx, inputs):
         cameras = inputs["cameras"]
         if self.config.value is not None:
             if not self.config.value > 0:
                 raise PipelineError(f"scale.value must be > 0, got {self.config.value}")
-            return {"scale": {"value": float(self.config.value), "source": "given", "frames": 0}}
+            return {"scale": ScaleEstimate(float(self.config.value), 0.0, "given").to_dict()}
         if cameras["static"]:
-            return {"scale": {"value": 1.0, "source": "static camera", "frames": 0}}
-        s, used = estimate_vo_scale(ctx.body_model(), inputs["tracks"]["tracks"], cameras["world_from_cam"],
-                                    self.config.contact_threshold, self.config.huber)
-        if s is None:
-            ctx.log.warning("no planted feet to measure the camera's scale (%d frames); starting from 1 m per VO "
-                            "unit", used)
-            return {"scale": {"value": 1.0, "source": "default", "frames": used}}
-        ctx.log.info("camera scale %.4f m per VO unit from %d planted-foot frames", s, used)
-        return {"scale": {"value": s, "source": "planted feet", "frames": used}}
+            return {"scale": ScaleEstimate(1.0, None, "static camera").to_dict()}
+        camera = inputs.get("camera")
+        estimate = estimate_camera_scale(ctx.body_model(), inputs["tracks"]["tracks"], cameras,
+                                         self.config.contact_threshold, inputs.get("depth"),
+                                         camera["intrinsics"] if camera is not None else None, ctx.log)
+        if estimate.sigma is None:
+            ctx.log.warning("nothing measured the camera's scale; starting from 1 m per VO unit")
+        else:
+            ctx.log.info("camera scale %.4g m per VO unit (+-%.1f%%) from %s", estimate.value,
+                         100 * estimate.sigma, estimate.source)
+        return {"scale": estimate.to_dict()}
 
 
 def metric_cameras(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
@@ -154,9 +192,7 @@ class GroundNode(Node):
     Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), up_source
     ("ground" or "camera"), plane (normal (3,), offset) the dominant plane in the world (y = 0 when found),
     tracks: per track normal (n, 3), offset (n,) in the world, observed (n,), valid (n,).
-    Output scale: the scale node's, or (source "ground") the camera scale measured against the ground: the
-    contacts give the camera's metric height above the ground in each frame, the odometry's map points on the
-    ground the same height in VO units (m3c.vo.scale_from_ground); the ground is then fitted again at that scale.
+    Output scale: the scale node's, passed on (the ground is fitted at that scale).
     """
 
     type_name = "ground"
@@ -182,11 +218,10 @@ class GroundNode(Node):
         max_distance: float = 0.10
         fill: Literal["hold", "linear"] = "hold"
         level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
-        scale_from_ground: bool = True  # measure the camera scale against the odometry's ground points
 
     def params(self) -> GroundParams:
         c = asdict(self.config)
-        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up", "scale_from_ground"):
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up"):
             c.pop(key)
         return GroundParams(**c)
 
@@ -195,22 +230,14 @@ class GroundNode(Node):
         tracks = inputs["tracks"]["tracks"]
         vo_cameras = np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64)
         scale = dict(inputs["scale"])
-        foot_ids = foot_vertex_ids(model.data.weights)
-        # Each foot vertex takes the contact probability of the contact joint that moves it most.
-        foot_joint = np.argmax(model.data.weights[foot_ids][:, list(CONTACT_JOINTS)], axis=1)
         with ctx.progress("contact vertices", len(tracks)) as bar:
             in_camera = []
             for track in tracks:
-                in_camera.append(self._contact_points(model, track, foot_ids, foot_joint))
+                in_camera.append(contact_vertices_in_camera(model, track, self.config.contact_threshold))
                 bar.update()
-        body_up = self._body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
+        up = body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
         cameras = metric_cameras(vo_cameras, scale["value"])
-        dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, body_up)
-        measured = self._ground_scale(ctx, dominant, tracks, in_camera, inputs["cameras"], scale)
-        if measured is not None:
-            scale = measured
-            cameras = metric_cameras(vo_cameras, scale["value"])
-            dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, body_up)
+        dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, up)
         up_vo = cameras[0, :3, :3] @ CAMERA_UP
         contact_tracks = []
         for track, points in zip(tracks, raw):
@@ -265,7 +292,7 @@ class GroundNode(Node):
                            "contact_points": int(len(pooled)), "tracks": out_tracks},
                 "scale": scale}
 
-    def _dominant(self, ctx, tracks, in_camera, cameras, body_up):
+    def _dominant(self, ctx, tracks, in_camera, cameras, up_direction):
         """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), all contact points
         there, and per track per frame its contact points there."""
         raw = []
@@ -287,76 +314,11 @@ class GroundNode(Node):
             except ValueError as err:
                 ctx.log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
         if dominant is not None and self.config.level_with_body_up:
-            dominant, levelled = level_with_body_up(dominant, pooled, body_up)
+            dominant, levelled = level_with_body_up(dominant, pooled, up_direction)
             if levelled:
                 ctx.log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
                              "it is taken from the people's upright direction")
         return dominant, pooled, raw
-
-    def _ground_scale(self, ctx, dominant, tracks, in_camera, cameras, scale) -> dict | None:
-        """The camera scale measured against the ground (m3c.vo.scale_from_ground): the people's contacts give
-        the camera's metric height above the ground in each frame, the odometry's map points on the ground the
-        same height in VO units. None when not measured (setting off, static camera, no ground, too little
-        support: the scale node's value stands)."""
-        from m3c.vo.scale import ground_in_camera, scale_from_ground
-
-        points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-        if not self.config.scale_from_ground or cameras["static"] or dominant is None or scale["source"] == "given":
-            return None
-        vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
-        per_frame: list[list[np.ndarray]] = [[] for _ in range(len(vo))]
-        for track, points_cam in zip(tracks, in_camera):
-            for i, p in enumerate(points_cam):
-                per_frame[track["first_frame"] + i].append(p)
-        contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
-        normals = np.einsum("fji,j->fi", vo[:, :3, :3], dominant.normal)  # R_t^T n: the ground up per camera
-        frames, heights = ground_in_camera(contacts, normals)
-        if not len(frames) or not len(points):
-            ctx.log.info("camera scale not measured against the ground: %s",
-                         "the odometry gave no map points" if not len(points) else "no planted feet")
-            return None
-        normals = normals[frames]
-        value, info = scale_from_ground(points, vo, normals, heights, frames)
-        if value is None:
-            ctx.log.info("camera scale not measured against the ground: %s", info.reason)
-            return None
-        ctx.log.info("camera scale %.4f m per VO unit measured against the ground (%d map points, %d frames, spread "
-                     "%.1f%%); the %s estimate was %.4f", value, info.points, info.frames, 100 * info.spread,
-                     scale["source"], scale["value"])
-        return {"value": float(value), "source": "ground", "frames": int(info.frames),
-                "ground_points": int(info.points), "spread": float(info.spread)}
-
-    @staticmethod
-    def _body_up(model, tracks, cameras) -> np.ndarray:
-        """Mean unit pelvis-to-neck direction of every visible person-frame in the VO frame (camera rotations
-        only, so the same at any scale)."""
-        directions = []
-        for track in tracks:
-            frames = np.flatnonzero(track["visible"])
-            joints = model.joints(_poses(track)[frames], track["betas"], track["transl"][frames])
-            spine = joints[:, 12] - joints[:, 0]
-            spine /= np.linalg.norm(spine, axis=1, keepdims=True)
-            rotations = cameras[track["first_frame"] + frames, :3, :3]
-            directions.append(np.einsum("nij,nj->ni", rotations, spine))
-        mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
-        return mean / max(np.linalg.norm(mean), 1e-12)
-
-    def _contact_points(self, model, track, foot_ids, foot_joint) -> list[np.ndarray]:
-        """Per frame of the track, the contact vertices in that frame's camera (metres)."""
-        n = track["num_frames"]
-        points = [np.zeros((0, 3)) for _ in range(n)]
-        if "contacts" not in track:
-            return points
-        in_contact = (track["contacts"] > self.config.contact_threshold) & track["visible"][:, None]
-        frames = np.flatnonzero(in_contact.any(axis=1))
-        poses = _poses(track)
-        for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
-            if len(chunk) == 0:
-                continue
-            verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
-            for k, i in enumerate(chunk):
-                points[i] = verts[k][in_contact[i][foot_joint]]
-        return points
 
 
 @register_node
@@ -369,7 +331,8 @@ class LiftNode(Node):
 
     Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
     body_pose, betas, contacts?, ground_normal?, ground_offset?), world_from_cam (T, 4, 4) for the optimizer
-    (world rotation, translation in VO units: camera centre = scale * translation), initial_scale, static, method.
+    (world rotation, translation in VO units: camera centre = scale * translation), initial_scale, scale_sigma
+    (the scale estimator's, None when nothing measured it), scale_source, static, method.
     """
 
     type_name = "lift"
@@ -453,6 +416,7 @@ class LiftNode(Node):
                 world["ground_offset"] = ground["tracks"][k]["offset"]
             out.append(world)
         return {"world": {"tracks": out, "world_from_cam": optimizer_cameras, "initial_scale": scale,
+                          "scale_sigma": inputs["scale"].get("sigma"),
                           "scale_source": str(inputs["scale"].get("source", "")),
                           "static": bool(inputs["cameras"]["static"]),
                           "method": "wham" if lifter is not None else "camera"}}

@@ -1,155 +1,314 @@
-"""Metric scale of monocular visual odometry from the ground.
+"""The metric size of one visual-odometry translation unit: M3C's one camera scale estimator.
 
-The people's contact points give the ground plane in metric camera coordinates (unit normal n pointing up,
-towards the camera's side, and the camera's height h above it in metres). The VO map has points on the same
-ground in VO units: seen from the same camera, their height below it along -n is h / scale. Each VO point
-below the camera, near the ground's direction, is a vote log(h_t / height) for log(scale); the ground is the
-densest narrow peak among the votes (trees, walls, cars and people give spread-out votes of their own).
+Monocular odometry gives the camera's path up to scale s (metres per VO unit). Every observation that carries
+metric size gives a measurement of log s with a standard deviation; the estimate is their inverse-variance
+weighted mean in log space (`fuse`), reported with its uncertainty and every observation (results.json).
+
+Observations (each returns a ScaleObservation, or one with a reason when it has nothing to go on):
+  planted feet   (`scale_from_planted_feet`) a foot joint planted over a run of frames is one world point:
+                 R_t x_t + s c_t is constant (x_t: the joint in camera t, metres, from the camera-local body;
+                 R_t, c_t: the VO rotation and camera centre). After centring each run, a_t + s b_t = 0 is solved
+                 by weighted least squares in each frame's camera axes, the depth axis down-weighted
+                 (DEPTH_WEIGHT): a monocular body's depth comes from its size and is several times noisier
+                 than its image-plane position, and a camera moving along its view sees the foot move in depth.
+                 Its uncertainty is a bootstrap over the runs (the independent units).
+  ground         (`scale_from_camera_height`) the people's known size puts their contact points (metres) in
+                 each camera, and so the camera's metric height above the ground they stand on; the odometry's
+                 map points on the ground give the same height in VO units (`map_ground_plane`: the dominant
+                 plane below the cameras, its normal near the people's upright direction). Each frame's ratio
+                 is a measurement; the uncertainty is the ratios' robust spread over the independent frames.
+                 This cue barely depends on the focal length (a height is an image-plane offset times
+                 depth / focal, and the body's depth scales with the focal length).
+  depth map      (`scale_from_depth`) metric depth maps (a depth node that says `metric`) against the depths
+                 of the map points in each frame.
+Sources measured from the people's size (feet, ground) share one systematic relative error (PERSON_SIZE_SIGMA, the
+spread of adult stature the body's shape estimate cannot see): they are fused by their sampling errors and the
+systematic error is added once to their mean, which is then fused with the other sources.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+# Relative standard deviation of a person's metric size as a monocular body estimate sees it: adult stature
+# varies by about 4% around its mean and the shape estimate recovers little of it.
+PERSON_SIZE_SIGMA = 0.05
+# Weight of the depth axis against the image-plane axes in the planted-feet fit (variance ratio ~ 1:10).
+DEPTH_WEIGHT = 0.1
+# Quantile of the contact vertices' depth below the camera taken as the soles' (robust to a stray vertex).
+SOLE_QUANTILE = 0.9
+# Frames per independent measurement of the camera height (people's contacts change over half a second).
+FRAMES_PER_SAMPLE = 15
+
 
 @dataclass
-class GroundScaleInfo:
-    """What scale_from_ground saw.
-
-    support: votes in the ground peak (point-frame pairs); points: distinct map points among them;
-    frames: frames that contributed to the peak; candidates: votes in the cone below the camera;
-    spread: robust standard deviation (1.4826 MAD) of the peak's log-votes, i.e. relative scale spread;
-    contrast: peak votes over the votes of the denser of the two equally wide bands beside it;
-    reason: why no scale was returned ("" when one was).
-    """
-    support: int = 0
-    points: int = 0
+class ScaleObservation:
+    """One source's measurement: value (metres per VO unit) with sigma, the standard deviation of log(value)
+    (a relative error) from sampling, from `frames` frames; person_size: measured against the people's size (it
+    also carries PERSON_SIZE_SIGMA, shared by all such sources). value None with `reason` when the source had
+    nothing to go on."""
+    source: str
+    value: float | None = None
+    sigma: float | None = None
     frames: int = 0
-    candidates: int = 0
-    spread: float = float("nan")
-    contrast: float = 0.0
     reason: str = ""
+    detail: dict = field(default_factory=dict)
+    person_size: bool = True
+
+    def usable(self) -> bool:
+        return self.value is not None and self.sigma is not None and np.isfinite(self.sigma) and self.sigma > 0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
 
 
-def _densest_window(values: np.ndarray, half_width: float) -> float:
-    """Centre of the interval of width 2 * half_width holding the most of the sorted `values`."""
-    right = np.searchsorted(values, values + 2.0 * half_width, side="right")
-    best = int(np.argmax(right - np.arange(len(values))))
-    return float(np.median(values[best:right[best]]))
+@dataclass
+class ScaleEstimate:
+    """The camera scale (metres per VO unit): value, sigma (standard deviation of log(value)), source (the
+    sources used, "+"-joined; "given", "static camera" or "default" when nothing measured it) and every
+    observation. consistent: False when two sources disagree by more than 3 combined standard deviations."""
+    value: float
+    sigma: float | None
+    source: str
+    observations: list[ScaleObservation] = field(default_factory=list)
+    consistent: bool = True
+
+    def to_dict(self) -> dict:
+        return {"value": float(self.value), "sigma": None if self.sigma is None else float(self.sigma),
+                "source": self.source, "consistent": bool(self.consistent),
+                "observations": [o.to_dict() for o in self.observations]}
 
 
-def scale_from_ground(points: np.ndarray, world_from_cam: np.ndarray, ground_normal_cam: np.ndarray,
-                      camera_height_m: np.ndarray, frames: np.ndarray | None = None, *,
-                      max_angle_deg: float = 80.0, min_depth: float = 0.0, half_width: float = 0.05,
-                      min_support: int = 20, min_contrast: float = 2.0
-                      ) -> tuple[float | None, GroundScaleInfo]:
-    """Metres per VO unit from VO map points on the ground.
+def _weighted(logs: np.ndarray, sigmas: np.ndarray) -> tuple[float, float]:
+    weights = 1.0 / np.square(np.maximum(sigmas, 1e-6))
+    return float(np.sum(weights * logs) / np.sum(weights)), float(np.sqrt(1.0 / np.sum(weights)))
 
-    Args:
-        points: (M, 3) VO map points in the VO world frame (VOResult.points).
-        world_from_cam: (T, 4, 4) VO camera poses (VOResult.world_from_cam), translation in VO units.
-        ground_normal_cam: (F, 3) for each frame in `frames` the ground's normal in that frame's camera
-            coordinates (OpenCV axes), pointing up, i.e. towards the camera's side of the plane; normalised
-            here.
-        camera_height_m: (F,) the camera's height above that plane, metres (> 0).
-        frames: (F,) indices into world_from_cam; None means every frame (F = T).
-        max_angle_deg: a point votes in frame t when the angle between its direction from the camera and the
-            down direction -n is below this (the ground's part of the view; farther points are grazing and
-            mostly not ground).
-        min_depth: points must lie at camera z > min_depth (VO units), i.e. in front of the camera.
-        half_width: half width of the ground peak in log-scale (0.05: votes within about +-5%).
-        min_support: fewest votes in the peak for a scale.
-        min_contrast: the peak must hold at least this many times the votes of each equally wide band beside
-            it; a smooth spread of heights, or its edge (no surface at one height), fails.
 
-    Returns:
-        (scale in metres per VO unit, or None with info.reason; GroundScaleInfo).
+def fuse(observations: list[ScaleObservation], default: float = 1.0) -> ScaleEstimate:
+    """Inverse-variance weighted mean of the usable observations' log values (module docstring: the people's
+    size error is shared); `default` (source "default", sigma None) when none is usable. Sources whose
+    difference exceeds 3 standard deviations of their sampling errors make the estimate inconsistent, and the
+    uncertainty is scaled by the Birge ratio sqrt(chi^2 / (sources - 1)) when that exceeds 1."""
+    usable = [o for o in observations if o.usable()]
+    if not usable:
+        return ScaleEstimate(float(default), None, "default", list(observations))
+    logs = np.log([o.value for o in usable])
+    sigmas = np.array([o.sigma for o in usable])
+    consistent = all(abs(logs[i] - logs[j]) <= 3.0 * np.hypot(sigmas[i], sigmas[j])
+                     for i in range(len(usable)) for j in range(i + 1, len(usable)))
+    person = np.array([bool(o.person_size) for o in usable], dtype=bool)
+    groups_logs, groups_sigmas = list(logs[~person]), list(sigmas[~person])
+    if person.any():
+        mean, sigma = _weighted(logs[person], sigmas[person])
+        groups_logs.append(mean)
+        groups_sigmas.append(float(np.hypot(sigma, PERSON_SIZE_SIGMA)))
+    mean, sigma = _weighted(np.array(groups_logs), np.array(groups_sigmas))
+    if len(usable) > 1:  # sources that disagree beyond their errors: the uncertainty grows by the Birge ratio
+        chi2 = float(np.sum(((logs - mean) / sigmas) ** 2))
+        sigma *= max(1.0, float(np.sqrt(chi2 / (len(usable) - 1))))
+    return ScaleEstimate(float(np.exp(mean)), sigma, "+".join(o.source for o in usable), list(observations),
+                         consistent)
+
+
+def _runs(mask: np.ndarray) -> list[np.ndarray]:
+    """Index arrays of the maximal runs of True in a 1-D bool array."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return [np.arange(start, stop) for start, stop in zip(edges[::2], edges[1::2])]
+
+
+def scale_from_planted_feet(joints_cam: list[np.ndarray], planted: list[np.ndarray], frames: list[np.ndarray],
+                            world_from_cam: np.ndarray, *, depth_weight: float = DEPTH_WEIGHT,
+                            huber: float = 0.05, iterations: int = 10, bootstrap: int = 200,
+                            min_frames: int = 10, seed: int = 0) -> ScaleObservation:
+    """The planted-feet observation (module docstring).
+
+    Per track: joints_cam (n, C, 3) contact joints in each frame's camera (metres), planted (n, C) bool,
+    frames (n,) indices into world_from_cam (T, 4, 4) (VO poses, translation in VO units). huber: metres.
     """
-    points = np.asarray(points, dtype=np.float64)
+    obs = ScaleObservation("planted feet")
     world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must have shape (M, 3), got {points.shape}")
-    if world_from_cam.ndim != 3 or world_from_cam.shape[1:] != (4, 4):
-        raise ValueError(f"world_from_cam must have shape (T, 4, 4), got {world_from_cam.shape}")
-    frames = np.arange(len(world_from_cam)) if frames is None else np.asarray(frames, dtype=np.int64)
-    normals = np.asarray(ground_normal_cam, dtype=np.float64)
-    heights = np.asarray(camera_height_m, dtype=np.float64)
-    if frames.ndim != 1 or normals.shape != (len(frames), 3) or heights.shape != (len(frames),):
-        raise ValueError(f"ground_normal_cam must be (F, 3) and camera_height_m (F,) with F = {len(frames)} "
-                         f"frames, got {normals.shape} and {heights.shape}")
-    if len(frames) and (frames.min() < 0 or frames.max() >= len(world_from_cam)):
-        raise ValueError(f"frames must index world_from_cam (0 .. {len(world_from_cam) - 1})")
+    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
+    a_parts, b_parts, run_ids = [], [], []
+    for joints, mask, idx in zip(joints_cam, planted, frames):
+        joints, mask, idx = np.asarray(joints, np.float64), np.asarray(mask, bool), np.asarray(idx, np.int64)
+        if joints.shape[:2] != mask.shape or len(idx) != len(mask):
+            raise ValueError(f"joints_cam (n, C, 3), planted (n, C) and frames (n,) disagree: {joints.shape}, "
+                             f"{mask.shape}, {idx.shape}")
+        world_dir = np.einsum("nij,nkj->nki", R[idx], joints)  # R_t x_t
+        for j in range(mask.shape[1]):
+            for run in _runs(mask[:, j]):
+                if len(run) < 2:
+                    continue
+                a = world_dir[run, j] - world_dir[run, j].mean(axis=0)
+                b = c[idx[run]] - c[idx[run]].mean(axis=0)
+                rot = R[idx[run]]  # residuals in each frame's camera axes, where the noise is anisotropic
+                a_parts.append(np.einsum("nji,nj->ni", rot, a))
+                b_parts.append(np.einsum("nji,nj->ni", rot, b))
+                run_ids.append(np.full(len(run), len(run_ids)))
+    if not a_parts:
+        obs.reason = "no planted foot"
+        return obs
+    a, b, run_id = np.concatenate(a_parts), np.concatenate(b_parts), np.concatenate(run_ids)
+    obs.frames = len(a)
+    w3 = np.array([1.0, 1.0, depth_weight])
+
+    def solve(rows: np.ndarray) -> float | None:
+        aa, bb = a[rows], b[rows]
+        weights = np.ones(len(aa))
+        s = None
+        for _ in range(iterations):
+            den = np.sum(weights[:, None] * w3 * bb * bb)
+            if den < 1e-18:
+                return None
+            s = -np.sum(weights[:, None] * w3 * aa * bb) / den
+            residual = np.sqrt(np.sum(w3 * (aa + s * bb) ** 2, axis=1))
+            weights = np.where(residual <= huber, 1.0, huber / np.maximum(residual, 1e-12))
+        return float(s) if s is not None and s > 0 and np.isfinite(s) else None
+
+    if len(a) < min_frames:
+        obs.reason = f"{len(a)} planted-foot frames, fewer than {min_frames}"
+        return obs
+    value = solve(np.arange(len(a)))
+    if value is None:
+        obs.reason = "the camera does not move while a foot is planted" if np.sum(b * b) < 1e-18 else \
+            "the planted feet give no positive scale"
+        return obs
+    rng = np.random.default_rng(seed)
+    members = [np.flatnonzero(run_id == k) for k in range(len(a_parts))]
+    samples = []
+    for _ in range(bootstrap):
+        pick = rng.integers(0, len(members), len(members))
+        s = solve(np.concatenate([members[k] for k in pick]))
+        samples.append(np.log(s) if s is not None else np.nan)
+    samples = np.asarray(samples)
+    failed = np.mean(~np.isfinite(samples))
+    if len(members) < 3 or failed > 0.1:
+        obs.reason = f"too few planted-foot runs for an uncertainty ({len(members)} runs)"
+        obs.detail = {"fit": value, "runs": len(members)}
+        return obs
+    obs.value = value
+    obs.sigma = float(np.std(samples[np.isfinite(samples)]))
+    obs.detail = {"runs": len(members)}
+    return obs
+
+
+def map_ground_plane(points: np.ndarray, world_from_cam: np.ndarray, up: np.ndarray, *, max_tilt_deg: float = 30.0,
+                     inlier_fraction: float = 0.01, min_support: int = 50, hypotheses: int = 1000,
+                     seed: int = 0) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """The ground among the odometry's map points: the plane below the cameras with the most inliers among
+    planes whose normal lies within max_tilt_deg of `up` (the people's upright direction in the VO frame),
+    refined by total least squares on its inliers. Inliers lie within inlier_fraction of the median distance
+    from the cameras to the points (the map has no metric unit). Returns (unit normal n pointing up, offset d
+    with n . x + d = 0, inlier mask) or None when no such plane has min_support inliers."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
+    up = np.asarray(up, dtype=np.float64)
+    if len(points) < max(3, min_support) or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
+        return None
+    up = up / np.linalg.norm(up)
+    centres = world_from_cam[::max(1, len(world_from_cam) // 200), :3, 3]  # a long video: a subset will do
+    threshold = inlier_fraction * float(np.median(np.linalg.norm(points - centres.mean(axis=0), axis=1)))
+    rng = np.random.default_rng(seed)
+    sample = rng.integers(0, len(points), (hypotheses, 3))
+    p0, p1, p2 = points[sample[:, 0]], points[sample[:, 1]], points[sample[:, 2]]
+    normals = np.cross(p1 - p0, p2 - p0)
     norms = np.linalg.norm(normals, axis=1)
-    usable = np.isfinite(heights) & (heights > 0) & np.all(np.isfinite(normals), axis=1) & (norms > 1e-9)
-    frames, normals, heights = frames[usable], normals[usable] / norms[usable, None], heights[usable]
-    info = GroundScaleInfo()
-    if len(points) == 0 or len(frames) == 0:
-        info.reason = "no map points" if len(points) == 0 else "no frame with a ground plane"
-        return None, info
-
-    cos_max = np.cos(np.radians(max_angle_deg))
-    votes, vote_point, vote_frame = [], [], []
-    for frame, normal, height in zip(frames, normals, heights):
-        cam_from_world = np.linalg.inv(world_from_cam[frame])
-        x = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
-        below = -(x @ normal)  # height of the camera above the point along the ground normal, VO units
-        distance = np.linalg.norm(x, axis=1)
-        keep = (x[:, 2] > min_depth) & (below > cos_max * distance) & (below > 0)
-        votes.append(np.log(height / below[keep]))
-        vote_point.append(np.flatnonzero(keep))
-        vote_frame.append(np.full(int(keep.sum()), frame))
-    votes = np.concatenate(votes)
-    vote_point, vote_frame = np.concatenate(vote_point), np.concatenate(vote_frame)
-    info.candidates = len(votes)
-    if len(votes) < min_support:
-        info.reason = f"{len(votes)} map point votes below the camera, fewer than min_support = {min_support}"
-        return None, info
-
-    order = np.argsort(votes)
-    votes, vote_point, vote_frame = votes[order], vote_point[order], vote_frame[order]
-    centre = _densest_window(votes, half_width)
-    for _ in range(3):  # re-centre on the peak's median
-        centre = float(np.median(votes[np.abs(votes - centre) <= half_width]))
-    peak = np.abs(votes - centre) <= half_width
-    # Flanks as wide as the peak on either side; the denser one counts, so that the edge of a spread of heights
-    # (e.g. the lower end of a wall) is no peak.
-    lower = np.count_nonzero((votes < centre - half_width) & (votes >= centre - 3.0 * half_width))
-    upper = np.count_nonzero((votes > centre + half_width) & (votes <= centre + 3.0 * half_width))
-    info.support = int(peak.sum())
-    info.points = len(np.unique(vote_point[peak]))
-    info.frames = len(np.unique(vote_frame[peak]))
-    info.contrast = float(info.support / max(lower, upper, 1))
-    info.spread = float(1.4826 * np.median(np.abs(votes[peak] - centre)))
-    if info.support < min_support:
-        info.reason = f"the ground peak has {info.support} votes, fewer than min_support = {min_support}"
-        return None, info
-    if info.contrast < min_contrast:
-        info.reason = (f"no surface at one height below the camera: the peak holds {info.contrast:.2f}x the "
-                       f"votes of its flanks, less than min_contrast = {min_contrast}")
-        return None, info
-    return float(np.exp(centre)), info
+    ok = norms > 1e-12
+    normals[ok] /= norms[ok, None]
+    normals *= np.where(normals @ up < 0, -1.0, 1.0)[:, None]
+    offsets = -np.einsum("ij,ij->i", normals, p0)
+    below = np.median(centres @ normals.T + offsets, axis=0) > 0  # the cameras above the plane
+    ok &= (normals @ up >= np.cos(np.radians(max_tilt_deg))) & below
+    if not ok.any():
+        return None
+    candidates = np.flatnonzero(ok)
+    counts = np.array([np.count_nonzero(np.abs(points @ normals[k] + offsets[k]) < threshold) for k in candidates])
+    best = candidates[int(np.argmax(counts))]
+    inliers = np.abs(points @ normals[best] + offsets[best]) < threshold
+    for _ in range(2):  # total least squares on the inliers, then its own inliers
+        if inliers.sum() < max(3, min_support):
+            return None
+        mean = points[inliers].mean(axis=0)
+        normal = np.linalg.svd(points[inliers] - mean, full_matrices=False)[2][-1]
+        normal = normal if normal @ up >= 0 else -normal
+        offset = -float(normal @ mean)
+        inliers = np.abs(points @ normal + offset) < threshold
+    if inliers.sum() < min_support or np.median(centres @ normal + offset) <= 0:
+        return None
+    return normal, offset, inliers
 
 
-def ground_in_camera(contact_points_cam: list[np.ndarray], normal_cam: np.ndarray, min_points: int = 1
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-frame camera height above the ground from contact points in camera coordinates (metres).
-
-    contact_points_cam: per frame an (k, 3) array of ground contact points (camera coordinates, metres);
-    normal_cam: (T, 3) the ground's up normal in each frame's camera. The plane through the contacts with that
-    normal lies at height median(-n . p) below the camera. Returns (frames with >= min_points contacts,
-    their heights); feed normal_cam[frames], heights to scale_from_ground.
-    """
-    normal_cam = np.asarray(normal_cam, dtype=np.float64)
-    if normal_cam.shape != (len(contact_points_cam), 3):
-        raise ValueError(f"normal_cam must have shape ({len(contact_points_cam)}, 3), got {normal_cam.shape}")
-    frames, heights = [], []
-    for t, pts in enumerate(contact_points_cam):
-        pts = np.asarray(pts, dtype=np.float64).reshape(-1, 3)
-        if len(pts) < min_points:
+def scale_from_camera_height(contact_points_cam: list[np.ndarray], world_from_cam: np.ndarray,
+                             plane: tuple[np.ndarray, float], *, frames_per_sample: int = FRAMES_PER_SAMPLE,
+                             min_frames: int = 10) -> ScaleObservation:
+    """The ground observation (module docstring): contact_points_cam per frame of world_from_cam, (k, 3) points
+    on the ground in that camera (metres); plane (n, d): the ground in the VO frame (map_ground_plane)."""
+    obs = ScaleObservation("ground")
+    world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
+    if len(contact_points_cam) != len(world_from_cam):
+        raise ValueError(f"contact_points_cam has {len(contact_points_cam)} frames, world_from_cam "
+                         f"{len(world_from_cam)}")
+    normal, offset = np.asarray(plane[0], dtype=np.float64), float(plane[1])
+    logs = []
+    for t, points in enumerate(contact_points_cam):
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if not len(points):
             continue
-        n = normal_cam[t] / np.linalg.norm(normal_cam[t])
-        frames.append(t)
-        heights.append(float(np.median(-(pts @ n))))
-    return np.asarray(frames, dtype=np.int64), np.asarray(heights)
+        # The camera's height above the soles: the contact vertices' far end along the normal (the rest of a
+        # foot's vertices lie up to its height above the ground).
+        metric = float(np.quantile(-(points @ (world_from_cam[t, :3, :3].T @ normal)), SOLE_QUANTILE))
+        in_vo = float(world_from_cam[t, :3, 3] @ normal + offset)
+        if metric > 0 and in_vo > 0:
+            logs.append(np.log(metric / in_vo))
+    obs.frames = len(logs)
+    if len(logs) < min_frames:
+        obs.reason = f"{len(logs)} frames with contacts above the map's ground, fewer than {min_frames}"
+        return obs
+    logs = np.asarray(logs)
+    centre = float(np.median(logs))
+    spread = 1.4826 * float(np.median(np.abs(logs - centre)))
+    samples = max(1.0, len(logs) / frames_per_sample)
+    obs.value = float(np.exp(centre))
+    obs.sigma = float(max(spread / np.sqrt(samples), 1e-3))
+    obs.detail = {"spread": spread}
+    return obs
+
+
+def scale_from_depth(points: np.ndarray, world_from_cam: np.ndarray, depth_maps, intrinsics: np.ndarray, *,
+                     min_samples: int = 50) -> ScaleObservation:
+    """The depth-map observation: each map point seen in a frame (in front of the camera, inside the image)
+    votes log(depth map at its pixel / its VO depth). depth_maps: (T, H, W) metric depths (0 or non-finite:
+    unknown); intrinsics (4,) fx, fy, cx, cy of the depth maps' pixels."""
+    obs = ScaleObservation("depth map", person_size=False)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
+    fx, fy, cx, cy = np.asarray(intrinsics, dtype=np.float64)
+    if len(depth_maps) != len(world_from_cam):
+        raise ValueError(f"{len(depth_maps)} depth maps for {len(world_from_cam)} cameras")
+    logs, per_frame = [], []
+    for t, depth in enumerate(depth_maps):
+        depth = np.asarray(depth, dtype=np.float64)
+        cam_from_world = np.linalg.inv(world_from_cam[t])
+        x = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+        front = x[:, 2] > 1e-9
+        u = np.round(fx * x[front, 0] / x[front, 2] + cx).astype(np.int64)
+        v = np.round(fy * x[front, 1] / x[front, 2] + cy).astype(np.int64)
+        inside = (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+        metric = depth[v[inside], u[inside]]
+        known = np.isfinite(metric) & (metric > 0)
+        if known.any():
+            votes = np.log(metric[known] / x[front][inside][known, 2])
+            logs.append(votes)
+            per_frame.append(float(np.median(votes)))
+    votes = np.concatenate(logs) if logs else np.zeros(0)
+    obs.frames = len(per_frame)
+    if len(votes) < min_samples:
+        obs.reason = f"{len(votes)} map points with a known depth, fewer than {min_samples}"
+        return obs
+    centre = float(np.median(votes))
+    frame_spread = 1.4826 * float(np.median(np.abs(np.asarray(per_frame) - centre)))
+    obs.value = float(np.exp(centre))
+    obs.sigma = float(max(frame_spread / np.sqrt(max(1.0, len(per_frame) / FRAMES_PER_SAMPLE)), 0.01))
+    return obs

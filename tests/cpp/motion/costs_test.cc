@@ -122,5 +122,18 @@ TEST(Costs, PriorsJacobians) {
   EXPECT_TRUE(CheckGradient(diff, {x.data(), y.data()}));
 }
 
+TEST(Costs, LogPriorValueJacobianAndDomain) {
+  const double mean = 1.7, sigma = 0.05, weight = 4.0;
+  LogPriorCost prior(std::log(mean), sigma, weight);
+  double scale = 1.9;
+  EXPECT_TRUE(CheckGradient(prior, {&scale}));
+  const double* params[] = {&scale};
+  double residual = 0.0;
+  ASSERT_TRUE(prior.Evaluate(params, &residual, nullptr));
+  EXPECT_NEAR(residual, 2.0 * std::log(1.9 / 1.7) / 0.05, 1e-12);  // sqrt(weight) log(x / mean) / sigma
+  scale = -0.5;  // no log-normal density at a negative scale: the step is rejected, not NaN
+  EXPECT_FALSE(prior.Evaluate(params, &residual, nullptr));
+}
+
 }  // namespace
 }  // namespace m3c::motion

@@ -134,6 +134,71 @@ TEST(WorldOptimizer, NaNTrialStepsAreRejectedBySolver) {
   EXPECT_EQ(result.tracks[0].transl(0, 0), s.init.transl(0, 0));  // the NaN region was never entered
 }
 
+TEST(WorldOptimizer, StageThatMakesTheWorldWorseIsRevertedAndTheNextGoesOn) {
+  Scene s = MakeScene(8);
+  OptimizerConfig config = RootOnlyConfig();
+  config.world_check = {{"reprojection", 1e-3}};
+  // Velocity smoothing alone at a huge weight: its own objective falls by stopping the sliding person, the
+  // images then disagree (the world check rises far beyond max_world_increase).
+  StageConfig flatten{"flatten", true, false, false, false, false, false, {{"joint_smoothness", 1e6}}, 20};
+  StageConfig after = config.stages[0];
+  after.name = "after";
+  config.stages.insert(config.stages.begin() + 1, flatten);
+  config.stages.push_back(after);
+  WorldOptimizer opt(&s.model, &s.joints, nullptr, config);
+  const OptimizerResult result = opt.Optimize({s.init}, s.cameras);
+  ASSERT_EQ(result.stages.size(), 4u);
+  EXPECT_EQ(result.stages[0].status, "ok");
+  EXPECT_EQ(result.stages[1].status, "reverted");
+  EXPECT_NE(result.stages[1].message.find("world check rose"), std::string::npos) << result.stages[1].message;
+  EXPECT_EQ(result.stages[1].world_after, result.stages[1].world_before);
+  EXPECT_EQ(result.stages[2].status, "ok");  // not stopped: the next stage starts from the state before
+  EXPECT_EQ(result.stages[3].status, "ok");
+  EXPECT_FALSE(result.stopped_early);
+  EXPECT_LE(result.stages[2].world_after, result.stages[0].world_after * 1.05);
+  EXPECT_LT((result.tracks[0].transl - s.truth.transl).cwiseAbs().maxCoeff(), 1e-4);
+}
+
+// sqrt(w) (scale - target): a pull of the camera scale towards `target`.
+struct PullScale : ceres::SizedCostFunction<1, 1> {
+  double target, sqrt_w;
+  PullScale(double t, double w) : target(t), sqrt_w(std::sqrt(w)) {}
+  bool Evaluate(double const* const* p, double* r, double** j) const override {
+    r[0] = sqrt_w * (p[0][0] - target);
+    if (j && j[0]) j[0][0] = sqrt_w;
+    return true;
+  }
+};
+
+TEST(WorldOptimizer, ScalePriorHoldsTheScaleWithinTheEstimatesUncertainty) {
+  Scene s = MakeScene(4);
+  s.cameras.initial_scale = 2.0;
+  s.cameras.scale_sigma = 0.05;
+  const double prior_weight = 3.0, pull_weight = 50.0, target = 3.0;
+  OptimizerConfig config = RootOnlyConfig();
+  config.world_check.clear();
+  config.stages = {{"scale", false, false, false, false, true, false, {{"scale_prior", prior_weight}, {"pull", 1.0}}, 50}};
+  WorldOptimizer opt(&s.model, &s.joints, nullptr, config);
+  opt.AddTerm("pull", [&](ceres::Problem* problem, const WorldOptimizer::Variables& v, double) {
+    problem->AddResidualBlock(new PullScale(target, pull_weight), nullptr, v.scale);
+  });
+  const OptimizerResult result = opt.Optimize({s.init}, s.cameras);
+  ASSERT_EQ(result.stages[0].status, "ok") << result.stages[0].message;
+  // The minimum of 1/2 w_p (log(s / s0) / sigma)^2 + 1/2 w (s - target)^2: its derivative's root, by bisection.
+  auto derivative = [&](double x) {
+    return prior_weight * std::log(x / 2.0) / (0.05 * 0.05 * x) + pull_weight * (x - target);
+  };
+  double lo = 2.0, hi = target;
+  for (int k = 0; k < 200; ++k) (derivative(0.5 * (lo + hi)) > 0 ? hi : lo) = 0.5 * (lo + hi);
+  EXPECT_NEAR(result.scale, 0.5 * (lo + hi), 2e-4);  // Ceres's function tolerance
+  EXPECT_GT(result.scale, 2.0);
+  EXPECT_LT(result.scale, 2.0 * std::exp(3 * 0.05));  // held within a few sigmas of the estimate
+
+  // Without an uncertainty there is no prior: the pull alone decides.
+  s.cameras.scale_sigma = 0.0;
+  EXPECT_NEAR(opt.Optimize({s.init}, s.cameras).scale, target, 1e-6);
+}
+
 TEST(WorldOptimizer, UnknownTermIsReportedNotFatal) {
   Scene s = MakeScene(4);
   OptimizerConfig config = RootOnlyConfig();
