@@ -242,3 +242,18 @@ def test_scale_of_the_patch_vo_map_of_a_room():
         contacts.append((ahead - pose[:3, 3]) @ pose[:3, :3])
     obs = scale_from_camera_height(contacts, result.world_from_cam, plane[:2])
     assert obs.value == pytest.approx(true_scale, rel=0.02), obs
+
+
+def test_baseline_ratio_tells_a_turning_camera_from_a_moving_one():
+    from m3c.vo.scale import MIN_BASELINE, baseline_ratio
+
+    rng = np.random.default_rng(6)
+    points = np.column_stack([rng.uniform(-5, 5, 300), rng.uniform(-1, 2, 300), rng.uniform(8, 12, 300)])
+    turning = np.tile(np.eye(4), (30, 1, 1))
+    turning[:, :3, 3] = 0.05 * rng.standard_normal((30, 3))  # odometry noise around one spot
+    moving = np.tile(np.eye(4), (30, 1, 1))
+    moving[:, 2, 3] = np.linspace(0, 3.0, 30)  # 3 units forward
+    depth = np.median(np.linalg.norm(points - moving[15, :3, 3], axis=1))
+    assert baseline_ratio(moving, points) == pytest.approx(3.0 / depth, rel=1e-12)
+    assert baseline_ratio(turning, points) < MIN_BASELINE < baseline_ratio(moving, points)
+    assert baseline_ratio(moving, np.zeros((0, 3))) is None

@@ -143,8 +143,9 @@ class ScaleNode(Node):
             if not self.config.value > 0:
                 raise PipelineError(f"scale.value must be > 0, got {self.config.value}")
             return {"scale": ScaleEstimate(float(self.config.value), 0.0, "given").to_dict()}
-        if cameras["static"]:
-            return {"scale": ScaleEstimate(1.0, None, "static camera").to_dict()}
+        if cameras["static"] or cameras.get("rotation_only"):  # no translation: any scale gives the same world
+            return {"scale": ScaleEstimate(1.0, None, "static camera" if cameras["static"] else "rotation only")
+                    .to_dict()}
         camera = inputs.get("camera")
         estimate = estimate_camera_scale(ctx.body_model(), inputs["tracks"]["tracks"], cameras,
                                          self.config.contact_threshold, inputs.get("depth"),

@@ -81,6 +81,25 @@ class ScaleEstimate:
                 "observations": [o.to_dict() for o in self.observations]}
 
 
+# A camera whose odometry translation spans less than this fraction of the scene's median depth is taken to turn in
+# place: over such a baseline the odometry's translation is noise (the video benchmark's panning cameras: 0.03-0.06
+# with a wrong focal length; the moving ones 0.21-1.5), and any scale would multiply it into metres.
+MIN_BASELINE = 0.1
+
+
+def baseline_ratio(world_from_cam: np.ndarray, points: np.ndarray) -> float | None:
+    """The camera's translation extent (farthest centre from the first) over the median distance from the middle
+    camera to the map points, both in VO units; None without map points."""
+    world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return None
+    centres = world_from_cam[:, :3, 3]
+    depth = float(np.median(np.linalg.norm(points - centres[len(centres) // 2], axis=1)))
+    extent = float(np.linalg.norm(centres - centres[0], axis=1).max())
+    return extent / depth if depth > 0 else None
+
+
 def _weighted(logs: np.ndarray, sigmas: np.ndarray) -> tuple[float, float]:
     weights = 1.0 / np.square(np.maximum(sigmas, 1e-6))
     return float(np.sum(weights * logs) / np.sum(weights)), float(np.sqrt(1.0 / np.sum(weights)))
