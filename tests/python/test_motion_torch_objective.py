@@ -48,7 +48,7 @@ def single_stage(spec: StageSpec, iterations: int, **settings) -> OptimizerConfi
     config = OptimizerConfig.default()
     for key, value in settings.items():
         setattr(config, key, value)
-    # The scale stays fixed: a stage that frees it first re-initialises it from stance feet, moving the state.
+    # The scale stays fixed (the default recipe frees it nowhere; test_scale_prior_after_ceres_steps frees it).
     config.stages = [StageSpec(spec.name, [g for g in spec.free if g != "scale"], dict(spec.weights), iterations)]
     return config
 
@@ -107,6 +107,25 @@ def test_every_term_with_other_weights_and_settings(model, scene):
     other = single_stage(config.stages[0], 0, robust_sigma=100.0)
     assert torch_terms(StageObjective(model, tracks, cameras, other, other.stages[0]), tracks, 0.8)[
         "reprojection"] > 1.5 * expected["reprojection"]
+
+
+def test_scale_prior_after_ceres_steps(model, scene):
+    """The scale prior is zero at its centre (the start), so the terms are compared after Ceres moved the scale."""
+    spec = StageSpec("scale", ["transl", "scale"], {"reprojection": 1e-3, "contact_height": 10.0,
+                                                     "scale_prior": 0.01})
+    config = OptimizerConfig.default()
+    config.stages = [dataclasses.replace(spec, max_iterations=3)]
+    config.world_check = {}
+    tracks = perturbed(scene.init, seed=5)
+    cameras = dataclasses.replace(scene.cameras_vo, initial_scale=1.7, scale_sigma=0.5)  # a weak prior: it moves
+    res = optimize(model, tracks, cameras, config)
+    stage = res.stages[0]
+    assert stage.status == "ok" and abs(np.log(res.camera_scale / 1.7)) > 1e-3, (stage.message, res.camera_scale)
+    objective = StageObjective(model, tracks, cameras, config, config.stages[0])
+    expected = torch_terms(objective, res.tracks, res.camera_scale)
+    assert expected["scale_prior"] > 0
+    for term, (_, after) in stage.terms.items():
+        assert after == pytest.approx(expected[term], rel=RTOL), term
 
 
 @pytest.fixture(scope="module")
