@@ -244,16 +244,20 @@ def test_scale_of_the_patch_vo_map_of_a_room():
     assert obs.value == pytest.approx(true_scale, rel=0.02), obs
 
 
-def test_baseline_ratio_tells_a_turning_camera_from_a_moving_one():
-    from m3c.vo.scale import MIN_BASELINE, baseline_ratio
+def test_a_turning_camera_is_told_from_a_moving_one():
+    from m3c.vo.scale import translation_baseline, turns_in_place
 
     rng = np.random.default_rng(6)
     points = np.column_stack([rng.uniform(-5, 5, 300), rng.uniform(-1, 2, 300), rng.uniform(8, 12, 300)])
+    depth = np.median(np.linalg.norm(points, axis=1))  # from the middle camera, near the origin in both paths
     turning = np.tile(np.eye(4), (30, 1, 1))
     turning[:, :3, 3] = 0.05 * rng.standard_normal((30, 3))  # odometry noise around one spot
-    moving = np.tile(np.eye(4), (30, 1, 1))
-    moving[:, 2, 3] = np.linspace(0, 3.0, 30)  # 3 units forward
-    depth = np.median(np.linalg.norm(points - moving[15, :3, 3], axis=1))
-    assert baseline_ratio(moving, points) == pytest.approx(3.0 / depth, rel=1e-12)
-    assert baseline_ratio(turning, points) < MIN_BASELINE < baseline_ratio(moving, points)
-    assert baseline_ratio(moving, np.zeros((0, 3))) is None
+    slow = np.tile(np.eye(4), (30, 1, 1))
+    slow[:, 2, 3] = np.linspace(-0.25, 0.25, 30)  # 0.5 units straight ahead: short, but it goes somewhere
+    extent, wander = translation_baseline(slow, points)
+    assert extent == pytest.approx(0.5 / depth, rel=0.01) and wander == pytest.approx(1.0)
+    assert extent < 0.1  # as small as the turning camera's noise ...
+    assert turns_in_place(turning, points) and not turns_in_place(slow, points)  # ... but not wandering
+    assert not turns_in_place(turning, points, min_baseline=0.0)  # the setting that keeps every translation
+    assert translation_baseline(slow, np.zeros((0, 3))) is None
+    assert translation_baseline(np.tile(np.eye(4), (5, 1, 1)), points) is None

@@ -18,7 +18,7 @@ from m3c.nodes import adapters
 from m3c.nodes.frames import stream_frames
 from m3c.nodes.records import encode_masks, mask_in_region, table_length
 from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, register_node
-from m3c.vo.scale import MIN_BASELINE, baseline_ratio
+from m3c.vo.scale import MAX_WANDER, MIN_BASELINE, translation_baseline, turns_in_place
 
 
 @register_node
@@ -394,7 +394,7 @@ class VisualOdometryNode(AdapterNode):
     (m3c.vo.dpvo, the official dpvo.pth from `checkpoint` or the models folder), "auto" dpvo when that file is
     there. Any other backend goes through the "vo" adapter. Output cameras: world_from_cam (T, 4, 4), static,
     source, and points (M, 3) the odometry's map when it gives one; rotation_only when the camera turned in place
-    (its translation spans less than min_baseline of the scene's depth: translations zeroed). With static: true
+    (m3c.vo.scale.turns_in_place: translations zeroed). With static: true
     the camera is taken not to move (identity poses) and no odometry runs."""
 
     type_name = "vo"
@@ -412,7 +412,10 @@ class VisualOdometryNode(AdapterNode):
         method: str = "auto"  # front-end of the patch backend: auto, lk or dpvo
         checkpoint: str | None = None  # dpvo.pth; None = $M3C_MODELS/dpvo/dpvo.pth (or --checkpoints DIR)
         dpvo_iterations: int = 2  # update-operator steps per measurement
-        min_baseline: float = MIN_BASELINE  # translation extent / scene depth below which the camera only turns
+        # A camera whose translation spans under min_baseline of the scene's depth and wanders over a path more than
+        # max_wander times that span turns in place (m3c.vo.scale.turns_in_place): its position is held fixed.
+        min_baseline: float = MIN_BASELINE
+        max_wander: float = MAX_WANDER
 
     def _dpvo_checkpoint(self, ctx):
         """The DPVO file the run uses, or None (method lk, or auto without the file)."""
@@ -477,8 +480,9 @@ class VisualOdometryNode(AdapterNode):
 
     def run(self, ctx, inputs):
         T = int(inputs["video"]["num_frames"])
-        if not self.config.min_baseline >= 0:
-            raise InputError(f"vo.min_baseline must be >= 0, got {self.config.min_baseline}")
+        if not (self.config.min_baseline >= 0 and self.config.max_wander >= 1):
+            raise InputError(f"vo.min_baseline must be >= 0 and vo.max_wander >= 1, got {self.config.min_baseline} "
+                             f"and {self.config.max_wander}")
         if self.config.static:
             return {"cameras": {"world_from_cam": np.tile(np.eye(4), (T, 1, 1)), "static": True,
                                 "source": "static camera (declared)"}}
@@ -494,12 +498,13 @@ class VisualOdometryNode(AdapterNode):
         points = np.asarray(out.get("points", np.zeros((0, 3))), dtype=np.float32).reshape(-1, 3)
         if np.isfinite(points).all():
             cameras["points"] = points  # the odometry's map (world, VO units), for the scale against the ground
-            ratio = baseline_ratio(poses, points)
-            if ratio is not None and ratio < self.config.min_baseline:
+            if turns_in_place(poses, points, self.config.min_baseline, self.config.max_wander):
+                extent, wander = translation_baseline(poses, points)
                 ctx.log.warning("the camera turned in place: its odometry translation spans %.1f%% of the scene's "
-                                "depth, below vo.min_baseline (%.0f%%), so its position is held fixed (set "
-                                "--set vo.min_baseline=0 to keep the translation)", 100 * ratio,
-                                100 * self.config.min_baseline)
+                                "depth (under vo.min_baseline, %.0f%%) and wanders over a path %.1fx that (over "
+                                "vo.max_wander, %.1f), so its position is held fixed (--set vo.min_baseline=0 keeps "
+                                "the translation)", 100 * extent, 100 * self.config.min_baseline, wander,
+                                self.config.max_wander)
                 cameras["world_from_cam"] = poses.copy()
                 cameras["world_from_cam"][:, :3, 3] = 0.0
                 cameras["rotation_only"] = True

@@ -81,23 +81,35 @@ class ScaleEstimate:
                 "observations": [o.to_dict() for o in self.observations]}
 
 
-# A camera whose odometry translation spans less than this fraction of the scene's median depth is taken to turn in
-# place: over such a baseline the odometry's translation is noise (the video benchmark's panning cameras: 0.03-0.06
-# with a wrong focal length; the moving ones 0.21-1.5), and any scale would multiply it into metres.
+# A camera that turns in place: its odometry translation is noise, small against the scene and wandering back and
+# forth, and any scale would multiply it into metres. Both must hold: its extent (farthest centre from the first) is
+# under MIN_BASELINE of the scene's median depth, and its path is over MAX_WANDER times that extent. On the video
+# benchmark the panning and static cameras span 0.02-0.06 of the depth with paths 2.0-2.9x their extent; the moving
+# ones 0.06-1.5 (the bundled walker's first 2 s: 0.055) with paths 1.0-1.75x.
 MIN_BASELINE = 0.1
+MAX_WANDER = 1.9
 
 
-def baseline_ratio(world_from_cam: np.ndarray, points: np.ndarray) -> float | None:
-    """The camera's translation extent (farthest centre from the first) over the median distance from the middle
-    camera to the map points, both in VO units; None without map points."""
+def translation_baseline(world_from_cam: np.ndarray, points: np.ndarray) -> tuple[float, float] | None:
+    """(extent / median depth, path / extent) of the camera's odometry translation: extent the farthest centre from
+    the first, path the summed steps, depth the median distance from the middle camera to the map points, all in VO
+    units; None without map points or translation."""
     world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if not len(points):
-        return None
     centres = world_from_cam[:, :3, 3]
-    depth = float(np.median(np.linalg.norm(points - centres[len(centres) // 2], axis=1)))
     extent = float(np.linalg.norm(centres - centres[0], axis=1).max())
-    return extent / depth if depth > 0 else None
+    if not len(points) or extent <= 0:
+        return None
+    depth = float(np.median(np.linalg.norm(points - centres[len(centres) // 2], axis=1)))
+    path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
+    return (extent / depth if depth > 0 else float("inf")), path / extent
+
+
+def turns_in_place(world_from_cam: np.ndarray, points: np.ndarray, min_baseline: float = MIN_BASELINE,
+                   max_wander: float = MAX_WANDER) -> bool:
+    """Whether the odometry's translation is the noise of a camera that turns in place (see MIN_BASELINE)."""
+    baseline = translation_baseline(world_from_cam, points)
+    return baseline is not None and baseline[0] < min_baseline and baseline[1] > max_wander
 
 
 def _weighted(logs: np.ndarray, sigmas: np.ndarray) -> tuple[float, float]:
