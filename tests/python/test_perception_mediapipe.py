@@ -57,17 +57,22 @@ def test_landmarks_to_keypoints_and_tight_box():
 
 
 @pytest.mark.parametrize("size", [(720, 1280), (540, 960), (1280, 720), (500, 500)])
-def test_square_tiles_cover_the_frame_with_overlap(size):
+@pytest.mark.parametrize("fraction", [1.0, 0.6])
+def test_square_tiles_cover_the_frame_with_overlap(size, fraction):
     height, width = size
-    tiles = square_tiles(size, overlap=0.5)
+    side = int(fraction * min(size))
+    tiles = square_tiles(size, overlap=0.5, side=side)
     covered = np.zeros(size, bool)
     for t in tiles:
-        assert t[2] - t[0] == t[3] - t[1] == min(size) and t[0] >= 0 and t[1] >= 0
+        assert t[2] - t[0] == t[3] - t[1] == side and t[0] >= 0 and t[1] >= 0
         assert t[2] <= width and t[3] <= height
         covered[t[1]:t[3], t[0]:t[2]] = True
     assert covered.all()
-    starts = sorted(t[0] if width >= height else t[1] for t in tiles)
-    assert all(b - a <= min(size) / 2 for a, b in zip(starts, starts[1:]))
+    for axis in (0, 1):
+        starts = sorted({int(t[axis]) for t in tiles})
+        assert all(b - a <= side / 2 for a, b in zip(starts, starts[1:]))
+    with pytest.raises(ValueError, match="tile side"):
+        square_tiles(size, side=min(size) + 1)
 
 
 def check_single_person_clip(result, min_fraction: float = 0.95, max_median_px: float = 3.0,

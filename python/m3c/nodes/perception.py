@@ -48,7 +48,8 @@ class PerceptionNode(Node):
     outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
     settings = ("body_model", "models_dir")
     # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
-    # 3: the tracker keeps recent poses and locations, matches tentative tracks last; track splits are merged
+    # 3: the tracker keeps recent poses and locations, gates on colour, matches tentative tracks last; track
+    #    splits are merged; the detector searches smaller tiles every 15 frames
     version = "3"
 
     def _network_checkpoints(self, ctx) -> dict:

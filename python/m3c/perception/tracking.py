@@ -9,7 +9,9 @@ noise proportional to the box height as in DeepSORT). Detections are assigned by
              is the other cues' part; box-centred keypoints jump whenever a partial mask moves the box)
   3D         1 - exp(-d^2 / 2), camera-frame person locations: d^2 = |dx, dy|^2 / sigma^2 + (dz / (r z))^2, the
              depth's uncertainty r z growing with the depth (a monocular depth is known to a fraction of itself)
-  appearance Bhattacharyya distance of colour histograms inside the masks (track: running average)
+  appearance Bhattacharyya distance of colour histograms inside the masks (track: running average); beyond
+             max_appearance the pair is refused whatever the other cues say (a person stepping in front of
+             another fits the hidden one's box, not its clothes)
 Matching is a cascade: confirmed tracks seen in the previous frame first, then confirmed tracks lost for up to
 max_age frames (re-identification after an occlusion or a detector miss), then tentative tracks; in the second
 stage the stale IoU gives way to the distance from the predicted box
@@ -48,6 +50,7 @@ class TrackerConfig:
     location_sigma: float = 0.5  # metres, across the line of sight
     depth_sigma: float = 0.2     # along it, as a fraction of the depth
     appearance_momentum: float = 0.8  # weight of the old descriptor in the running average
+    max_appearance: float = 0.6  # colour distance beyond which a detection is never a track's (a gate)
     history: int = 5             # recent poses and locations a track keeps (pose: the closest; location: median)
 
     def __post_init__(self):
@@ -59,6 +62,8 @@ class TrackerConfig:
             raise ValueError("max_age, min_hits and history must be >= 1")
         if min(self.location_sigma, self.depth_sigma, self.pose_kappa) <= 0:
             raise ValueError("location_sigma, depth_sigma and pose_kappa must be > 0")
+        if not 0 < self.max_appearance <= 1:
+            raise ValueError(f"max_appearance must be in (0, 1] (1: no colour gate), got {self.max_appearance}")
         if not 0 <= self.appearance_momentum < 1:
             raise ValueError("appearance_momentum must be in [0, 1)")
 
@@ -225,7 +230,10 @@ class Tracker:
                 if location is not None:
                     terms.append((cfg.location_weight, location))
                 if cfg.appearance_weight > 0 and track.appearance is not None and obs.appearance is not None:
-                    terms.append((cfg.appearance_weight, bhattacharyya_distance(track.appearance, obs.appearance)))
+                    distance = bhattacharyya_distance(track.appearance, obs.appearance)
+                    if distance > cfg.max_appearance:
+                        continue  # other clothes: another person, however well the box fits
+                    terms.append((cfg.appearance_weight, distance))
                 if terms:
                     w = np.array([t[0] for t in terms])
                     cost[i, j] = float(np.dot(w, [t[1] for t in terms]) / w.sum())
