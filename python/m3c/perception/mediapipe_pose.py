@@ -221,11 +221,14 @@ def _contains(a: np.ndarray, b: np.ndarray, fraction: float) -> bool:
 class MediaPipeDetector(Detector):
     """Detect-whiten-redetect with BlazePose on square tiles of the frame (see square_tiles); fills boxes,
     scores, masks and keypoints. Known people are whitened before the search. A search at least fine_every frames
-    after the last fine one goes on over tiles of fine_tiles times the frame's shorter side (0: never)."""
+    after the last fine one goes on over tiles of fine_tiles times the frame's shorter side (0: never). A find
+    whose box lies known_overlap or more inside a known person's box is taken for what the whitening left of
+    that person (small tiles make BlazePose see a person in a leftover arm)."""
 
     def __init__(self, max_people: int = 6, min_score: float = 0.5, min_box_height: float = 32.0,
                  whiten_dilation: float = 0.05, tile_overlap: float = 0.5, fine_tiles: float = 0.6,
-                 fine_every: int = 15, min_detection_confidence: float = 0.5, shared: dict | None = None):
+                 fine_every: int = 15, known_overlap: float = 0.5, min_detection_confidence: float = 0.5,
+                 shared: dict | None = None):
         if max_people < 1:
             raise ValueError(f"max_people must be >= 1, got {max_people}")
         if not 0.0 <= tile_overlap < 1.0:
@@ -236,6 +239,9 @@ class MediaPipeDetector(Detector):
         self.max_people, self.min_score, self.min_box_height = max_people, min_score, min_box_height
         self.whiten_dilation, self.tile_overlap = whiten_dilation, tile_overlap
         self.fine_tiles, self.fine_every = fine_tiles, fine_every
+        if not 0.0 < known_overlap <= 1.0:
+            raise ValueError(f"known_overlap must be in (0, 1], got {known_overlap}")
+        self.known_overlap = known_overlap
         self._last_fine: int | None = None
         self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
 
@@ -277,8 +283,8 @@ class MediaPipeDetector(Detector):
                 # Whatever is found is whitened, so the next search moves on even if this one is rejected.
                 self._whiten(work, person, ctx.size)
                 duplicate = [i for i, p in enumerate(people) if _contains(person.box, p.box, 0.7)]
-                if any(_contains(person.box, k.box, 0.7) for k in known):
-                    continue  # what the whitening left of a known person
+                if any(_contains(person.box, k.box, self.known_overlap) for k in known):
+                    continue  # what the whitening left of a known person (a hand, an arm)
                 if duplicate:
                     # The same person seen again (e.g. a partial first view): keep the more confident view.
                     i = duplicate[0]
