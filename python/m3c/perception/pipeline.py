@@ -280,10 +280,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 new = est["detector"].detect(ctx, known=tracked)
             t2 = time.perf_counter()
             if new:
-                # The new people posed with everyone else isolated from their patches; the tracked people keep
-                # what their own patches gave (a false find, e.g. in a leftover arm, would otherwise whiten part
-                # of a tracked person's patch and spoil its keypoints).
-                people = tracked + _posed(est, ctx, tracked + new, keep=len(tracked))
+                # Posed together, so every patch is isolated from every other person.
+                people = _posed(est, ctx, tracked + new)
             else:
                 people = tracked
             people = _dedupe(people, config.duplicate_iou)
@@ -354,12 +352,10 @@ def _segment(track_id: int, entries: list, cues: list) -> TrackSegment:
     return TrackSegment(track_id, np.array([f for f, _, _ in entries]), locations, appearances)
 
 
-def _posed(est: dict, ctx: FrameContext, people: list[Person], keep: int = 0) -> list[Person]:
-    """Segmentation, then 2D pose, each person's patch isolated from all the others; people without keypoints
-    are dropped. The first `keep` people are only context: they isolate the others, and are not returned."""
+def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
+    """Segmentation, then 2D pose; people without keypoints are dropped."""
     people = est["segmenter"].segment(ctx, people)
-    posed = est["pose2d"].estimate(ctx, people)
-    return [p for p in posed[keep:] if p is not None and p.keypoints is not None]
+    return [p for p in est["pose2d"].estimate(ctx, people) if p is not None and p.keypoints is not None]
 
 
 def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsics: np.ndarray, fps: float,
