@@ -31,15 +31,15 @@ def segment(track_id, frames, start, velocity, base, rng, depth_noise=0.05) -> T
 def test_splits_of_one_person_are_merged(rng):
     # One player (clothes at bins 0..3) walking across at 1.5 m/s, 10 m away, split in three by detector misses.
     v = (0.05, 0.0, 0.0)
-    parts = [segment(1, range(0, 23), (-2.0, 0.8, 10.0), v, 0, rng),
+    parts = [segment(1, range(23), (-2.0, 0.8, 10.0), v, 0, rng),
              segment(6, range(24, 135), (-2.0, 0.8, 10.0), v, 0, rng),
              segment(12, range(138, 163), (-2.0, 0.8, 10.0), v, 0, rng)]
-    other = segment(0, range(0, 300), (3.0, 0.8, 11.0), (0, 0, 0), 20, rng)  # a man standing, the whole time
+    other = segment(0, range(300), (3.0, 0.8, 11.0), (0, 0, 0), 20, rng)  # a man standing, the whole time
     assert merge_track_splits(parts + [other], FPS) == {1: 1, 6: 1, 12: 1, 0: 0}
 
 
 def test_cost_matches_a_hand_computation(rng):
-    a = segment(3, range(0, 20), (0.0, 0.0, 8.0), (0.02, 0, 0), 0, rng, depth_noise=0.0)
+    a = segment(3, range(20), (0.0, 0.0, 8.0), (0.02, 0, 0), 0, rng, depth_noise=0.0)
     b = segment(4, range(25, 40), (0.1, 0.0, 8.0), (0.02, 0, 0), 0, rng, depth_noise=0.0)
     config = TrackMergeConfig()
     gap = 25 / FPS - 19 / FPS
@@ -54,7 +54,7 @@ def test_cost_matches_a_hand_computation(rng):
 
 def test_two_people_are_not_merged(rng):
     # Someone leaves and someone else steps into the same place 3 frames later, in other clothes.
-    first = segment(1, range(0, 60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    first = segment(1, range(60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
     second = segment(2, range(63, 120), (1.0, 0.8, 9.0), (0, 0, 0), 24, rng)
     assert bhattacharyya_distance(first.appearances[0], second.appearances[0]) > 0.8
     assert merge_track_splits([first, second], FPS) == {1: 1, 2: 2}
@@ -68,7 +68,7 @@ def test_two_people_are_not_merged(rng):
 
 def test_overlapping_or_distant_parts_are_not_merged(rng):
     # Same clothes, same place, overlapping frames: two people side by side (or a duplicate), never one.
-    a = segment(1, range(0, 60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    a = segment(1, range(60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
     b = segment(2, range(59, 120), (1.2, 0.8, 9.0), (0, 0, 0), 0, rng)
     assert merge_track_splits([a, b], FPS) == {1: 1, 2: 2}
     # A gap longer than max_gap_s.
@@ -81,15 +81,15 @@ def test_overlapping_or_distant_parts_are_not_merged(rng):
 def test_two_people_split_at_once_are_joined_each_to_their_own(rng):
     # Two people walk towards each other and both tracks break at the crossing (frames 50-53); their second
     # parts start where the other's first part ended in image x, so only appearance and depth tell them apart.
-    a1 = segment(10, range(0, 50), (-1.5, 0.8, 8.0), (0.03, 0, 0), 0, rng)
-    b1 = segment(11, range(0, 50), (1.5, 0.8, 12.0), (-0.03, 0, 0), 24, rng)
+    a1 = segment(10, range(50), (-1.5, 0.8, 8.0), (0.03, 0, 0), 0, rng)
+    b1 = segment(11, range(50), (1.5, 0.8, 12.0), (-0.03, 0, 0), 24, rng)
     a2 = segment(20, range(54, 100), (-1.5, 0.8, 8.0), (0.03, 0, 0), 0, rng)
     b2 = segment(21, range(54, 100), (1.5, 0.8, 12.0), (-0.03, 0, 0), 24, rng)
     assert merge_track_splits([b2, a1, a2, b1], FPS) == {10: 10, 20: 10, 11: 11, 21: 11}
 
 
 def test_unknown_cues_never_merge_and_bad_input_is_named(rng):
-    a = segment(1, range(0, 20), (0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    a = segment(1, range(20), (0, 0.8, 9.0), (0, 0, 0), 0, rng)
     b = segment(2, range(22, 40), (0, 0.8, 9.0), (0, 0, 0), 0, rng)
     assert merge_track_splits([a, b], FPS) == {1: 1, 2: 1}
     no_location = TrackSegment(2, b.frames, np.full((len(b.frames), 3), np.nan), b.appearances)
