@@ -77,7 +77,7 @@ class RowDepth(DepthEstimator):
 
 
 @pytest.fixture(scope="module")
-def scene_run():
+def scene_frames():
     model = default_body_model()
     scene = make_scene(model, num_people=2, num_frames=50, fps=30.0, seed=7, keypoint_noise_px=1.0)
     W, H = scene.image_size
@@ -108,13 +108,25 @@ def scene_run():
             owner.append((t, i, box))
         frames.append(visible)
         images.append(image)
+    return model, scene, frames, images, owner
+
+
+def run_scene(scene_frames, **settings):
+    model, scene, frames, images, owner = scene_frames
+    W, H = scene.image_size
     config = PerceptionConfig.from_dict({"detector": {"name": "test_scene_truth", "options": {"frames": frames}},
                                          "segmenter": "test_box_mask",
                                          "pose2d": {"name": "test_scene_truth", "options": {"frames": frames}},
                                          "depth": "test_rows",
-                                         "intrinsics": list(K), "detect_every": 3})
-    result = run_perception_frames(iter(images), scene.fps, (H, W), config, source="synthetic")
-    return model, scene, result, owner
+                                         "intrinsics": list(scene.cameras_true.intrinsics), "detect_every": 3,
+                                         **settings})
+    return run_perception_frames(iter(images), scene.fps, (H, W), config, source="synthetic")
+
+
+@pytest.fixture(scope="module")
+def scene_run(scene_frames):
+    model, scene, _, _, owner = scene_frames
+    return model, scene, run_scene(scene_frames), owner
 
 
 def test_one_track_per_person_through_occlusions(scene_run):
@@ -166,3 +178,21 @@ def test_save_and_load(scene_run, tmp_path):
         assert a.bodies.status == b.bodies.status and a.estimators == b.estimators
     np.testing.assert_array_equal(loaded.frame_masks, result.frame_masks)
     np.testing.assert_array_equal(loaded.depth, result.depth)
+
+
+def test_track_splits_are_merged_back(scene_frames):
+    """A tracker that forgets a person after one missed frame splits each track at the scene's occlusions; the
+    merge rule joins the parts again (appearance and 3D location agree), never across the two people."""
+    _, _, _, _, owner = scene_frames
+    settings = {"tracker": {"max_age": 1}}
+    split = run_scene(scene_frames, merge={"enabled": False}, **settings)
+    merged = run_scene(scene_frames, **settings)
+    assert len(split.tracks) > 2  # the splits happen (so the merge has work to do)
+    assert len(merged.tracks) == 2 and merged.merged
+    assert set(merged.merged.values()) <= {t.track_id for t in merged.tracks}
+    for track in merged.tracks:
+        people = {i for f, box in zip(track.frame_ids, track.boxes)
+                  for t, i, b in owner if t == f and iou(b, box) > 0.9}
+        assert len(people) == 1
+        parts = [t for t in split.tracks if merged.merged.get(t.track_id, t.track_id) == track.track_id]
+        np.testing.assert_array_equal(track.frame_ids, np.concatenate([t.frame_ids for t in parts]))

@@ -123,3 +123,20 @@ def test_descriptor_and_distance():
     assert bhattacharyya_distance(d, appearance_descriptor(other, [0, 0, 50, 100])) == pytest.approx(1.0)
     mask = np.zeros((100, 50), bool)
     assert appearance_descriptor(image, [0, 0, 50, 100], mask, [0, 0, 50, 100]) is None
+
+
+def test_someone_stepping_into_a_track_box_in_other_clothes_gets_a_new_id():
+    # A is tracked; then only B is seen, exactly where A's track predicts A (B stepped in front of A).
+    def frames(tracker):
+        ids = []
+        for t in range(6):
+            _, seen = render({"A": 300.0}, set())
+            ids.append(tracker.update([seen[0][1]])[0])
+        _, seen = render({"B": 300.0}, set())
+        return ids, tracker.update([seen[0][1]])[0]
+
+    a_ids, b_id = frames(Tracker())
+    assert len(set(a_ids)) == 1 and b_id != a_ids[0]
+    # Without the colour gate the averaged cost (IoU, pose and location agree) hands A's id to B.
+    a_ids, b_id = frames(Tracker(TrackerConfig(max_appearance=1.0)))
+    assert b_id == a_ids[0]

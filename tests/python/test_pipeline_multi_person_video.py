@@ -1,6 +1,7 @@
 """The default pipeline on a real two-person clip from ../shared (glamr_basketball.mp4: static camera, one player
 dribbling, one man standing). Its first 135 frames once ran a body fit's depth away (one track to 346 m, and later
-in the clip a body to 0.5 m whose keypoints then lay behind the camera: a NaN objective and no result). Needs the
+in the clip a body to 0.5 m whose keypoints then lay behind the camera: a NaN objective and no result), and the
+tracker split the player into five ids over the clip (dribbling, crouching, partial detections). Needs the
 shared data folder (or $M3C_VIDEO_DIR, as test_perception_mediapipe) and MediaPipe; skips with the reason otherwise."""
 
 import json
@@ -12,6 +13,7 @@ import pytest
 
 from m3c.cli import main
 from m3c.io.results import load_results
+from m3c.perception import PerceptionConfig, run_perception
 from m3c.perception.mediapipe_pose import mediapipe_available
 
 VIDEO_DIR = Path(os.environ.get("M3C_VIDEO_DIR", Path(__file__).resolve().parents[3] / "shared" / "data" / "video"))
@@ -30,7 +32,7 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
     assert code == 0
     summary, arrays = load_results(out, check=False)
     json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
-    assert len(summary["tracks"]) >= 2  # the standing man and the player (split into several ids: issue 18)
+    assert len(summary["tracks"]) == 2  # the standing man and the player, one id each
     assert all(stage["status"] == "ok" for stage in summary["optimization"]["stages"])
     cams = arrays["world_from_cam"]
     lift_cams = arrays["lift_world_from_cam"]
@@ -42,3 +44,18 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
         assert lifted.max() < 40.0
         final = np.linalg.norm(arrays["world_joints"][p][valid][:, 0] - cams[valid, :3, 3], axis=1)
         assert 4.0 < np.median(final) < 20.0
+
+
+def test_two_people_keep_one_identity_each_over_the_whole_clip():
+    """Both people are in view in all 300 frames: one track each (the player was five), each covering the clip,
+    each on its own side of the court (the man left of the image centre, the player right of it)."""
+    result = run_perception(CLIP, PerceptionConfig(static_camera=True))
+    assert result.num_frames == 300
+    assert len(result.tracks) == 2
+    centres = [0.5 * (t.boxes[:, 0] + t.boxes[:, 2]) for t in result.tracks]
+    man, player = (result.tracks[k] for k in np.argsort([np.median(c) for c in centres]))
+    for track in (man, player):
+        assert track.frame_ids[0] <= 2 and track.frame_ids[-1] >= 297
+        assert len(track.frame_ids) >= 0.95 * result.num_frames
+    assert (0.5 * (man.boxes[:, 0] + man.boxes[:, 2]) < 640).all()
+    assert (0.5 * (player.boxes[:, 0] + player.boxes[:, 2]) > 640).all()

@@ -48,7 +48,10 @@ class PerceptionNode(Node):
     inputs = ("video", "camera")
     outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
     settings = ("body_model", "models_dir")
-    version = "2"  # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
+    # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
+    # 3: the tracker keeps recent poses and locations, gates on colour, matches tentative tracks last; track
+    #    splits are merged; the detector searches smaller tiles every 15 frames
+    version = "3"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
@@ -156,6 +159,9 @@ class PerceptionNode(Node):
             raise InputError(f"{video['name']}: decoded {result.num_frames} of {T} frames")
         ctx.log.info("%d track(s); seconds per stage: %s", len(result.tracks),
                      ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items() if v >= 0.05))
+        if result.merged:
+            ctx.log.info("merged track splits (id -> id kept): %s",
+                         ", ".join(f"{k} -> {v}" for k, v in sorted(result.merged.items())))
         seen = int(np.count_nonzero(result.people_per_frame))
         if not result.tracks and seen:
             # People were seen, too briefly for the tracker to confirm anyone: say so, not "no detections".

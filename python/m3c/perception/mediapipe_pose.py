@@ -189,18 +189,22 @@ def _patch_person(ctx: FrameContext, engine: MediaPipeEngine, person: Person, ot
     return ctx.cache[key]
 
 
-def square_tiles(frame_size: tuple[int, int], overlap: float = 0.5) -> list[np.ndarray]:
-    """Square tiles (side = the frame's shorter side) covering the frame, neighbours overlapping by at least
-    `overlap` of the side: BlazePose's detector sees a 224 x 224 image, so a person is found at a larger scale
-    in a tile than in a wide frame."""
+def square_tiles(frame_size: tuple[int, int], overlap: float = 0.5, side: int | None = None) -> list[np.ndarray]:
+    """Square tiles of `side` pixels (default: the frame's shorter side) covering the frame, neighbours
+    overlapping by at least `overlap` of the side: BlazePose's detector sees a 224 x 224 image, so a person is
+    found at a larger scale in a tile than in a wide frame, and a smaller tile holds fewer people (BlazePose finds
+    nobody at all in a tile where two stand close together)."""
     height, width = frame_size
-    side = min(height, width)
-    length = max(height, width)
-    count = 1 if length == side else int(np.ceil((length - side) / (side * (1.0 - overlap)))) + 1
-    starts = np.round(np.linspace(0, length - side, count)).astype(int)
-    if width >= height:
-        return [np.array([s, 0, s + side, side]) for s in starts]
-    return [np.array([0, s, side, s + side]) for s in starts]
+    side = min(height, width) if side is None else int(side)
+    if not 0 < side <= min(height, width):
+        raise ValueError(f"tile side must be in 1 .. {min(height, width)} for a {width} x {height} frame, "
+                         f"got {side}")
+
+    def starts(length: int) -> np.ndarray:
+        count = 1 if length == side else int(np.ceil((length - side) / (side * (1.0 - overlap)))) + 1
+        return np.round(np.linspace(0, length - side, count)).astype(int)
+
+    return [np.array([x, y, x + side, y + side]) for y in starts(height) for x in starts(width)]
 
 
 def _contains(a: np.ndarray, b: np.ndarray, fraction: float) -> bool:
@@ -213,20 +217,33 @@ def _contains(a: np.ndarray, b: np.ndarray, fraction: float) -> bool:
     return smaller > 0 and w * h >= fraction * smaller
 
 
+def _piece_of(box: np.ndarray, other: np.ndarray) -> bool:
+    """Whether box overlaps other by a fifth of its own area and is less than half as tall."""
+    return _contains(box, other, 0.2) and box[3] - box[1] < 0.5 * (other[3] - other[1])
+
+
 @register("detector", NAME)
 class MediaPipeDetector(Detector):
     """Detect-whiten-redetect with BlazePose on square tiles of the frame (see square_tiles); fills boxes,
-    scores, masks and keypoints. Known people are whitened before the search."""
+    scores, masks and keypoints. Known people are whitened before the search. A search at least fine_every frames
+    after the last fine one goes on over tiles of fine_tiles times the frame's shorter side (0: never); there a
+    find that overlaps a known person's box and is less than half as tall is taken for a piece of that person (in
+    a small tile BlazePose sees a person in an arm the whitening left)."""
 
     def __init__(self, max_people: int = 6, min_score: float = 0.5, min_box_height: float = 32.0,
-                 whiten_dilation: float = 0.05, tile_overlap: float = 0.5, min_detection_confidence: float = 0.5,
-                 shared: dict | None = None):
+                 whiten_dilation: float = 0.05, tile_overlap: float = 0.5, fine_tiles: float = 0.6,
+                 fine_every: int = 15, min_detection_confidence: float = 0.5, shared: dict | None = None):
         if max_people < 1:
             raise ValueError(f"max_people must be >= 1, got {max_people}")
         if not 0.0 <= tile_overlap < 1.0:
             raise ValueError(f"tile_overlap must be in [0, 1), got {tile_overlap}")
+        if not 0.0 <= fine_tiles < 1.0 or fine_every < 1:
+            raise ValueError(f"fine_tiles must be in [0, 1) (0: off) and fine_every >= 1, got {fine_tiles}, "
+                             f"{fine_every}")
         self.max_people, self.min_score, self.min_box_height = max_people, min_score, min_box_height
         self.whiten_dilation, self.tile_overlap = whiten_dilation, tile_overlap
+        self.fine_tiles, self.fine_every = fine_tiles, fine_every
+        self._last_fine: int | None = None
         self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
 
     def _whiten(self, work: np.ndarray, person: Person, frame_size: tuple[int, int]) -> None:
@@ -246,7 +263,14 @@ class MediaPipeDetector(Detector):
         for person in known:
             self._whiten(work, person, ctx.size)
         people: list[Person] = []
-        for tile in square_tiles(ctx.size, self.tile_overlap):
+        tiles = [(tile, False) for tile in square_tiles(ctx.size, self.tile_overlap)]
+        due = self._last_fine is None or not 0 <= ctx.index - self._last_fine < self.fine_every
+        if self.fine_tiles > 0 and due:
+            # Then smaller tiles, on what the first pass left: people standing close together.
+            side = int(self.fine_tiles * min(ctx.size))
+            tiles += [(tile, True) for tile in square_tiles(ctx.size, self.tile_overlap, side)]
+            self._last_fine = ctx.index
+        for tile, fine in tiles:
             for _ in range(self.max_people + 2):  # each run whitens what it found, so this ends; a cap anyway
                 if len(people) >= self.max_people:
                     break
@@ -261,7 +285,7 @@ class MediaPipeDetector(Detector):
                 # Whatever is found is whitened, so the next search moves on even if this one is rejected.
                 self._whiten(work, person, ctx.size)
                 duplicate = [i for i, p in enumerate(people) if _contains(person.box, p.box, 0.7)]
-                if any(_contains(person.box, k.box, 0.7) for k in known):
+                if any(_contains(person.box, k.box, 0.7) or (fine and _piece_of(person.box, k.box)) for k in known):
                     continue  # what the whitening left of a known person
                 if duplicate:
                     # The same person seen again (e.g. a partial first view): keep the more confident view.

@@ -23,6 +23,7 @@ from m3c.perception.contacts import contact_rest_heights
 from m3c.perception.boxes import iou_matrix
 from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
+from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person
 from m3c.perception.video import default_intrinsics, read_frames, video_info
@@ -46,10 +47,12 @@ class PerceptionConfig:
     tracked person was not found again); in between, people are found on the patches of their tracks'
     predicted boxes, enlarged by proposal_margin of their height on each side.
     restart_gap: a track's body fit starts cold after more than this many frames without it.
+    merge: how track splits are merged after tracking (m3c.perception.track_merge).
     duplicate_iou: two people whose boxes overlap more than this are one (the higher score stays)."""
 
     estimators: dict = field(default_factory=lambda: {t: EstimatorSpec(n) for t, n in DEFAULT_ESTIMATORS.items()})
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    merge: TrackMergeConfig = field(default_factory=TrackMergeConfig)
     intrinsics: tuple | None = None
     static_camera: bool = False
     detect_every: int = 5
@@ -82,12 +85,13 @@ class PerceptionConfig:
             else:
                 raise ValueError(f"{task}: give an estimator name or {{name: ..., options: {{...}}}}, got {spec!r}")
         tracker = TrackerConfig(**(data.pop("tracker", None) or {}))
-        known = {f.name for f in fields(cls)} - {"estimators", "tracker"}
+        merge = TrackMergeConfig(**(data.pop("merge", None) or {}))
+        known = {f.name for f in fields(cls)} - {"estimators", "tracker", "merge"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown perception setting(s): {', '.join(unknown)}; known: tasks {', '.join(TASKS)}, "
-                             f"tracker, {', '.join(sorted(known))}")
-        return cls(estimators=estimators, tracker=tracker, **data)
+                             f"tracker, merge, {', '.join(sorted(known))}")
+        return cls(estimators=estimators, tracker=tracker, merge=merge, **data)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "PerceptionConfig":
@@ -99,8 +103,9 @@ class PerceptionConfig:
     def to_dict(self) -> dict:
         out = {task: {"name": spec.name, "options": dict(spec.options)} for task, spec in self.estimators.items()}
         out["tracker"] = asdict(self.tracker)
+        out["merge"] = asdict(self.merge)
         for f in fields(self):
-            if f.name not in ("estimators", "tracker"):
+            if f.name not in ("estimators", "tracker", "merge"):
                 value = getattr(self, f.name)
                 out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
@@ -142,6 +147,7 @@ class PerceptionResult:
     frame_masks: np.ndarray | None = None  # (T, H/4, ceil(W/4 / 8)) packed bits: any person's mask, 4x downsampled
     people_per_frame: np.ndarray | None = None  # (T,) people found per frame (before track filtering)
     depth: np.ndarray | None = None  # (T, H/4, W/4) float32 relative depth, 4x downsampled; None without estimator
+    merged: dict | None = None  # track id -> the id of the track it was merged into (splits of one person)
 
     def save(self, path: str | Path) -> None:
         """OUT.npz (arrays, track k's under "track{k}/...") and OUT.json (a readable summary), both atomic."""
@@ -185,7 +191,7 @@ class PerceptionResult:
         return {"video": self.video, "fps": self.fps, "image_size": list(self.image_size),
                 "intrinsics": [float(v) for v in self.intrinsics], "num_frames": int(self.num_frames),
                 "estimators": self.estimators, "seconds": {k: round(v, 3) for k, v in self.seconds.items()},
-                "tracks": tracks}
+                "merged": {str(k): int(v) for k, v in (self.merged or {}).items()}, "tracks": tracks}
 
 
 def _same_person(a: np.ndarray, b: np.ndarray, max_iou: float) -> bool:
@@ -254,6 +260,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,
                "contacts": 0.0}
     records: dict[int, list[tuple[int, Person]]] = {}
+    cues: dict[int, list[tuple[np.ndarray | None, np.ndarray | None]]] = {}  # per record: location, appearance
     frame_masks, people_per_frame, depth_maps = [], [], []
     num_frames = 0
     try:
@@ -297,8 +304,9 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
             if len(regressed) != len(people):
                 raise ValueError(f"the body estimator {names['body']!r} returned {len(regressed)} results for "
                                  f"{len(people)} people")
-            for track_id, person, result in zip(track_ids, people, regressed):
+            for track_id, person, result, obs in zip(track_ids, people, regressed, observations):
                 records.setdefault(track_id, []).append((index, person, result))
+                cues.setdefault(track_id, []).append((obs.location, obs.appearance))
             seconds["body"] += time.perf_counter() - t5
             seconds["tracked_patches"] += t1 - t0
             seconds["detect"] += t2 - t1
@@ -312,10 +320,17 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
             if progress:
                 progress(index)
 
+        t0 = time.perf_counter()
+        confirmed = sorted(i for i in records if i in tracker.confirmed_ids())
+        merged = merge_track_splits([_segment(i, records[i], cues[i]) for i in confirmed], fps, config.merge)
+        joined: dict[int, list] = {}
+        for track_id in confirmed:
+            joined.setdefault(merged[track_id], []).extend(records[track_id])
+        seconds["merge"] = time.perf_counter() - t0
         tracks = []
-        confirmed = tracker.confirmed_ids()
-        for track_id in sorted(i for i in records if i in confirmed):
-            tracks.append(_finish_track(track_id, records[track_id], est, names, intrinsics, fps, config, seconds))
+        for track_id, entries in sorted(joined.items()):
+            entries = sorted(entries, key=lambda entry: entry[0])
+            tracks.append(_finish_track(track_id, entries, est, names, intrinsics, fps, config, seconds))
         if 0 < len(depth_maps) < num_frames:
             raise ValueError(f"the depth estimator {names['depth']!r} gave maps for {len(depth_maps)} of "
                              f"{num_frames} frames; it must give one for every frame or none")
@@ -325,7 +340,16 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     return PerceptionResult(source, float(fps), (height, width), intrinsics, num_frames, tracks, names,
                             seconds, np.stack(frame_masks) if frame_masks else None,
                             np.array(people_per_frame, dtype=np.int64),
-                            np.stack(depth_maps) if depth_maps else None)
+                            np.stack(depth_maps) if depth_maps else None,
+                            {i: j for i, j in merged.items() if i != j})
+
+
+def _segment(track_id: int, entries: list, cues: list) -> TrackSegment:
+    """A track's frames, locations and descriptors for the merge rule (NaN rows where a cue is missing)."""
+    locations = np.array([np.full(3, np.nan) if loc is None else loc for loc, _ in cues], dtype=np.float64)
+    size = next((len(a) for _, a in cues if a is not None), 1)
+    appearances = np.array([np.full(size, np.nan) if a is None else a for _, a in cues], dtype=np.float64)
+    return TrackSegment(track_id, np.array([f for f, _, _ in entries]), locations, appearances)
 
 
 def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
@@ -405,4 +429,4 @@ def load_result(path: str | Path) -> PerceptionResult:
     return PerceptionResult(summary["video"], float(arrays["fps"]), tuple(int(v) for v in arrays["image_size"]),
                             arrays["intrinsics"], int(arrays["num_frames"]), tracks, dict(summary["estimators"]),
                             dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"),
-                            arrays.get("depth"))
+                            arrays.get("depth"), {int(k): int(v) for k, v in summary.get("merged", {}).items()})

@@ -4,12 +4,17 @@ Each track predicts its box with a constant-velocity Kalman filter (centre, widt
 noise proportional to the box height as in DeepSORT). Detections are assigned by the Hungarian method
 (scipy.optimize.linear_sum_assignment) on a cost that averages the available cues, each in [0, 1]:
   IoU        1 - IoU(predicted box, detection box)
-  2D pose    1 - mean_k exp(-d_k^2 / (2 kappa^2)), d_k the distance of keypoint k relative to its box's centre
-             and over its height (OKS-like; the pose's shape, as position is the other cues' part)
-  3D         1 - exp(-|x - x_pred|^2 / (2 sigma^2)), camera-frame person locations (metres)
-  appearance Bhattacharyya distance of colour histograms inside the masks (track: running average)
-Matching is a cascade: tracks seen in the previous frame first, then tracks lost for up to max_age frames
-(re-identification after an occlusion), where the stale IoU gives way to the distance from the predicted box
+  2D pose    1 - mean_k exp(-d_k^2 / (2 kappa^2)), d_k the distance of keypoint k once both poses are centred
+             on the mean of the keypoints both see, over the box height (OKS-like; the pose's shape, as position
+             is the other cues' part; box-centred keypoints jump whenever a partial mask moves the box)
+  3D         1 - exp(-d^2 / 2), camera-frame person locations: d^2 = |dx, dy|^2 / sigma^2 + (dz / (r z))^2, the
+             depth's uncertainty r z growing with the depth (a monocular depth is known to a fraction of itself)
+  appearance Bhattacharyya distance of colour histograms inside the masks (track: running average); beyond
+             max_appearance the pair is refused whatever the other cues say (a person stepping in front of
+             another fits the hidden one's box, not its clothes)
+Matching is a cascade: confirmed tracks seen in the previous frame first, then confirmed tracks lost for up to
+max_age frames (re-identification after an occlusion or a detector miss), then tentative tracks; in the second
+stage the stale IoU gives way to the distance from the predicted box
 (1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost.
 Unmatched detections start tentative tracks, confirmed after min_hits detections; a tentative track that
 misses a frame is dropped.
@@ -42,16 +47,23 @@ class TrackerConfig:
     gate: float = 1.0            # centre distance gate, in box heights; widens by 0.5 per frame lost
     pose_kappa: float = 0.1      # keypoint distance scale, fraction of the box height
     min_keypoint_confidence: float = 0.3
-    location_sigma: float = 0.5  # metres
+    location_sigma: float = 0.5  # metres, across the line of sight
+    depth_sigma: float = 0.2     # along it, as a fraction of the depth
     appearance_momentum: float = 0.8  # weight of the old descriptor in the running average
+    max_appearance: float = 0.6  # colour distance beyond which a detection is never a track's (a gate)
+    history: int = 5             # recent poses and locations a track keeps (pose: the closest; location: median)
 
     def __post_init__(self):
         weights = (self.iou_weight, self.pose_weight, self.location_weight, self.appearance_weight,
                    self.reid_motion_weight)
         if min(weights) < 0 or sum(weights) <= 0:
             raise ValueError("cue weights must be >= 0 with at least one > 0")
-        if self.max_age < 1 or self.min_hits < 1:
-            raise ValueError("max_age and min_hits must be >= 1")
+        if self.max_age < 1 or self.min_hits < 1 or self.history < 1:
+            raise ValueError("max_age, min_hits and history must be >= 1")
+        if min(self.location_sigma, self.depth_sigma, self.pose_kappa) <= 0:
+            raise ValueError("location_sigma, depth_sigma and pose_kappa must be > 0")
+        if not 0 < self.max_appearance <= 1:
+            raise ValueError(f"max_appearance must be in (0, 1] (1: no colour gate), got {self.max_appearance}")
         if not 0 <= self.appearance_momentum < 1:
             raise ValueError("appearance_momentum must be in [0, 1)")
 
@@ -121,6 +133,10 @@ def _normalise_keypoints(keypoints, box) -> np.ndarray:
     return k
 
 
+def _recent(items: list, count: int) -> list:
+    return items[len(items) - count:] if count > 0 else []
+
+
 def _box_to_cxcywh(box) -> tuple[float, float, float, float]:
     b = as_box(box)
     return 0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]), max(b[2] - b[0], 1.0), max(b[3] - b[1], 1.0)
@@ -130,8 +146,9 @@ def _box_to_cxcywh(box) -> tuple[float, float, float, float]:
 class _Track:
     track_id: int
     kalman: BoxKalmanFilter
-    keypoints_in_box: np.ndarray | None  # (K, 3): (u - cx) / h, (v - cy) / h, confidence
-    location: np.ndarray | None
+    poses: list = field(default_factory=list)  # the last `history` (K, 3) keypoints: (u - cx) / h, (v - cy) / h, c
+    locations: list = field(default_factory=list)  # the last `history` locations (3,)
+    location: np.ndarray | None = None  # their median: one wild monocular depth does not move it
     location_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     appearance: np.ndarray | None = None
     hits: int = 1
@@ -157,17 +174,32 @@ class Tracker:
     def _pose_cost(self, track: _Track, obs: Observation) -> float | None:
         """OKS-like dissimilarity of the two poses in box-normalised coordinates (keypoints relative to the box
         centre, over its height): the pose's shape, while the boxes, locations and gates cover where it is."""
-        if track.keypoints_in_box is None or obs.keypoints is None:
+        if not track.poses or obs.keypoints is None:
             return None
         c = self.config.min_keypoint_confidence
         observed = _normalise_keypoints(obs.keypoints, obs.box)
-        k = min(len(observed), len(track.keypoints_in_box))
-        ours, theirs = track.keypoints_in_box[:k], observed[:k]
-        both = (ours[:, 2] >= c) & (theirs[:, 2] >= c)
-        if both.sum() < 4:
+        costs = []
+        for pose in track.poses:  # the closest of the recent poses: a detector's one wild pose is forgotten
+            k = min(len(observed), len(pose))
+            ours, theirs = pose[:k], observed[:k]
+            both = (ours[:, 2] >= c) & (theirs[:, 2] >= c)
+            if both.sum() < 4:
+                continue
+            ours, theirs = ours[both, :2], theirs[both, :2]
+            offset = (ours - ours.mean(axis=0)) - (theirs - theirs.mean(axis=0))
+            d2 = np.sum(offset ** 2, axis=1) / self.config.pose_kappa ** 2
+            costs.append(1.0 - np.mean(np.exp(-0.5 * d2)))
+        return float(min(costs)) if costs else None
+
+    def _location_cost(self, track: _Track, obs: Observation) -> float | None:
+        predicted = track.predicted_location()
+        if predicted is None or obs.location is None:
             return None
-        d2 = np.sum((ours[both, :2] - theirs[both, :2]) ** 2, axis=1) / self.config.pose_kappa ** 2
-        return float(1.0 - np.mean(np.exp(-0.5 * d2)))
+        cfg = self.config
+        d = np.asarray(obs.location, dtype=np.float64) - predicted
+        depth_sigma = cfg.depth_sigma * max(abs(float(predicted[2])), 1e-3)
+        d2 = float(d[0] ** 2 + d[1] ** 2) / cfg.location_sigma ** 2 + float(d[2] / depth_sigma) ** 2
+        return float(1.0 - np.exp(-0.5 * d2))
 
     def _cost_matrix(self, tracks: list[_Track], observations: list[Observation], use_iou: bool) -> np.ndarray:
         cfg = self.config
@@ -194,12 +226,14 @@ class Tracker:
                 pose = self._pose_cost(track, obs) if cfg.pose_weight > 0 else None
                 if pose is not None:
                     terms.append((cfg.pose_weight, pose))
-                location = track.predicted_location()
-                if cfg.location_weight > 0 and location is not None and obs.location is not None:
-                    d2 = float(np.sum((location - obs.location) ** 2))
-                    terms.append((cfg.location_weight, 1.0 - np.exp(-0.5 * d2 / cfg.location_sigma ** 2)))
+                location = self._location_cost(track, obs) if cfg.location_weight > 0 else None
+                if location is not None:
+                    terms.append((cfg.location_weight, location))
                 if cfg.appearance_weight > 0 and track.appearance is not None and obs.appearance is not None:
-                    terms.append((cfg.appearance_weight, bhattacharyya_distance(track.appearance, obs.appearance)))
+                    distance = bhattacharyya_distance(track.appearance, obs.appearance)
+                    if distance > cfg.max_appearance:
+                        continue  # other clothes: another person, however well the box fits
+                    terms.append((cfg.appearance_weight, distance))
                 if terms:
                     w = np.array([t[0] for t in terms])
                     cost[i, j] = float(np.dot(w, [t[1] for t in terms]) / w.sum())
@@ -215,10 +249,12 @@ class Tracker:
     # Updates ----------------------------------------------------------------------------------------------
     def _absorb(self, track: _Track, obs: Observation) -> None:
         track.kalman.update(obs.box)
+        history = self.config.history
         if obs.keypoints is not None:
-            track.keypoints_in_box = _normalise_keypoints(obs.keypoints, obs.box)
+            track.poses = _recent(track.poses, history - 1) + [_normalise_keypoints(obs.keypoints, obs.box)]
         if obs.location is not None:
-            location = np.asarray(obs.location, dtype=np.float64)
+            track.locations = _recent(track.locations, history - 1) + [np.asarray(obs.location, dtype=np.float64)]
+            location = np.median(track.locations, axis=0)
             if track.location is not None:
                 gap = max(track.time_since_update, 1)
                 track.location_velocity = 0.5 * track.location_velocity + 0.5 * (location - track.location) / gap
@@ -238,27 +274,27 @@ class Tracker:
             track.time_since_update += 1
         ids = [-1] * len(observations)
         free = list(range(len(observations)))
-        # Stage 1: tracks seen in the previous frame, all cues.
-        recent = [t for t in self._tracks if t.time_since_update == 1]
-        for r, c in self._assign(self._cost_matrix(recent, observations, use_iou=True), cfg.max_cost):
-            self._absorb(recent[r], observations[c])
-            ids[c] = recent[r].track_id
-            free.remove(c)
-        # Stage 2: confirmed tracks lost for a while (re-identification), without the stale IoU.
-        lost = [t for t in self._tracks if t.time_since_update > 1 and t.hits >= cfg.min_hits]
-        remaining = [observations[c] for c in free]
-        matched = []
-        for r, c in self._assign(self._cost_matrix(lost, remaining, use_iou=False), cfg.reid_max_cost):
-            self._absorb(lost[r], remaining[c])
-            ids[free[c]] = lost[r].track_id
-            matched.append(free[c])
-        free = [c for c in free if c not in matched]
+        confirmed = [t for t in self._tracks if t.hits >= cfg.min_hits]
+        # Stage 1: confirmed tracks seen in the previous frame, all cues. Stage 2: confirmed tracks lost for a
+        # while (re-identification), without the stale IoU. Stage 3: tentative tracks, last, so a track started
+        # on a partial view of a known person cannot take that person's next detection from its own track.
+        stages = (([t for t in confirmed if t.time_since_update == 1], True, cfg.max_cost),
+                  ([t for t in confirmed if t.time_since_update > 1], False, cfg.reid_max_cost),
+                  ([t for t in self._tracks if t.hits < cfg.min_hits], True, cfg.max_cost))
+        for tracks, use_iou, max_cost in stages:
+            remaining = [observations[c] for c in free]
+            matched = []
+            for r, c in self._assign(self._cost_matrix(tracks, remaining, use_iou), max_cost):
+                self._absorb(tracks[r], remaining[c])
+                ids[free[c]] = tracks[r].track_id
+                matched.append(free[c])
+            free = [c for c in free if c not in matched]
         # Drop tentative tracks that missed and tracks lost for too long; start new ones.
         self._tracks = [t for t in self._tracks if t.time_since_update == 0 or
                         (t.hits >= cfg.min_hits and t.time_since_update <= cfg.max_age)]
         for c in free:
             obs = observations[c]
-            track = _Track(self._next_id, BoxKalmanFilter(obs.box), None, None)
+            track = _Track(self._next_id, BoxKalmanFilter(obs.box))
             track.hits = 0
             track.time_since_update = 1
             self._absorb(track, obs)

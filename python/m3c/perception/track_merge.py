@@ -1,0 +1,124 @@
+"""Post-hoc merging of track splits: one person's track broken into parts the online tracker could not join.
+
+Two parts are one person's when they do not overlap in time, the second starts at most max_gap_s after the first
+ends, their mean colour descriptors agree (Bhattacharyya distance at most max_appearance) and the person is where
+it could be: the second part's first locations (median of its first `ends` camera-frame locations) lie within
+  max_distance + max_speed * gap          across the line of sight, and
+  depth_fraction * depth + max_speed * gap   along it (monocular depths are known to a fraction of themselves)
+of the first part's last ones. Parts without a known location or descriptor are never merged. Among the pairs that
+qualify, each part gets at most one successor and one predecessor, chosen by the Hungarian method
+(scipy.optimize.linear_sum_assignment) on the sum of the normalised appearance and location distances; chains of
+successors become one track that keeps its first part's id.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from m3c.perception.appearance import bhattacharyya_distance
+
+INFEASIBLE = 1e6
+
+
+@dataclass
+class TrackMergeConfig:
+    enabled: bool = True
+    max_gap_s: float = 3.0         # seconds from the end of one part to the start of the next
+    max_appearance: float = 0.3    # Bhattacharyya distance of the parts' mean colour descriptors
+    max_distance: float = 0.75     # metres across the line of sight, plus max_speed per second of gap
+    depth_fraction: float = 0.3    # along the line of sight, as a fraction of the depth, plus the same allowance
+    max_speed: float = 3.0         # m/s a person may have moved during the gap
+    ends: int = 10                 # locations at each part's end whose median is compared
+
+    def __post_init__(self):
+        if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction) <= 0:
+            raise ValueError("max_gap_s, max_appearance, max_distance and depth_fraction must be > 0")
+        if self.max_speed < 0 or self.ends < 1:
+            raise ValueError("max_speed must be >= 0 and ends >= 1")
+
+
+@dataclass
+class TrackSegment:
+    """What the merge rule sees of one track: its frames (n,) increasing, camera-frame locations (n, 3) in
+    metres (rows of NaN where unknown) and colour descriptors (n, D) (rows of NaN where unknown)."""
+
+    track_id: int
+    frames: np.ndarray
+    locations: np.ndarray
+    appearances: np.ndarray
+
+    def __post_init__(self):
+        self.frames = np.asarray(self.frames, dtype=np.int64)
+        self.locations = np.asarray(self.locations, dtype=np.float64).reshape(len(self.frames), 3)
+        self.appearances = np.asarray(self.appearances, dtype=np.float64).reshape(len(self.frames), -1)
+        if len(self.frames) == 0 or np.any(np.diff(self.frames) <= 0):
+            raise ValueError(f"track {self.track_id}: frames must be non-empty and increasing")
+
+    def end_location(self, first: bool, count: int) -> np.ndarray | None:
+        rows = self.locations[np.isfinite(self.locations).all(axis=1)]
+        if len(rows) == 0:
+            return None
+        return np.median(rows[:count] if first else rows[-count:], axis=0)
+
+    def mean_appearance(self) -> np.ndarray | None:
+        rows = self.appearances[np.isfinite(self.appearances).all(axis=1)]
+        if len(rows) == 0:
+            return None
+        mean = rows.mean(axis=0)
+        return mean / mean.sum() if mean.sum() > 0 else None
+
+
+def split_cost(before: TrackSegment, after: TrackSegment, fps: float, config: TrackMergeConfig) -> float | None:
+    """The cost of joining `after` onto `before` (normalised appearance plus location distance, each <= 1 when
+    the pair qualifies), or None when the two cannot be one person (see the module docstring)."""
+    gap_s = (after.frames[0] - before.frames[-1]) / fps
+    if gap_s <= 0 or gap_s > config.max_gap_s:
+        return None
+    a, b = before.mean_appearance(), after.mean_appearance()
+    end, start = before.end_location(False, config.ends), after.end_location(True, config.ends)
+    if a is None or b is None or end is None or start is None:
+        return None
+    appearance = bhattacharyya_distance(a, b) / config.max_appearance
+    allowance = config.max_speed * gap_s
+    across = np.linalg.norm(start[:2] - end[:2]) / (config.max_distance + allowance)
+    along = abs(start[2] - end[2]) / (config.depth_fraction * abs(end[2]) + allowance)
+    if appearance > 1.0 or across > 1.0 or along > 1.0:
+        return None
+    return float(appearance + max(across, along))
+
+
+def merge_track_splits(segments: list[TrackSegment], fps: float,
+                       config: TrackMergeConfig | None = None) -> dict[int, int]:
+    """track id -> id of the track it joins (its chain's first part; itself when not merged) for every segment."""
+    config = config or TrackMergeConfig()
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be > 0, got {fps}")
+    ids = [s.track_id for s in segments]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"track ids must be unique, got {ids}")
+    merged = {i: i for i in ids}
+    if not config.enabled or len(segments) < 2:
+        return merged
+    cost = np.full((len(segments), len(segments)), INFEASIBLE)
+    for i, before in enumerate(segments):
+        for j, after in enumerate(segments):
+            if i != j:
+                c = split_cost(before, after, fps, config)
+                if c is not None:
+                    cost[i, j] = c
+    successor = {}
+    for i, j in zip(*linear_sum_assignment(cost)):
+        if cost[i, j] < INFEASIBLE:
+            successor[int(i)] = int(j)
+    has_predecessor = set(successor.values())
+    for head in range(len(segments)):
+        if head in has_predecessor:
+            continue
+        k = head
+        while k in successor:
+            k = successor[k]
+            merged[ids[k]] = ids[head]
+    return merged

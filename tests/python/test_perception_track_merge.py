@@ -1,0 +1,106 @@
+"""The track-merge rule on synthetic tracks: splits of one person are joined; two people (other clothes, or the
+same clothes elsewhere), parts that overlap in time and parts too far apart in time are not."""
+
+import numpy as np
+import pytest
+
+from m3c.perception.appearance import DESCRIPTOR_SIZE, bhattacharyya_distance
+from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits, split_cost
+
+FPS = 30.0
+
+
+def descriptor(rng, base: int, noise: float = 0.02) -> np.ndarray:
+    """A colour histogram concentrated on a few bins starting at `base` (people differ by base)."""
+    d = np.full(DESCRIPTOR_SIZE, 1e-3)
+    d[base:base + 4] += [0.4, 0.3, 0.2, 0.1]
+    d = d * (1 + noise * rng.standard_normal(DESCRIPTOR_SIZE)).clip(0.5)
+    return d / d.sum()
+
+
+def segment(track_id, frames, start, velocity, base, rng, depth_noise=0.05) -> TrackSegment:
+    """A person walking at `velocity` (m/frame) from `start` (camera frame), seen in `frames`, with a monocular
+    depth that is off by a few percent per frame."""
+    frames = np.asarray(frames)
+    locations = np.asarray(start) + frames[:, None] * np.asarray(velocity)
+    locations[:, 2] *= 1 + depth_noise * rng.standard_normal(len(frames))
+    appearances = np.stack([descriptor(rng, base) for _ in frames])
+    return TrackSegment(track_id, frames, locations, appearances)
+
+
+def test_splits_of_one_person_are_merged(rng):
+    # One player (clothes at bins 0..3) walking across at 1.5 m/s, 10 m away, split in three by detector misses.
+    v = (0.05, 0.0, 0.0)
+    parts = [segment(1, range(23), (-2.0, 0.8, 10.0), v, 0, rng),
+             segment(6, range(24, 135), (-2.0, 0.8, 10.0), v, 0, rng),
+             segment(12, range(138, 163), (-2.0, 0.8, 10.0), v, 0, rng)]
+    other = segment(0, range(300), (3.0, 0.8, 11.0), (0, 0, 0), 20, rng)  # a man standing, the whole time
+    assert merge_track_splits(parts + [other], FPS) == {1: 1, 6: 1, 12: 1, 0: 0}
+
+
+def test_cost_matches_a_hand_computation(rng):
+    a = segment(3, range(20), (0.0, 0.0, 8.0), (0.02, 0, 0), 0, rng, depth_noise=0.0)
+    b = segment(4, range(25, 40), (0.1, 0.0, 8.0), (0.02, 0, 0), 0, rng, depth_noise=0.0)
+    config = TrackMergeConfig()
+    gap = 25 / FPS - 19 / FPS
+    end, start = np.median(a.locations[-10:], axis=0), np.median(b.locations[:10], axis=0)
+    mean_a, mean_b = a.appearances.mean(axis=0), b.appearances.mean(axis=0)
+    appearance = bhattacharyya_distance(mean_a / mean_a.sum(), mean_b / mean_b.sum()) / config.max_appearance
+    across = np.hypot(*(start - end)[:2]) / (config.max_distance + config.max_speed * gap)
+    along = abs(start[2] - end[2]) / (config.depth_fraction * end[2] + config.max_speed * gap)
+    assert split_cost(a, b, FPS, config) == pytest.approx(appearance + max(across, along), rel=1e-12)
+    assert split_cost(b, a, FPS, config) is None  # b does not end before a starts
+
+
+def test_two_people_are_not_merged(rng):
+    # Someone leaves and someone else steps into the same place 3 frames later, in other clothes.
+    first = segment(1, range(60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    second = segment(2, range(63, 120), (1.0, 0.8, 9.0), (0, 0, 0), 24, rng)
+    assert bhattacharyya_distance(first.appearances[0], second.appearances[0]) > 0.8
+    assert merge_track_splits([first, second], FPS) == {1: 1, 2: 2}
+    # Team-mates in the same kit: one leaves on the left, the other appears 5 m to the right.
+    mate = segment(3, range(63, 120), (6.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    assert merge_track_splits([first, mate], FPS) == {1: 1, 3: 3}
+    # ... or at the same image place, but twice as far from the camera.
+    behind = segment(4, range(63, 120), (2.0, 1.6, 18.0), (0, 0, 0), 0, rng)
+    assert merge_track_splits([first, behind], FPS) == {1: 1, 4: 4}
+
+
+def test_overlapping_or_distant_parts_are_not_merged(rng):
+    # Same clothes, same place, overlapping frames: two people side by side (or a duplicate), never one.
+    a = segment(1, range(60), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    b = segment(2, range(59, 120), (1.2, 0.8, 9.0), (0, 0, 0), 0, rng)
+    assert merge_track_splits([a, b], FPS) == {1: 1, 2: 2}
+    # A gap longer than max_gap_s.
+    late = segment(3, range(60 + int(3.5 * FPS), 250), (1.0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    assert merge_track_splits([a, late], FPS) == {1: 1, 3: 3}
+    assert merge_track_splits([a, late], FPS, TrackMergeConfig(max_gap_s=5.0)) == {1: 1, 3: 1}
+    assert merge_track_splits([a, late], FPS, TrackMergeConfig(max_gap_s=5.0, enabled=False)) == {1: 1, 3: 3}
+
+
+def test_two_people_split_at_once_are_joined_each_to_their_own(rng):
+    # Two people walk towards each other and both tracks break at the crossing (frames 50-53); their second
+    # parts start where the other's first part ended in image x, so only appearance and depth tell them apart.
+    a1 = segment(10, range(50), (-1.5, 0.8, 8.0), (0.03, 0, 0), 0, rng)
+    b1 = segment(11, range(50), (1.5, 0.8, 12.0), (-0.03, 0, 0), 24, rng)
+    a2 = segment(20, range(54, 100), (-1.5, 0.8, 8.0), (0.03, 0, 0), 0, rng)
+    b2 = segment(21, range(54, 100), (1.5, 0.8, 12.0), (-0.03, 0, 0), 24, rng)
+    assert merge_track_splits([b2, a1, a2, b1], FPS) == {10: 10, 20: 10, 11: 11, 21: 11}
+
+
+def test_unknown_cues_never_merge_and_bad_input_is_named(rng):
+    a = segment(1, range(20), (0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    b = segment(2, range(22, 40), (0, 0.8, 9.0), (0, 0, 0), 0, rng)
+    assert merge_track_splits([a, b], FPS) == {1: 1, 2: 1}
+    no_location = TrackSegment(2, b.frames, np.full((len(b.frames), 3), np.nan), b.appearances)
+    assert merge_track_splits([a, no_location], FPS) == {1: 1, 2: 2}
+    no_colour = TrackSegment(2, b.frames, b.locations, np.full(b.appearances.shape, np.nan))
+    assert merge_track_splits([a, no_colour], FPS) == {1: 1, 2: 2}
+    with pytest.raises(ValueError, match="unique"):
+        merge_track_splits([a, a], FPS)
+    with pytest.raises(ValueError, match="increasing"):
+        TrackSegment(5, [3, 2], np.zeros((2, 3)), np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="fps"):
+        merge_track_splits([a, b], 0.0)
+    with pytest.raises(ValueError, match="max_gap_s"):
+        TrackMergeConfig(max_gap_s=0)
