@@ -144,7 +144,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    "scale": float(result["camera_scale"]), "scale_source": scale["source"]},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
-                         "stages": result["stages"]},
+                         "stages": result["stages"], "windows": result.get("windows", [])},
         "backends": backends,
         "tracks": summary_tracks,
         "arrays": {name: {"shape": shape, "dtype": dtype, "description": text}
