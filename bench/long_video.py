@@ -32,7 +32,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
 from m3c.io.video import VideoWriter, iter_frames, probe_video
 from m3c.pipeline import PipelineConfig, Runner
 

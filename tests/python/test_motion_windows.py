@@ -3,15 +3,16 @@ truth (a person walking, a handheld camera off by an unknown VO scale): the wind
 truth as the one-problem solution, continuous across the windows' seams, and a video within one window is solved
 exactly as `optimize` solves it."""
 
+import itertools
+
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from m3c.body import BodyModel
 from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import Track, optimize, track_joints
 from m3c.motion.windows import _slerp, check_windows, optimize_in_windows, window_ranges, window_weights
+from scipy.spatial.transform import Rotation
 
 FRAMES, WINDOW, OVERLAP = 70, 30, 10
 
@@ -36,7 +37,7 @@ def test_windows_cover_every_frame_with_weights_summing_to_one():
         ranges = window_ranges(frames, window, overlap)
         assert ranges[0][0] == 0 and ranges[-1][1] == frames
         assert all(stop - start == window for start, stop in ranges)
-        assert all(b[0] < a[1] and a[1] - b[0] >= overlap for a, b in zip(ranges, ranges[1:]))  # overlaps
+        assert all(b[0] < a[1] and a[1] - b[0] >= overlap for a, b in itertools.pairwise(ranges))  # overlaps
         weights = window_weights(ranges, frames)
         np.testing.assert_allclose(weights.sum(axis=0), 1.0, atol=1e-12)
         assert ((weights > 0).sum(axis=0) <= 2).all() and (weights >= 0).all()
