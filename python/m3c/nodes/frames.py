@@ -74,7 +74,7 @@ class FramesNode(Node):
         times, fps, variable = self._times(ctx, Path(path).name, all_times, frame_ids, info.fps)
         return {"video": {"path": info.path, "name": Path(info.path).name, "fps": fps,
                           "source_fps": info.fps, "width": info.width, "height": info.height,
-                          "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": total,
+                          "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total),
                           "frame_ids": frame_ids, "times": times, "variable_rate": variable,
                           "start": self.config.start, "stop": int(stop), "step": self.config.step}}
 
