@@ -18,7 +18,8 @@ Run it on two lengths to see what grows with the video's length:
     nice -n 10 python bench/long_video.py --minutes 1 --out /tmp/long1
     nice -n 10 python bench/long_video.py --minutes 2 --out /tmp/long2
 
---keep-video reuses the video under OUT when it is there; --until NODE stops after NODE (e.g. optimize).
+--keep-video reuses the video under OUT when it is there; --until NODE stops after NODE (e.g. optimize); --resume
+keeps the earlier run's cache, so only the nodes whose cache entries were deleted run (and are measured).
 """
 
 from __future__ import annotations
@@ -124,6 +125,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True, help="work folder (the video and the run's output)")
     parser.add_argument("--keep-video", action="store_true", help="reuse OUT/long.mp4 when it is there")
     parser.add_argument("--until", default=None, help="stop after this node (default: the whole pipeline)")
+    parser.add_argument("--resume", action="store_true", help="keep OUT/run: nodes whose outputs are cached there "
+                        "are not run again (and not measured); delete a node's cache folder to measure it alone")
     args = parser.parse_args()
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -134,7 +137,8 @@ def main() -> None:
         print(f"made {video}: {count} frames, {time.perf_counter() - t0:.0f} s")
     info = probe_video(video)
     run_dir = args.out / "run"
-    shutil.rmtree(run_dir, ignore_errors=True)
+    if not args.resume:
+        shutil.rmtree(run_dir, ignore_errors=True)
     runner = MeasuredRunner(PipelineConfig.default(), run_dir, {"video": video}, show_progress=False)
     runner.minutes = info.frame_count_hint / info.fps / 60
     print(f"video: {info.width} x {info.height}, {info.fps:.3f} fps, {info.frame_count_hint} frames = "
