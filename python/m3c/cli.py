@@ -460,9 +460,10 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument("--address", help="Ray cluster address, or auto for the one running on this machine "
                        "(default: start a local Ray instance for this batch)")
     batch.add_argument("--sequential", action="store_true", help="run the videos one after another here, not on Ray")
-    batch.add_argument("--cpus-per-video", type=float, default=2.0, help="CPUs Ray reserves per video (default 2)")
-    batch.add_argument("--memory-per-video", type=float, default=4.0, metavar="GB",
-                       help="memory Ray reserves per video, GB (default 4)")
+    batch.add_argument("--cpus-per-video", type=float, help="CPUs Ray reserves per video (default: the most any "
+                       "node of the pipeline needs, its `needs` in the config)")
+    batch.add_argument("--memory-per-video", type=float, metavar="GB",
+                       help="memory Ray reserves per video, GB (default: the most any node of the pipeline needs)")
     _add_config_options(batch)
     batch.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
                        help="camera intrinsics in pixels, the same for every video")

@@ -57,7 +57,8 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
     centres = np.stack([np.linspace(0.0, 0.8, num_frames), np.full(num_frames, 1.5), np.zeros(num_frames)], 1)
     world_from_cam = np.stack([look_at(c, np.array([0.2, 0.9, 3.5])) for c in centres])
     video = {"num_frames": num_frames, "frame_ids": np.arange(num_frames) * 2, "fps": FPS, "width": WIDTH,
-             "height": HEIGHT, "name": "synthetic.mp4", "start": 0, "stop": 2 * num_frames, "step": 2}
+             "height": HEIGHT, "name": "synthetic.mp4", "start": 0, "stop": 2 * num_frames, "step": 2,
+             "times": np.arange(num_frames) / FPS}
     # The world lift: a little off the final motion (newer result schemas also store its pose, shape, cameras).
     world = {"method": "test", "world_from_cam": world_from_cam, "initial_scale": 1.0,
              "tracks": [{"track_id": t["track_id"], "root_orient": t["root_orient"] + 0.01,

@@ -3,6 +3,7 @@ others go on, re-runs served from the caches. Sequential always; on Ray when it 
 'm3c[batch]'), with a local Ray instance the test starts. The videos are 10-frame 480x270 cuts of the bundled
 example, so the real default pipeline (MediaPipe perception) runs in a few seconds each."""
 
+import contextlib
 import json
 import os
 import signal
@@ -18,8 +19,8 @@ from m3c.cli import main
 from m3c.io.manifest import folder_state
 from m3c.io.results import PUBLISHED_FILES
 from m3c.perception.mediapipe_pose import mediapipe_available
-from m3c.pipeline import PipelineConfig
-from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch
+from m3c.pipeline import Needs, PipelineConfig, PipelineError, node_type
+from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch, video_needs
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 # The subprocess imports the same m3c as this process (the source tree in development, the installed package in CI).
@@ -158,6 +159,21 @@ def start_batch(videos: Path, out: Path, *extra: str) -> subprocess.Popen:
                              "-q", *extra], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
+def descendants(pid: int) -> list[int]:
+    """Every process started by `pid`, its children's children included (from /proc: Linux)."""
+    parents = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError):
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            parents[int(stat.parent.name)] = int(fields[1])
+    found, frontier = [], [pid]
+    while frontier:
+        children = [p for p, parent in parents.items() if parent in frontier]
+        found += children
+        frontier = children
+    return found
+
+
 def wait_for(predicate, proc: subprocess.Popen, timeout: float = 120.0) -> None:
     end = time.monotonic() + timeout
     while not predicate():
@@ -185,6 +201,72 @@ def test_batch_killed_mid_video_resumes_to_identical_results(videos, reference, 
 
     assert main(["batch", str(videos), "--out", str(out), "--sequential", "--no-progress", "-q"]) == 1
     summary = json.loads((out / SUMMARY).read_text())
+    by_name = {v["name"]: v for v in summary["videos"]}
+    assert by_name["walk_a"]["nodes_ran"] == 0  # finished before the kill
+    assert by_name["walk_b"]["nodes_cached"] > 0 and by_name["walk_b"]["nodes_ran"] > 0  # resumed
+    for stem, folder in reference.items():
+        assert published_bytes(out / stem) == published_bytes(folder), stem
+
+
+def test_a_video_asks_for_the_most_any_node_needs():
+    """One video's request is the largest cores and the largest memory among its nodes' needs (nodes run one after
+    another), each node's from its config entry when it declares one, else from its type."""
+    config = PipelineConfig.default()
+    declared = [Needs.from_dict(entry.needs, name) if entry.needs else node_type(entry.type).needs
+                for name, entry in config.nodes.items()]
+    needs = video_needs(config)
+    assert (needs.cpus, needs.memory_gb) == (max(n.cpus for n in declared), max(n.memory_gb for n in declared))
+    assert any(entry.needs for entry in config.nodes.values())  # the default pipeline declares its needs
+    raw = config.to_mapping()
+    raw["nodes"]["camera"]["needs"] = {"cpus": 7, "memory_gb": 11.5}
+    assert video_needs(PipelineConfig.from_mapping(raw)) == Needs(7.0, 11.5)
+    assert PipelineConfig.from_mapping(raw).to_mapping()["nodes"]["camera"]["needs"] == {"cpus": 7, "memory_gb": 11.5}
+    raw["nodes"]["camera"]["needs"] = {"cpus": 0}
+    with pytest.raises(PipelineError, match="node 'camera'.*needs.cpus must be a number > 0"):
+        PipelineConfig.from_mapping(raw)
+    raw["nodes"]["camera"]["needs"] = {"gpus": 1}
+    with pytest.raises(PipelineError, match="'needs' must be a mapping with cpus and/or memory_gb"):
+        PipelineConfig.from_mapping(raw)
+
+
+def test_ray_is_asked_for_the_nodes_needs(videos, tmp_path, local_ray):
+    """Without --cpus-per-video / --memory-per-video the Ray request is the pipeline's: a node needing more cores
+    than this 2-CPU instance has makes the batch refuse to start, naming that request."""
+    raw = PipelineConfig.default().to_mapping()
+    raw["nodes"]["optimize"]["needs"] = {"cpus": 3, "memory_gb": 9.5}
+    config = PipelineConfig.from_mapping(raw)
+    with pytest.raises(ValueError, match=r"each asks for 3 CPU\(s\), 9.5 GB"):
+        run_batch(config, [videos / "broken.mp4"], tmp_path / "out", show_progress=False)
+
+
+@needs_mediapipe
+@pytest.mark.slow
+def test_ray_batch_killed_mid_video_resumes_to_identical_results(videos, reference, tmp_path):
+    """`m3c batch` on Ray (its own local instance) killed, with Ray's processes, while a video is half done; re-running the batch resumes it from its cache, and every result file is
+    byte-identical to an uninterrupted run's. (batch_summary.json is not compared: it records each run's times and
+    worker ids, and which nodes ran or came from the cache.)"""
+    pytest.importorskip("ray", reason="needs Ray (pip install 'm3c[batch]')")
+    out = tmp_path / "batch"
+    # One video at a time (2 CPUs each on this 2-CPU instance), in sorted order: broken, walk_a, walk_b.
+    proc = start_batch(videos, out, "--cpus-per-video", "2", "--memory-per-video", "0.5")
+    try:
+        entries = out / "walk_b" / "cache" / "perception"
+        wait_for(lambda: entries.is_dir() and any(p.name[0] != "." for p in entries.iterdir()), proc, 240.0)
+        # The driver and everything it started: Ray's services and its workers (which Ray puts in sessions of
+        # their own), killed at once as a machine failure would.
+        for pid in [proc.pid, *descendants(proc.pid)]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    assert not (out / SUMMARY).exists()
+    assert not folder_state(out / "walk_b", PUBLISHED_FILES).complete
+
+    resumed = start_batch(videos, out, "--cpus-per-video", "2", "--memory-per-video", "0.5")
+    assert resumed.wait(timeout=600) == 1  # the broken video fails again
+    summary = json.loads((out / SUMMARY).read_text())
+    assert summary["engine"].startswith("ray")
     by_name = {v["name"]: v for v in summary["videos"]}
     assert by_name["walk_a"]["nodes_ran"] == 0  # finished before the kill
     assert by_name["walk_b"]["nodes_cached"] > 0 and by_name["walk_b"]["nodes_ran"] > 0  # resumed

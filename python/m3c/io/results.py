@@ -19,7 +19,9 @@ SCHEMA = "m3c.results/1"
 # name -> (shape, dtype, description); P tracks, T frames, B shape parameters.
 ARRAYS: dict[str, tuple[str, str, str]] = {
     "frame_ids": ("T", "int64", "video frame index of each processed frame"),
-    "fps": ("", "float64", "frame rate of the processed frames (video rate / frame step)"),
+    "times": ("T", "float64", "time of each processed frame in seconds (the video's timestamps)"),
+    "fps": ("", "float64", "frame rate of the processed frames (video rate / frame step; a variable-rate video's "
+                           "mean rate)"),
     "image_size": ("2", "int32", "width, height in pixels"),
     "intrinsics": ("T x 4", "float32", "fx, fy, cx, cy in pixels (pixel centres at integer coordinates)"),
     "world_from_cam": ("T x 4 x 4", "float32", "camera pose in the world (metres)"),

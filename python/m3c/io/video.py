@@ -63,7 +63,11 @@ def probe_video(path: str | Path) -> VideoInfo:
                              "convert it to H.264 .mp4, e.g. ffmpeg -i IN -c:v libx264 OUT.mp4")
         ok, frame = cap.read()
         if not ok or frame is None:
-            raise VideoError(f"{path} holds no decodable frames (empty or damaged video)")
+            code = int(cap.get(cv2.CAP_PROP_FOURCC))
+            codec = "".join(chr((code >> 8 * k) & 0xFF) for k in range(4)).strip("\x00 ") or "unknown"
+            raise VideoError(f"{path} holds no decodable frames (an empty or damaged video, or its codec {codec!r} "
+                             "cannot be decoded by this OpenCV); convert it to H.264 .mp4, e.g. ffmpeg -i IN -c:v "
+                             "libx264 OUT.mp4")
         fps = float(cap.get(cv2.CAP_PROP_FPS))
         if not np.isfinite(fps) or fps <= 0:
             raise VideoError(f"{path} does not state a frame rate; re-encode it with one "
@@ -78,16 +82,55 @@ def probe_video(path: str | Path) -> VideoInfo:
 
 def count_frames(path: str | Path, progress=None) -> int:
     """Number of decodable frames (grabs every frame; no pixel conversion)."""
+    return len(frame_times(path, progress))
+
+
+def frame_times(path: str | Path, progress=None) -> np.ndarray:
+    """Presentation time (seconds from the stream's start, as FFmpeg reports it through CAP_PROP_POS_MSEC) of every
+    decodable frame, in decoding order; its length is the number of frames. Grabs every frame, converts no pixels.
+    A variable-frame-rate file (phones, screen recordings) has unequal steps here, which its nominal fps hides."""
+    cv2 = _cv2()
     cap = open_capture(path)
-    n = 0
+    times = []
     try:
         while cap.grab():
-            n += 1
+            times.append(cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
             if progress is not None:
                 progress.update()
     finally:
         cap.release()
-    return n
+    return np.asarray(times, dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class FrameRate:
+    """The frame rate of a run of frames as their timestamps give it."""
+
+    fps: float  # the mean rate, (n - 1) / (t_last - t_first)
+    min_step: float  # seconds between consecutive frames: smallest, median, largest
+    median_step: float
+    max_step: float
+    variable: bool  # some step differs from the median by more than VARIABLE_RATE_TOLERANCE of it
+
+
+# Timestamps of a constant-rate file jitter by the container's time base (about a millisecond); a real change of
+# rate (phones drop to 24 fps or less in the dark, hold frames while the scene is still) changes steps by far more.
+VARIABLE_RATE_TOLERANCE = 0.1
+
+
+def frame_rate(times: np.ndarray) -> FrameRate | None:
+    """FrameRate of frames at `times` (seconds), None when the times cannot give one: fewer than 2 frames, or the
+    times do not increase (a container without usable timestamps)."""
+    times = np.asarray(times, dtype=np.float64)
+    if len(times) < 2 or not np.isfinite(times).all():
+        return None
+    steps = np.diff(times)
+    if not (steps > 0).all():
+        return None
+    median = float(np.median(steps))
+    variable = bool(np.abs(steps - median).max() > VARIABLE_RATE_TOLERANCE * median)
+    return FrameRate(float((len(times) - 1) / (times[-1] - times[0])), float(steps.min()), median,
+                     float(steps.max()), variable)
 
 
 def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step: int = 1) \

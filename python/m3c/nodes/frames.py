@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m3c.io.video import VideoError, count_frames, iter_frames, probe_video
+from m3c.io.video import VideoError, frame_rate, frame_times, iter_frames, probe_video
 from m3c.pipeline import InputError, Node, register_node
 
 
@@ -17,8 +17,12 @@ class FramesNode(Node):
     """Reads the video's frame rate and size and counts its frames; selects frames start, start + step, ...
     < stop. Frames themselves are never stored: nodes that need pixels stream them with stream_frames().
 
-    Output video: path, name, fps (of the processed frames: source fps / step), source_fps, width, height (as
-    displayed: a phone video's rotation metadata is applied to every frame read), rotation (its degrees), num_frames (T), frame_ids (T,) video frame id of each processed frame, start, stop, step.
+    Output video: path, name, fps (of the processed frames: source fps / step; for a variable-rate video the mean
+    rate of the processed frames' timestamps), source_fps, width, height (as displayed: a phone video's rotation
+    metadata is applied to every frame read), rotation (its degrees), num_frames (T), frame_ids (T,) video frame id
+    of each processed frame, times (T,) each processed frame's time in seconds (the file's timestamps; frame id /
+    source fps when the file has none), variable_rate (the steps between the processed frames differ by more than
+    VARIABLE_RATE_TOLERANCE), start, stop, step.
     """
 
     type_name = "frames"
@@ -50,7 +54,8 @@ class FramesNode(Node):
             raise InputError(str(err)) from None
         hint = info.frame_count_hint or None
         with ctx.progress("counting frames", hint) as bar:
-            total = count_frames(path, bar)
+            all_times = frame_times(path, bar)
+        total = len(all_times)
         if total == 0:
             raise InputError(f"{path} holds no decodable frames")
         stop = total if self.config.stop is None else min(self.config.stop, total)
@@ -66,10 +71,35 @@ class FramesNode(Node):
         ctx.log.info("%s: %d x %d%s, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
                      f" (turned {info.rotation} degrees as its metadata says)" if info.rotation else "", info.fps,
                      total, len(frame_ids))
-        return {"video": {"path": info.path, "name": Path(info.path).name, "fps": info.fps / self.config.step,
+        times, fps, variable = self._times(ctx, Path(path).name, all_times, frame_ids, info.fps)
+        return {"video": {"path": info.path, "name": Path(info.path).name, "fps": fps,
                           "source_fps": info.fps, "width": info.width, "height": info.height,
-                          "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total), "frame_ids": frame_ids,
+                          "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total),
+                          "frame_ids": frame_ids, "times": times, "variable_rate": variable,
                           "start": self.config.start, "stop": int(stop), "step": self.config.step}}
+
+    def _times(self, ctx, name: str, all_times: np.ndarray, frame_ids: np.ndarray, source_fps: float) \
+            -> tuple[np.ndarray, float, bool]:
+        """(times of the processed frames, their frame rate, whether it varies). A constant-rate video keeps its
+        stated rate (source fps / step); a variable-rate one gets its mean rate and a warning, since the optimizer's
+        smoothness terms and motion prior step from frame to frame as if the steps were equal."""
+        if frame_rate(all_times) is None:
+            ctx.log.warning("%s has no increasing frame timestamps; frame times are taken as frame id / %.3f fps",
+                            name, source_fps)
+            return frame_ids / source_fps, source_fps / self.config.step, False
+        times = all_times[frame_ids]
+        rate = frame_rate(times)
+        if not rate.variable:
+            return times, source_fps / self.config.step, False
+        ctx.log.warning(
+            "%s has a variable frame rate: %.1f to %.1f ms between the processed frames (median %.1f ms; the file "
+            "states %.3f fps). Each frame's time is read from its timestamp and written to the results (times), "
+            "but the optimizer's smoothness terms and motion prior treat consecutive frames as equally spaced (the "
+            "mean rate, %.3f fps): motion across the longer steps is smoothed as if it took as long as the others. For "
+            "exact timing convert it to a constant rate first (ffmpeg -i IN -fps_mode cfr -r %.0f OUT.mp4).",
+            name, 1000 * rate.min_step, 1000 * rate.max_step, 1000 * rate.median_step, source_fps, rate.fps,
+            round(rate.fps))
+        return times, rate.fps, True
 
 
 def stream_frames(ctx, video: dict) -> Iterator[tuple[int, np.ndarray]]:

@@ -9,7 +9,8 @@ from typing import Any, Literal
 import numpy as np
 import yaml
 
-from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.motion import Cameras, OptimizerConfig, Track
+from m3c.motion.windows import check_windows, optimize_in_windows
 from m3c.nodes.world import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
@@ -85,6 +86,10 @@ class OptimizeNode(Node):
         # when it is there, else the stages run without the term (and report it unavailable).
         motion_prior: str | None = None
         pose_prior: str | None = None
+        # Long videos are optimised in windows of this many frames overlapping by window_overlap, blended
+        # (m3c.motion.windows): memory stays that of one window. 0 = one problem however long the video.
+        window: int = 900
+        window_overlap: int = 60
 
     def _weights(self, ctx, setting: str, file_name: str) -> Path | None:
         value = getattr(self.config, setting)
@@ -105,11 +110,15 @@ class OptimizeNode(Node):
         priors = {name: self._weights(ctx, name, f"{net}.safetensors")
                   for name, net in (("motion_prior", "humor"), ("pose_prior", "vposer"))}
         return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer)),
-                "scale": self.config.scale,
+                "scale": self.config.scale, "window": self.config.window, "window_overlap": self.config.window_overlap,
                 **{name: file_digest(p) if p is not None else None for name, p in priors.items()}}
 
     def check(self, ctx) -> None:
         optimizer_config(self.config.optimizer)
+        try:
+            check_windows(self.config.window, self.config.window_overlap)
+        except ValueError as err:
+            raise PipelineError(f"optimize: {err}") from None
         self._weights(ctx, "motion_prior", "humor.safetensors")
         self._weights(ctx, "pose_prior", "vposer.safetensors")
 
@@ -149,8 +158,9 @@ class OptimizeNode(Node):
         pose_prior = self._weights(ctx, "pose_prior", "vposer.safetensors")
         for name, path in (("HuMoR motion prior", motion_prior), ("VPoser pose prior", pose_prior)):
             ctx.log.info("%s: %s", name, path if path is not None else "no weights (term left out)")
-        result = optimize(ctx.body_model(), motion_tracks, cameras, config, motion_prior=motion_prior,
-                          pose_prior=pose_prior, fps=float(inputs["video"]["fps"]))
+        result = optimize_in_windows(ctx.body_model(), motion_tracks, cameras, config, self.config.window,
+                                     self.config.window_overlap, ctx.log, motion_prior=motion_prior,
+                                     pose_prior=pose_prior, fps=float(inputs["video"]["fps"]))
         final_cams = result.world_from_cam(cameras)
         lift = _ground_lift(motion_tracks, final_cams)
         final_cams[:, :3, 3] += lift
@@ -174,7 +184,8 @@ class OptimizeNode(Node):
             ctx.log.warning("optimization stopped early (a stage failed); results are from the last good step")
         return {"result": {"tracks": out_tracks, "world_from_cam": final_cams,
                            "camera_scale": float(result.camera_scale), "camera_offset": result.camera_offset + lift,
-                           "stages": stages, "stopped_early": bool(result.stopped_early), "optimized": True}}
+                           "stages": stages, "stopped_early": bool(result.stopped_early), "optimized": True,
+                           "windows": getattr(result, "windows", None) or []}}
 
 
 def _ground_lift(motion_tracks: list[Track], final_world_from_cam: np.ndarray) -> np.ndarray:

@@ -50,6 +50,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     intrinsics = np.tile(np.asarray(camera["intrinsics"], dtype=np.float64), (T, 1))
     arrays = {
         "frame_ids": np.asarray(video["frame_ids"], dtype=np.int64),
+        "times": np.asarray(video["times"], dtype=np.float64),
         "fps": np.float64(video["fps"]),
         "image_size": np.array([video["width"], video["height"]], dtype=np.int32),
         "intrinsics": intrinsics.astype(np.float32),
@@ -129,7 +130,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     summary = {
         "schema": SCHEMA,
         "m3c_version": m3c.__version__,
-        "video": {"name": video["name"], "fps": float(video["fps"]), "width": int(video["width"]),
+        "video": {"name": video["name"], "fps": float(video["fps"]),
+                  "variable_frame_rate": bool(video.get("variable_rate", False)), "width": int(video["width"]),
                   "height": int(video["height"]), "frames": T,
                   "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])]},
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
@@ -144,7 +146,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    "scale_estimate": json_ready(scale)},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
-                         "stages": result["stages"]},
+                         "stages": result["stages"], "windows": result.get("windows", [])},
         "backends": backends,
         "tracks": summary_tracks,
         "arrays": {name: {"shape": shape, "dtype": dtype, "description": text}

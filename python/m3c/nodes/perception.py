@@ -16,7 +16,7 @@ import numpy as np
 
 from m3c.nodes import adapters
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.records import encode_masks, mask_in_region, table_length
+from m3c.nodes.records import encode_packed_masks, mask_in_region, table_length
 from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, register_node
 from m3c.vo.scale import MAX_WANDER, MIN_BASELINE, translation_baseline, turns_in_place
 
@@ -189,9 +189,10 @@ class PerceptionNode(Node):
                 rows["contacts"].append(track.contacts[i])
                 mask = track.masks[i] if track.masks is not None else None
                 if mask is None:
-                    rows["mask"].append((np.zeros((0, 0), bool), 0, 0))
+                    rows["mask"].append((np.zeros(0, np.uint8), 0, 0, 0, 0))
                 else:
-                    rows["mask"].append((mask[0], int(mask[1][0]), int(mask[1][1])))
+                    (bits, h, w), box = mask
+                    rows["mask"].append((bits, h, w, int(box[0]), int(box[1])))
         n = len(rows["frame"])
         order = np.lexsort((-np.asarray(rows["score"], dtype=np.float64).reshape(n),
                             np.asarray(rows["frame"], dtype=np.int64).reshape(n)))
@@ -203,7 +204,7 @@ class PerceptionNode(Node):
         return {
             "detections": {"frame": column("frame", np.int64, ()), "box": column("box", np.float32, (4,)),
                            "score": column("score", np.float32, ())},
-            "masks": encode_masks([rows["mask"][k] for k in order]),
+            "masks": encode_packed_masks([rows["mask"][k] for k in order]),
             "keypoints": {"keypoints": column("keypoints", np.float32, (17, 3))},
             "body": {"pose": column("pose", np.float64, (24, 3)), "betas": column("betas", np.float64, (num_betas,)),
                      "transl": column("transl", np.float64, (3,))},

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.perception.types import pack_mask
 from m3c.pipeline import PipelineError
 
 
@@ -43,13 +44,18 @@ def table_length(table: dict, columns: tuple[str, ...], where: str) -> int:
 def encode_masks(masks: list[tuple[np.ndarray, int, int]]) -> dict:
     """Masks as (bool array h x w, x0, y0) regions of the image -> one packed bit buffer.
     Returns {"bits": uint8, "offsets": (N + 1,) int64, "regions": (N, 4) int32 x0, y0, x1, y1}."""
+    return encode_packed_masks([(*pack_mask(mask), x0, y0) for mask, x0, y0 in masks])
+
+
+def encode_packed_masks(masks: list[tuple[np.ndarray, int, int, int, int]]) -> dict:
+    """encode_masks of masks already packed by pack_mask: (bits, h, w, x0, y0) each."""
     chunks, offsets, regions = [], [0], []
-    for mask, x0, y0 in masks:
-        mask = np.asarray(mask, dtype=bool)
-        packed = np.packbits(mask.reshape(-1))
-        chunks.append(packed)
-        offsets.append(offsets[-1] + len(packed))
-        regions.append((x0, y0, x0 + mask.shape[1], y0 + mask.shape[0]))
+    for bits, h, w, x0, y0 in masks:
+        if len(bits) != (h * w + 7) // 8:
+            raise PipelineError(f"a packed {h} x {w} mask needs {(h * w + 7) // 8} bytes, got {len(bits)}")
+        chunks.append(bits)
+        offsets.append(offsets[-1] + len(bits))
+        regions.append((x0, y0, x0 + w, y0 + h))
     return {"bits": np.concatenate(chunks) if chunks else np.zeros(0, np.uint8),
             "offsets": np.asarray(offsets, dtype=np.int64),
             "regions": np.asarray(regions, dtype=np.int32).reshape(-1, 4)}

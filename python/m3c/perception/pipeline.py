@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +25,7 @@ from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
 from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
-from m3c.perception.types import FrameContext, Person
+from m3c.perception.types import FrameContext, Person, pack_mask
 from m3c.perception.video import default_intrinsics, read_frames, video_info
 
 DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
@@ -131,7 +131,8 @@ class PersonTrack:
     contacts: np.ndarray
     gender: str
     estimators: dict
-    masks: list | None = None  # per frame (bool mask, mask_box) or None; kept in memory only (not saved)
+    # per frame ((bits, h, w) of types.pack_mask, mask_box) or None; kept in memory only (not saved)
+    masks: list | None = None
 
 
 @dataclass
@@ -305,7 +306,11 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 raise ValueError(f"the body estimator {names['body']!r} returned {len(regressed)} results for "
                                  f"{len(people)} people")
             for track_id, person, result, obs in zip(track_ids, people, regressed, observations):
-                records.setdefault(track_id, []).append((index, person, result))
+                # The mask is kept packed (an eighth of the bytes): a long video's masks add up.
+                mask = (pack_mask(person.mask), person.mask_box) \
+                    if config.save_masks and person.mask is not None else None
+                records.setdefault(track_id, []).append((index, replace(person, mask=None, mask_box=None), result,
+                                                         mask))
                 cues.setdefault(track_id, []).append((obs.location, obs.appearance))
             seconds["body"] += time.perf_counter() - t5
             seconds["tracked_patches"] += t1 - t0
@@ -349,7 +354,7 @@ def _segment(track_id: int, entries: list, cues: list) -> TrackSegment:
     locations = np.array([np.full(3, np.nan) if loc is None else loc for loc, _ in cues], dtype=np.float64)
     size = next((len(a) for _, a in cues if a is not None), 1)
     appearances = np.array([np.full(size, np.nan) if a is None else a for _, a in cues], dtype=np.float64)
-    return TrackSegment(track_id, np.array([f for f, _, _ in entries]), locations, appearances)
+    return TrackSegment(track_id, np.array([entry[0] for entry in entries]), locations, appearances)
 
 
 def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
@@ -360,8 +365,8 @@ def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
 
 def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsics: np.ndarray, fps: float,
                   config: PerceptionConfig, seconds: dict) -> PersonTrack:
-    frame_ids = np.array([f for f, _, _ in entries], dtype=np.int64)
-    people = [p for _, p, _ in entries]
+    frame_ids = np.array([f for f, _, _, _ in entries], dtype=np.int64)
+    people = [p for _, p, _, _ in entries]
     n = len(people)
     # Rows: COCO-17, plus the foot points when any frame has them (zero confidence where it does not).
     K = max(len(p.keypoints) for p in people)
@@ -376,7 +381,7 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
     t0 = time.perf_counter()
     if est["body"].reads_images:
         bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids,
-                                       observations=[r for _, _, r in entries])
+                                       observations=[r for _, _, r, _ in entries])
     else:
         bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids)
     t1 = time.perf_counter()
@@ -397,7 +402,7 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
             sources.setdefault(task, set()).add(name)
     estimators = {task: ",".join(sorted(v)) for task, v in sources.items()}
     estimators.update(body=names["body"], contacts=names["contacts"], gender=names["gender"])
-    masks = [(p.mask, p.mask_box) if p.mask is not None else None for p in people] if config.save_masks else None
+    masks = [mask for _, _, _, mask in entries] if config.save_masks else None
     return PersonTrack(track_id, frame_ids, np.stack([p.box for p in people]), np.array([p.score for p in people]),
                        keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators,
                        masks)

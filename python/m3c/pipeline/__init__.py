@@ -9,11 +9,11 @@ OUT/cache/<node>/<key>/ so a changed setting re-runs only what depends on it and
 
 from m3c.pipeline.config import NodeEntry, PipelineConfig, Settings, default_config_path, parse_override
 from m3c.pipeline.graph import Edge, Graph, render_dot, topological_order
-from m3c.pipeline.node import (LEVELS, ComponentUnavailable, FileRef, InputError, Node, NoConfig, PipelineError,
-                               node_type, node_types, register_node)
+from m3c.pipeline.node import (LEVELS, ComponentUnavailable, FileRef, InputError, Needs, Node, NoConfig,
+                               PipelineError, node_type, node_types, register_node)
 from m3c.pipeline.runner import NodeRecord, PipelineUnavailable, RunContext, Runner, RunReport, run_pipeline
 
-__all__ = ["LEVELS", "ComponentUnavailable", "Edge", "FileRef", "Graph", "InputError", "Node", "NodeEntry",
+__all__ = ["LEVELS", "ComponentUnavailable", "Edge", "FileRef", "Graph", "InputError", "Needs", "Node", "NodeEntry",
            "NoConfig", "NodeRecord", "PipelineConfig", "PipelineError", "PipelineUnavailable", "RunContext",
            "RunReport", "Runner", "Settings", "default_config_path", "node_type", "node_types", "parse_override",
            "register_node", "render_dot", "run_pipeline", "topological_order"]

@@ -20,6 +20,8 @@ from pathlib import Path
 
 from m3c.io import atomic_path
 from m3c.pipeline.config import PipelineConfig
+from m3c.pipeline.graph import Graph
+from m3c.pipeline.node import Needs
 from m3c.pipeline.progress import Progress
 
 LOG = logging.getLogger("m3c.batch")
@@ -173,13 +175,24 @@ def ray_available() -> bool:
     return True
 
 
+def video_needs(config: PipelineConfig) -> Needs:
+    """What one video's run needs: its nodes run one after another, so the most cores and the most memory that any
+    node of the pipeline needs (each node's Needs: its type's, or its config entry's `needs`)."""
+    needs = [node.needs for node in Graph.from_config(config).nodes.values()]
+    return Needs(max(n.cpus for n in needs), max(n.memory_gb for n in needs))
+
+
 def run_batch(config: PipelineConfig, videos: list[Path], out_dir: str | Path, *, use_ray: bool = True,
-              address: str | None = None, cpus_per_video: float = 2.0, memory_per_video_gb: float = 4.0,
-              show_progress: bool = True, progress_stream=None) -> BatchReport:
+              address: str | None = None, cpus_per_video: float | None = None,
+              memory_per_video_gb: float | None = None, show_progress: bool = True,
+              progress_stream=None) -> BatchReport:
     """Every video of `videos` through `config` into out_dir/<result_names()[video]>/; the summary is written to
     out_dir/batch_summary.json. use_ray: run on Ray when it is installed (address: a cluster's address, None =
     start a local instance; each video asks Ray for cpus_per_video CPUs, memory_per_video_gb of memory and, with
-    settings.device on CUDA, one GPU)."""
+    settings.device on CUDA, one GPU; None: video_needs(config), what the pipeline's nodes declare)."""
+    needs = video_needs(config)
+    cpus_per_video = needs.cpus if cpus_per_video is None else cpus_per_video
+    memory_per_video_gb = needs.memory_gb if memory_per_video_gb is None else memory_per_video_gb
     out_dir = Path(out_dir)
     names = result_names(videos)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -242,7 +255,8 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
                     outcome = VideoOutcome(str(video), names[video], "failed",
                                            error=f"{type(err).__name__}: {str(err).splitlines()[0]}")
                 finished(video, outcome)
-        return f"ray at {ray.get_runtime_context().gcs_address}, {int(ray.cluster_resources().get('CPU', 0))} CPU(s)"
+        return (f"ray at {ray.get_runtime_context().gcs_address}, {int(ray.cluster_resources().get('CPU', 0))} "
+                f"CPU(s); {cpus_per_video:g} CPU(s) and {memory_per_video_gb:g} GB per video")
     finally:
         if started_here:
             ray.shutdown()

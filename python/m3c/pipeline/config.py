@@ -9,6 +9,7 @@
       camera:
         type: camera
         inputs: {video: frames.video}   # input slot -> <node>.<output>
+        needs: {cpus: 1, memory_gb: 0.5}  # optional: cores and memory while it runs (m3c batch's Ray request)
 
 The default pipeline ships as m3c/pipeline/default.yaml.
 """
@@ -24,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from m3c.pipeline.node import PipelineError, config_from_dict
+from m3c.pipeline.node import Needs, PipelineError, config_from_dict
 
 
 @dataclass
@@ -49,6 +50,7 @@ class NodeEntry:
     type: str
     inputs: dict[str, str] = field(default_factory=dict)  # slot -> "node.output"
     config: dict[str, Any] = field(default_factory=dict)
+    needs: dict[str, float] | None = None  # cpus / memory_gb while it runs (pipeline.node.Needs); not in cache keys
 
 
 @dataclass
@@ -74,18 +76,22 @@ class PipelineConfig:
                 raise PipelineError(f"{where}: node name {name!r} must be an identifier (letters, digits, _)")
             if not isinstance(entry, dict):
                 raise PipelineError(f"{where}: node {name!r} must be a mapping, got {entry!r}")
-            bad = set(entry) - {"type", "inputs", "config"}
+            bad = set(entry) - {"type", "inputs", "config", "needs"}
             if bad:
                 raise PipelineError(f"{where}: node {name!r} has unknown key(s) {sorted(bad)}; "
-                                    "expected 'type', 'inputs', 'config'")
+                                    "expected 'type', 'inputs', 'config', 'needs'")
             inputs = entry.get("inputs") or {}
             if not isinstance(inputs, dict) or not all(isinstance(v, str) or v is None for v in inputs.values()):
                 raise PipelineError(f"{where}: node {name!r}: 'inputs' must map slot -> '<node>.<output>'")
             config = entry.get("config") or {}
             if not isinstance(config, dict):
                 raise PipelineError(f"{where}: node {name!r}: 'config' must be a mapping")
+            needs = entry.get("needs")
+            if needs is not None:
+                Needs.from_dict(needs, f"{where}: node {name!r}")  # checked here, applied by the graph
             nodes[name] = NodeEntry(name, str(entry.get("type", name)),
-                                    {k: v for k, v in inputs.items() if v is not None}, dict(config))
+                                    {k: v for k, v in inputs.items() if v is not None}, dict(config),
+                                    dict(needs) if needs is not None else None)
         return cls(settings, nodes)
 
     @classmethod
@@ -118,6 +124,8 @@ class PipelineConfig:
                 item["inputs"] = dict(entry.inputs)
             if entry.config:
                 item["config"] = copy.deepcopy(entry.config)
+            if entry.needs is not None:
+                item["needs"] = dict(entry.needs)
             nodes[name] = item
         return {"settings": dataclasses.asdict(self.settings), "nodes": nodes}
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from m3c.pipeline.config import PipelineConfig
-from m3c.pipeline.node import Node, PipelineError, config_from_dict, node_type
+from m3c.pipeline.node import Needs, Node, PipelineError, config_from_dict, node_type
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,8 @@ class Graph:
             node_cls = node_type(entry.type)
             node_config = config_from_dict(node_cls.Config, entry.config, f"node {name!r} ({entry.type})")
             nodes[name] = node_cls(name, node_config)
+            if entry.needs is not None:
+                nodes[name].needs = Needs.from_dict(entry.needs, f"node {name!r}")
         edges = []
         for name, entry in config.nodes.items():
             node = nodes[name]

@@ -46,6 +46,29 @@ class FileRef:
     path: str
 
 
+@dataclass(frozen=True)
+class Needs:
+    """What a node needs while it runs, for a scheduler that places whole runs on machines (`m3c batch` on Ray asks
+    for the most that any node of the pipeline needs, since a run executes its nodes one after another).
+
+    cpus: cores it keeps busy. memory_gb: the run process's peak resident memory while the node runs (interpreter
+    and libraries included), as bench/long_video.py measures it; on a 10-minute 960 x 540 video unless the node's
+    memory is bounded whatever the length."""
+
+    cpus: float = 1.0
+    memory_gb: float = 1.0
+
+    @classmethod
+    def from_dict(cls, values: dict, where: str) -> "Needs":
+        """From a config mapping {cpus, memory_gb}; PipelineError naming `where` for anything else."""
+        if not isinstance(values, dict) or set(values) - {"cpus", "memory_gb"}:
+            raise PipelineError(f"{where}: 'needs' must be a mapping with cpus and/or memory_gb, got {values!r}")
+        for key, value in values.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+                raise PipelineError(f"{where}: needs.{key} must be a number > 0, got {value!r}")
+        return cls(**{k: float(v) for k, v in values.items()})
+
+
 @dataclass
 class NoConfig:
     """For nodes without settings."""
@@ -63,6 +86,8 @@ class Node:
     nonfinite_outputs: output paths where NaN/inf is legal; elsewhere the runner stops the run (or drops the person
     track) at the first non-finite value, naming the node, the array and the frames.
     version: bump when the node's behaviour changes through code outside the class (its own source is hashed).
+    needs: cores and memory the node needs while it runs (Needs); a pipeline config's node entry may declare its
+    own (`needs: {cpus: 2, memory_gb: 1.5}`), which replaces it for that node.
     """
 
     type_name: ClassVar[str] = ""
@@ -78,6 +103,7 @@ class Node:
     # Output paths that may hold NaN/inf by design (fnmatch patterns, list indices as "[]", e.g.
     # "result.stages[].objective_before"); every other float must be finite (m3c.pipeline.finite).
     nonfinite_outputs: ClassVar[tuple[str, ...]] = ()
+    needs: ClassVar[Needs] = Needs()
 
     def __init__(self, name: str, config: Any = None):
         self.name = name

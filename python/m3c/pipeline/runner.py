@@ -384,6 +384,7 @@ class Runner:
                     consumers[e.source] -= 1
                     if consumers[e.source] <= 0:
                         values.pop(e.source, None)
+                release_heap()  # what the node held while it ran, back to the system
                 if self.config.settings.visualize:
                     self._visualize(node, key, inputs, outputs_of(name))
             if node.publish:
@@ -462,6 +463,30 @@ class Runner:
         path = self.cache.root / "last_run.json"
         with contextlib.suppress(OSError), atomic_path(path) as tmp:
             tmp.write_text(json.dumps(asdict(report), indent=1) + "\n")
+
+
+def release_heap() -> bool:
+    """Hands the heap memory freed so far back to the operating system (glibc's malloc_trim); True when it could.
+    glibc keeps freed blocks for reuse, and after a node that peaked at gigabytes it keeps them for good (large
+    numpy arrays move from mmap to the heap once big ones have been freed): without this the process would stay at
+    that node's peak for the rest of the run, and a batch worker for the rest of the batch."""
+    global _LIBC
+    if _LIBC is None:
+        import ctypes
+        import ctypes.util
+
+        name = ctypes.util.find_library("c")
+        try:
+            _LIBC = ctypes.CDLL(name) if name else False
+        except OSError:
+            _LIBC = False
+    if not _LIBC or not hasattr(_LIBC, "malloc_trim"):  # not glibc (musl, macOS): nothing to do
+        return False
+    _LIBC.malloc_trim(0)
+    return True
+
+
+_LIBC = None
 
 
 def _free_memory() -> None:
