@@ -153,7 +153,7 @@ def test_people_seen_too_briefly_to_track_are_named(small_video, tmp_path, monke
 
     def fake_perception(frames, fps, size, config, progress=None, source=None):
         count = sum(1 for _ in frames)
-        return SimpleNamespace(num_frames=count, tracks=[], seconds={},
+        return SimpleNamespace(num_frames=count, tracks=[], seconds={}, merged={},
                                people_per_frame=np.array([0, 1, 1, 0, 0, 0][:count]))
 
     monkeypatch.setattr("m3c.perception.mediapipe_pose.mediapipe_available", lambda: True)
