@@ -240,8 +240,9 @@ class GroundNode(Node):
         cameras = metric_cameras(vo_cameras, scale["value"])
         dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, up)
         up_vo = cameras[0, :3, :3] @ CAMERA_UP
+        per_person = self.config.planes == "per_person" or dominant is None
         contact_tracks = []
-        for track, points in zip(tracks, raw):
+        for track, points in zip(tracks, raw if per_person else []):  # (2 x window + 1) copies of every point
             # One foot's sole in one frame hardly fixes a plane (a flexed foot tilts it): each frame also
             # takes the contacts of the frames within `window`, steps at several places on the ground.
             pooled_track = [np.concatenate(points[max(0, t - self.config.window):t + self.config.window + 1])
@@ -256,7 +257,6 @@ class GroundNode(Node):
         else:
             world_from_vo = gravity_frame(up_vo, cameras[0], None)
             ctx.log.warning("no ground found (no planted feet); world up taken from the first camera")
-        per_person = self.config.planes == "per_person" or dominant is None
         planes = estimate_ground_planes(contact_tracks, up=up_vo, params=self.params()) \
             if tracks and per_person else []
         R, t = world_from_vo[:3, :3], world_from_vo[:3, 3]
