@@ -442,16 +442,13 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return cost;
   };
 
-  // The world check's value at the current state: every term of config_.world_check over all people and frames.
-  auto world_value = [&]() {
-    ceres::Problem::Options check_options;
-    check_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
-    ceres::Problem check(check_options);
-    for (const auto& [term, weight] : config_.world_check) {
-      if (weight > 0 && is_builtin(term)) add_builtin(term, weight, &check);
-    }
-    return cost_of(&check);
-  };
+  // The world check: every term of config_.world_check over all people and frames, built once over the state's
+  // parameter memory and evaluated at the current state before the first stage and after each solve.
+  ceres::Problem world_check;
+  for (const auto& [term, weight] : config_.world_check) {
+    if (weight > 0 && is_builtin(term)) add_builtin(term, weight, &world_check);
+  }
+  double world_now = cost_of(&world_check);
 
   OptimizerResult result;
   for (const StageConfig& stage : config_.stages) {
@@ -508,7 +505,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       if (g == Group::kScale && free) problem.SetParameterLowerBound(block, 0, 1e-3);
     }
     const State checkpoint = state;
-    report.world_before = world_value();
+    report.world_before = world_now;
     report.objective_before = cost_of(&problem);
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = blocks_cost(&problem, term_blocks[k]);
 
@@ -534,7 +531,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       }
     }
     if (decoder) decoder->DecodeAll(false);  // the body blocks may hold a rejected trial point's pose
-    report.world_after = failure.empty() ? world_value() : report.world_before;
+    report.world_after = failure.empty() ? cost_of(&world_check) : report.world_before;
     std::string worse;  // the stage's own objective fell, but the world got worse: revert it and go on
     if (failure.empty() && !(report.world_after <= report.world_before * (1.0 + config_.max_world_increase))) {
       std::ostringstream msg;
@@ -552,6 +549,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     } else {
       report.status = "ok";
     }
+    world_now = report.world_after;
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].after = blocks_cost(&problem, term_blocks[k]);
     report.scale = state.scale;
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
