@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from m3c import __version__
+from m3c.io.manifest import file_sha256
 from m3c.models import humor as humor_module
 from m3c.models import humor_state as hs
 from m3c.models import vposer as vposer_module
@@ -52,19 +53,11 @@ _VPOSER_ENCODER_OPS = {
 }
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _source(path) -> dict:
     if path is None:
         return {"checkpoint": "in-memory model"}
     path = Path(path)
-    return {"checkpoint": str(path), "sha256": _sha256(path)} if path.is_file() else {"checkpoint": str(path)}
+    return {"checkpoint": str(path), "sha256": file_sha256(path)} if path.is_file() else {"checkpoint": str(path)}
 
 
 def _numpy(state: dict, dtype: np.dtype) -> dict:

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from m3c.io.manifest import file_sha256
 from m3c.io.npz import write_npz
 from m3c.pipeline.node import FileRef, PipelineError
 
@@ -62,11 +63,7 @@ def file_digest(path: str | Path) -> str:
     stat = path.stat()
     memo = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
     if memo not in _FILE_DIGESTS:
-        h = hashlib.sha256()
-        with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
-                h.update(block)
-        _FILE_DIGESTS[memo] = h.hexdigest()
+        _FILE_DIGESTS[memo] = file_sha256(path)
     return _FILE_DIGESTS[memo]
 
 
