@@ -294,6 +294,15 @@ def _log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def _add_motion_options(parser) -> None:
+    """The benchmarks' motion sources, read by _benchmark_clips."""
+    parser.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use "
+                        "instead of the shipped CMU clips")
+    parser.add_argument("--mocap", action="append", metavar="DIR",
+                        help="also use every BVH under DIR (retargeted once, cached); repeatable")
+    parser.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
+
+
 def _benchmark_clips(model, args, log) -> list[str]:
     """The benchmarks' motions: --clips, plus the shipped CMU clips unless --clips alone was given, plus every BVH
     under each --mocap folder (retargeted once, cached)."""
@@ -548,11 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--max-people", type=int, default=3, choices=(1, 2, 3))
     bm.add_argument("--cameras", default="walking,panning,orbiting,static",
                     help="camera motions, used in turn (default walking,panning,orbiting,static)")
-    bm.add_argument("--mocap", action="append", metavar="DIR",
-                    help="also use every BVH under DIR (retargeted once, cached); repeatable")
-    bm.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use "
-                    "instead of the shipped CMU clips")
-    bm.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
+    _add_motion_options(bm)
     bm.add_argument("--optimizer-config", help="YAML optimizer config (default: the built-in recipe)")
     bm.add_argument("--vposer", help="exported vposer.safetensors (python -m m3c.models.export) for the optimizer's "
                     "pose prior (default: none; the pose_prior terms are then reported unavailable)")
@@ -568,11 +573,7 @@ def build_parser() -> argparse.ArgumentParser:
     vb.add_argument("--cameras", default=",".join(CAMERA_KINDS_TEXT),
                     help=f"camera motions, used in turn (default {','.join(CAMERA_KINDS_TEXT)})")
     vb.add_argument("--people", type=int, default=3, choices=(1, 2, 3), help="most people in a sequence (default 3)")
-    vb.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use instead "
-                    "of the shipped CMU clips")
-    vb.add_argument("--mocap", action="append", metavar="DIR", help="also use every BVH under DIR (retargeted once, "
-                    "cached); repeatable")
-    vb.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
+    _add_motion_options(vb)
     vb.add_argument("--seed", type=int, default=0)
     vb.add_argument("--size", type=int, nargs=2, default=(960, 540), metavar=("W", "H"),
                     help="image size in pixels (default 960 540)")
