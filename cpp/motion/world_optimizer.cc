@@ -7,6 +7,7 @@
 
 #include "body/kinematics.h"
 #include "motion/humor_term.h"
+#include "motion/joint_blocks.h"
 #include "motion/vposer_term.h"
 #include "util/check.h"
 
@@ -33,19 +34,26 @@ struct State {
   }
 };
 
-// A stage's evaluation callback: decodes latent poses first (the motion prior reads the decoded body blocks),
-// then runs the motion prior's batch.
+// A problem's evaluation callback: decodes latent poses first (the motion prior reads the decoded body blocks),
+// then evaluates the shared joints and the motion prior's batch.
 class StageCallback : public ceres::EvaluationCallback {
  public:
-  StageCallback(LatentPoseDecoder* decoder, HumorTransitionBatch* humor) : decoder_(decoder), humor_(humor) {}
+  StageCallback(LatentPoseDecoder* decoder, SharedJoints* joints, HumorTransitionBatch* humor)
+      : decoder_(decoder), joints_(joints), humor_(humor) {}
   void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) override {
     if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
+    if (joints_ && (new_evaluation_point || (evaluate_jacobians && !joints_evaluated_with_jacobians_))) {
+      joints_->EvaluateAll(evaluate_jacobians);
+      joints_evaluated_with_jacobians_ = evaluate_jacobians;
+    }
     if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
   }
 
  private:
   LatentPoseDecoder* decoder_;
+  SharedJoints* joints_;
   HumorTransitionBatch* humor_;
+  bool joints_evaluated_with_jacobians_ = false;
 };
 
 }  // namespace
@@ -216,7 +224,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       vars.body[i].push_back(state.body[i].row(f).data());
       groups[vars.transl[i][f]] = Group::kTransl;
       groups[vars.root[i][f]] = Group::kRoot;
-      groups[vars.body[i][f]] = Group::kBody;
+      for (int k = 0; k + 1 < J; ++k) groups[vars.body[i][f] + 3 * k] = Group::kBody;  // per-joint blocks
     }
     vars.betas.push_back(state.betas[i].data());
     groups[vars.betas[i]] = Group::kBetas;
@@ -243,19 +251,53 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
     decoder->DecodeAll(false);
   }
-  // Adds a residual block; with latent poses, a cost on body blocks is wrapped to take the latents instead.
+  // The body pose's parameter blocks in a problem: with latent poses the latents; else, in a stage that frees the
+  // pose, one block of 3 per body joint (joint_blocks.h), so that a joint's terms touch only the joints that move
+  // it; else (the pose constant, or only evaluated: the world check) the whole pose block. Set per problem before
+  // its blocks are added.
+  bool split_body = false;
+  std::unordered_map<const double*, std::pair<int, int>> body_frame;  // whole body block -> (track, frame)
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    for (size_t f = 0; f < vars.body[i].size(); ++f) body_frame[vars.body[i][f]] = {static_cast<int>(i), static_cast<int>(f)};
+  }
+  // Adds a residual block whose cost takes whole body blocks (vars.body): with latent poses it is wrapped to
+  // take the latents instead, with split_body to take the per-joint blocks.
   auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
     std::vector<int> slots, frames;
-    for (size_t k = 0; decoder && k < blocks.size(); ++k) {
-      const auto it = decoder_frame.find(blocks[k]);
-      if (it == decoder_frame.end()) continue;
-      slots.push_back(static_cast<int>(k));
-      frames.push_back(it->second);
-      blocks[k] = decoder->latent(it->second);
+    std::vector<double*> split;
+    for (size_t k = 0; k < blocks.size(); ++k) {
+      if (decoder) {
+        const auto it = decoder_frame.find(blocks[k]);
+        if (it == decoder_frame.end()) continue;
+        slots.push_back(static_cast<int>(k));
+        frames.push_back(it->second);
+        blocks[k] = decoder->latent(it->second);
+      } else if (split_body && body_frame.count(blocks[k])) {
+        slots.push_back(static_cast<int>(k));
+      }
     }
-    if (!slots.empty()) cost = new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames));
-    return problem->AddResidualBlock(cost, nullptr, blocks);
+    if (slots.empty()) return problem->AddResidualBlock(cost, nullptr, blocks);
+    if (decoder) return problem->AddResidualBlock(new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames)), nullptr, blocks);
+    for (size_t k = 0; k < blocks.size(); ++k) {
+      if (!body_frame.count(blocks[k])) {
+        split.push_back(blocks[k]);
+        continue;
+      }
+      for (int j = 0; j + 1 < J; ++j) split.push_back(blocks[k] + 3 * j);
+    }
+    return problem->AddResidualBlock(new SplitBodyCost(cost, std::move(slots)), nullptr, split);
   };
+  vars.add_block = add_block;
+  // The contact points as body joints (empty if the contact regressor is not a joint selection).
+  const std::vector<int> contact_joints = contact_regressor_ ? SelectedJoints(*contact_regressor_) : std::vector<int>();
+  // The world joints of every person and frame, evaluated once per evaluation point for the joint stencils.
+  SharedJoints shared_joints(model_, joint_regressor_.get(), config_.num_threads);
+  std::vector<std::vector<int>> joint_frame(tracks.size());  // [track][frame] -> shared_joints frame
+  for (size_t i = 0; i < tracks.size(); ++i) {
+    for (size_t f = 0; f < vars.body[i].size(); ++f) {
+      joint_frame[i].push_back(shared_joints.AddFrame(vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]));
+    }
+  }
   vars.scale = &state.scale;
   vars.offset = state.offset.data();
   groups[vars.scale] = Group::kScale;
@@ -314,15 +356,37 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           add_block(problem, new BlockDifferenceCost(3 * (J - 1), weight), {vars.body[i][f], vars.body[i][f + 1]});
         }
       } else if (term == "pose_anchor") {
-        // A Gaussian around the initial (regressed) pose of each frame, not around the T-pose.
+        // A Gaussian around the initial (regressed) pose of each frame, not around the T-pose; per joint block
+        // when the pose is (a Jacobian over all joints would be a 69 x 69 identity in J^T J).
         for (int f = 0; f < n; ++f) {
-          add_block(problem, new GaussianPriorCost(tr.body.row(f).transpose(), weight), {vars.body[i][f]});
+          if (!split_body) {
+            add_block(problem, new GaussianPriorCost(tr.body.row(f).transpose(), weight), {vars.body[i][f]});
+            continue;
+          }
+          for (int k = 0; k + 1 < J; ++k) {
+            problem->AddResidualBlock(new GaussianPriorCost(tr.body.block<1, 3>(f, 3 * k).transpose(), weight),
+                                      nullptr, vars.body[i][f] + 3 * k);
+          }
         }
       } else if (term == "joint_smoothness" || term == "joint_acceleration") {
         const std::vector<double> stencil = term == "joint_smoothness" ? std::vector<double>{-1.0, 1.0}
                                                                        : std::vector<double>{1.0, -2.0, 1.0};
         const int F = static_cast<int>(stencil.size());
-        for (int f = 0; f + F <= n; ++f) {
+        for (int f = 0; split_body && f + F <= n; ++f) {  // a residual block per chain, on the shared joints
+          const std::vector<int> frames(joint_frame[i].begin() + f, joint_frame[i].begin() + f + F);
+          for (const std::vector<int>& chain : shared_joints.Chains()) {
+            auto* cost = new JointStencilCost(&shared_joints, frames, stencil, chain,
+                                              std::vector<double>(chain.size(), weight));
+            std::vector<double*> blocks;
+            for (int g = f; g < f + F; ++g) {
+              blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
+              for (int a : cost->ancestors()) blocks.push_back(vars.body[i][g] + 3 * (a - 1));
+            }
+            blocks.push_back(vars.betas[i]);
+            problem->AddResidualBlock(cost, nullptr, blocks);
+          }
+        }
+        for (int f = 0; !split_body && f + F <= n; ++f) {  // whole pose blocks (or latents: every joint moves with them)
           std::vector<double*> blocks;
           for (int g = f; g < f + F; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
           blocks.push_back(vars.betas[i]);
@@ -333,6 +397,21 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         for (int f = 0; f + 1 < n; ++f) {
           const std::vector<double> w = contact_weights(tr, f, weight);
           if (w.empty()) continue;
+          if (split_body && !contact_joints.empty()) {  // a residual block per planted joint, on the shared joints
+            for (size_t c = 0; c < w.size(); ++c) {
+              if (w[c] <= 0) continue;
+              auto* cost = new JointStencilCost(&shared_joints, {joint_frame[i][f], joint_frame[i][f + 1]}, {-1.0, 1.0},
+                                                {contact_joints[c]}, {w[c]});
+              std::vector<double*> blocks;
+              for (int g = f; g <= f + 1; ++g) {
+                blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
+                for (int a : cost->ancestors()) blocks.push_back(vars.body[i][g] + 3 * (a - 1));
+              }
+              blocks.push_back(vars.betas[i]);
+              problem->AddResidualBlock(cost, nullptr, blocks);
+            }
+            continue;
+          }
           add_block(problem, new PointStencilCost(model_, contact_regressor_, {-1.0, 1.0}, w),
                     {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1], vars.root[i][f + 1],
                      vars.body[i][f + 1], vars.betas[i]});
@@ -388,8 +467,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           }
           continue;
         }
-        problem->AddResidualBlock(new VPoserLatentCost(pose_prior_, 3 * (J - 1), stencil, weight), nullptr,
-                                  std::vector<double*>(vars.body[i].begin() + f, vars.body[i].begin() + f + F));
+        add_block(problem, new VPoserLatentCost(pose_prior_, 3 * (J - 1), stencil, weight),
+                  std::vector<double*>(vars.body[i].begin() + f, vars.body[i].begin() + f + F));
       }
     }
   };
@@ -444,7 +523,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
 
   // The world check: every term of config_.world_check over all people and frames, built once over the state's
   // parameter memory and evaluated at the current state before the first stage and after each solve.
-  ceres::Problem world_check;
+  StageCallback world_check_callback(decoder.get(), nullptr, nullptr);
+  ceres::Problem::Options world_check_options;
+  world_check_options.evaluation_callback = &world_check_callback;
+  ceres::Problem world_check(world_check_options);
+  split_body = false;
   for (const auto& [term, weight] : config_.world_check) {
     if (weight > 0 && is_builtin(term)) add_builtin(term, weight, &world_check);
   }
@@ -467,9 +550,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     if (motion_prior_ != nullptr && stage.weights.count("motion_prior") && stage.weights.at("motion_prior") > 0) {
       humor_batch = std::make_unique<HumorTransitionBatch>(model_, motion_prior_, fps_, config_.num_threads);
     }
-    StageCallback callback(decoder.get(), humor_batch.get());
+    split_body = !decoder && stage.body;
+    StageCallback callback(decoder.get(), split_body ? &shared_joints : nullptr, humor_batch.get());
     ceres::Problem::Options problem_options;
-    if (decoder || humor_batch) problem_options.evaluation_callback = &callback;
+    problem_options.evaluation_callback = &callback;
     ceres::Problem problem(problem_options);
     std::vector<std::string> missing;
     std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks

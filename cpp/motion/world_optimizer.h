@@ -118,6 +118,10 @@ class WorldOptimizer {
     std::vector<double*> betas;                            // [track]
     double* scale;
     double* offset;
+    // Adds a residual block whose cost takes whole body blocks (body[track][frame]): the problem holds the body
+    // pose as per-joint blocks (or as latents), and this wraps the cost to take those. A term on body poses must
+    // add its blocks through it; blocks of other groups may be given to problem->AddResidualBlock directly.
+    std::function<ceres::ResidualBlockId(ceres::Problem*, ceres::CostFunction*, std::vector<double*>)> add_block;
   };
   // Adds residual blocks of an extra term (e.g. a learned motion prior) to `problem` with `weight`.
   using TermBuilder = std::function<void(ceres::Problem* problem, const Variables& variables, double weight)>;
