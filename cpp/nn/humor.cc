@@ -1,5 +1,6 @@
 #include "nn/humor.h"
 
+#include <algorithm>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -108,6 +109,18 @@ void HumorPrior::LatentNll(int n, const double* x_prev, const double* z, double*
 void HumorPrior::TransitionNll(int n, const double* x_prev, const double* x_next, double* values,
                                double* grad_prev, double* grad_next) const {
   M3C_CHECK(n >= 0) << "negative sample count";
+  // In chunks: the activations kept for the backward pass grow with the batch (a 600-frame, two-person problem
+  // held ~300 MB of them at once); a few hundred columns already keep the BLAS products efficient.
+  constexpr int kChunk = 256;
+  if (n > kChunk) {
+    for (int first = 0; first < n; first += kChunk) {
+      const size_t at = static_cast<size_t>(first);
+      TransitionNll(std::min(kChunk, n - first), x_prev + at * kStateDim, x_next + at * kStateDim,
+                    values ? values + at : nullptr, grad_prev ? grad_prev + at * kStateDim : nullptr,
+                    grad_next ? grad_next + at * kStateDim : nullptr);
+    }
+    return;
+  }
   if (n == 0) return;
   Eigen::MatrixXd X(2 * kStateDim, n);
   for (int i = 0; i < n; ++i) {
