@@ -9,6 +9,7 @@
 #include "motion/humor_term.h"
 #include "motion/joint_blocks.h"
 #include "motion/vposer_term.h"
+#include "util/blas_threads.h"
 #include "util/check.h"
 
 namespace m3c::motion {
@@ -176,6 +177,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   for (const auto& pose : cameras.world_from_cam) M3C_CHECK(pose.allFinite()) << "world_from_cam contains NaN/Inf";
   M3C_CHECK(std::isfinite(cameras.initial_scale) && cameras.initial_scale > 0)
       << "initial camera scale must be finite and > 0, got " << cameras.initial_scale;
+  const util::ScopedBlasThreads blas_threads(config_.num_threads);  // results independent of the environment
 
   // Validate the tracks and copy their initial values into the parameter storage.
   State state;

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <memory>
 
+#include "util/blas_threads.h"
 #include "util/check.h"
 
 namespace m3c::vo {
@@ -208,7 +209,10 @@ PatchBASummary SolvePatchBA(const PatchBAOptions& options, PatchBAData* data) {
   solver_options.minimizer_progress_to_stdout = false;
 
   ceres::Solver::Summary ceres_summary;
-  ceres::Solve(solver_options, &problem, &ceres_summary);
+  {
+    const util::ScopedBlasThreads blas_threads(solver_options.num_threads);  // SPARSE_SCHUR's CHOLMOD
+    ceres::Solve(solver_options, &problem, &ceres_summary);
+  }
 
   summary.iterations = ceres_summary.num_successful_steps + ceres_summary.num_unsuccessful_steps;
   summary.initial_cost = ceres_summary.initial_cost;

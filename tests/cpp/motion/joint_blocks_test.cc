@@ -1,9 +1,11 @@
 #include "motion/joint_blocks.h"
 
+#include <dlfcn.h>
 #include <gtest/gtest.h>
 
 #include "body/kinematics.h"
 #include "motion/costs.h"
+#include "util/blas_threads.h"
 #include "../body/cost_checks.h"
 
 namespace m3c::motion {
@@ -154,6 +156,21 @@ TEST(JointBlocks, SplitBodyCostEqualsTheWholeBlockCost) {
     }
   }
   EXPECT_TRUE(CheckGradient(split, params));
+}
+
+TEST(BlasThreads, FixedInsideTheScopeAndRestoredAfter) {
+  void* lib = dlopen("libopenblas.so.0", RTLD_LAZY);  // loaded here as the optimizer's CHOLMOD loads it
+  if (lib == nullptr) GTEST_SKIP() << "OpenBLAS is not installed: nothing to fix";
+  const auto get = reinterpret_cast<int (*)()>(dlsym(lib, "openblas_get_num_threads"));
+  const auto set = reinterpret_cast<void (*)(int)>(dlsym(lib, "openblas_set_num_threads"));
+  ASSERT_TRUE(get != nullptr && set != nullptr);
+  set(1);
+  {
+    const util::ScopedBlasThreads scope(2);
+    EXPECT_EQ(get(), 2);
+  }
+  EXPECT_EQ(get(), 1);
+  dlclose(lib);
 }
 
 }  // namespace
