@@ -48,6 +48,7 @@ class FocalSearchConfig:
     width_rise: float = 0.02
     max_image_side: int = 640
     iterations: int = 30
+    multi_start: bool = True
 
     def __post_init__(self):
         for name, least in (("windows", 1), ("window_frames", 3), ("max_keyframes", 3), ("num_coarse", 3),
@@ -111,7 +112,8 @@ def _window_cost(frames: np.ndarray, masks: np.ndarray | None, focal: float, wid
                  config: FocalSearchConfig) -> float:
     """The robust cost of the VO's first bundle adjustment over one window's keyframes at this focal."""
     vo = VOConfig(max_image_side=config.max_image_side, init_frames=config.max_keyframes,
-                  init_min_flow_px=config.keyframe_flow_px, init_iterations=config.iterations, final_iterations=0,
+                  init_min_flow_px=config.keyframe_flow_px, init_iterations=config.iterations,
+                  init_multi_start=config.multi_start, final_iterations=0,
                   window_iterations=1, refine_non_keyframes=False, use_depth=False)
     k = np.array([focal, focal, width / 2.0, height / 2.0])
     result = run_vo(frames, masks=masks, intrinsics=k, config=vo)
@@ -232,11 +234,12 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
     all_costs = np.array([tried[r] for r in ratios])
     best = int(np.argmin(all_costs))
     x = np.log(ratios)
-    near = np.abs(x - x[best]) <= step * 1.01
     at_end = best in (0, len(ratios) - 1)
-    if near.sum() >= 3 and not at_end:
+    if not at_end:
+        # The parabola through the least cost and its two neighbours; its vertex stays between the neighbours.
+        near = slice(best - 1, best + 2)
         vertex, a = _fit_parabola(x[near], all_costs[near])
-        vertex = float(np.clip(vertex, x[near].min(), x[near].max()))
+        vertex = float(np.clip(vertex, x[best - 1], x[best + 1]))
     else:
         vertex, a = float(x[best]), 0.0
     # Uncertainty: the half-width in log(focal) over which the fitted parabola rises by width_rise of the minimum
