@@ -69,7 +69,7 @@ class FocalNode(Node):
         wanted = {i: k for k, (a, b) in enumerate(windows) for i in range(a, b)}
         rows = rows_by_frame(detections) if masks is not None else {}
         clips: list[tuple[list, list]] = [([], []) for _ in windows]
-        with ctx.progress("focal: frames", len(wanted)) as bar:
+        with ctx.progress("frames", len(wanted)) as bar:
             for i, frame in stream_frames(ctx, video):
                 if i in wanted:
                     mask = None if masks is None else people_mask(masks, rows.get(i, []), width, height)
