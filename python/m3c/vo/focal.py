@@ -60,6 +60,8 @@ class FocalSearchConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value) or value <= 0:
                 raise ValueError(f"focal search: {name} must be a finite number > 0, got {value!r}")
+        if not isinstance(self.multi_start, bool):
+            raise TypeError(f"focal search: multi_start must be true or false, got {self.multi_start!r}")
         if not self.low < 1.0 < self.high:
             raise ValueError(f"focal search: need low < 1 < high (units of the default focal), got {self.low} and "
                              f"{self.high}")
@@ -68,9 +70,10 @@ class FocalSearchConfig:
 @dataclass
 class FocalEstimate:
     """focal: the estimate in pixels of the input frames (the default where uninformative); default: the
-    default focal (image diagonal); ratio: focal / default; log_sigma: standard deviation of log(focal) from the
-    cost's curvature at its minimum (inf when flat); informative: the cost located the focal; ratios, costs:
-    every candidate tried (units of the default) and its summed bundle-adjustment cost; message: why."""
+    default focal (image diagonal); ratio: focal / default; log_sigma: the uncertainty of log(focal), the
+    half-width of the cost's minimum where it has risen by FocalSearchConfig.width_rise (inf when it does not
+    bend upwards); informative: the cost located the focal; ratios, costs: every candidate tried (units of the
+    default) and its summed bundle-adjustment cost; windows: the [start, stop) frames searched; message: why."""
     focal: float
     default: float
     log_sigma: float
@@ -83,10 +86,6 @@ class FocalEstimate:
     @property
     def ratio(self) -> float:
         return self.focal / self.default
-
-    def intrinsics(self, width: int, height: int) -> np.ndarray:
-        """(fx, fy, cx, cy): this focal, the principal point at the image centre."""
-        return np.array([self.focal, self.focal, width / 2.0, height / 2.0])
 
     def summary(self) -> dict:
         """JSON-ready: non-finite numbers (log_sigma where flat, the cost of a still window) become None."""
@@ -193,10 +192,13 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
     if not (width > 0 and height > 0):
         raise ValueError(f"image size must be positive, got {width} x {height}")
     default = float(default_intrinsics(width, height)[0])
+    def window_cost(frames, masks, ratio):
+        h, w = frames.shape[1:3]
+        return _window_cost(frames, masks, ratio * float(np.hypot(w, h)), w, h, config)
+
     # A window where the camera stood still (no frame moved the patches by keyframe_flow_px; the same at any
     # focal, the VO decides it before using the focal) has no cost: it is left out.
-    start = [_window_cost(frames, masks, float(np.hypot(*frames.shape[2:0:-1])), *frames.shape[2:0:-1], config)
-             for frames, masks in clips]
+    start = [window_cost(frames, masks, 1.0) for frames, masks in clips]
     moving = [clip for clip, c in zip(clips, start) if math.isfinite(c)]
     if not moving:
         return FocalEstimate(default, default, math.inf, False, np.array([1.0]), np.array([math.nan]), [],
@@ -208,20 +210,17 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
     def cost(ratio: float) -> float:
         key = round(float(ratio), 6)
         if key not in tried:
-            total = 0.0
-            for frames, masks in moving:
-                h, w = frames.shape[1:3]
-                total += _window_cost(frames, masks, key * float(np.hypot(w, h)), w, h, config)
-            tried[key] = total
+            tried[key] = float(sum(window_cost(frames, masks, key) for frames, masks in moving))
             if log:
-                log(f"focal {key:.3f} x default ({key * default:.0f} px): cost {total:.4g}")
+                log(f"focal {key:.3f} x default ({key * default:.0f} px): cost {tried[key]:.4g}")
         return tried[key]
 
     coarse = np.exp(np.linspace(np.log(config.low), np.log(config.high), config.num_coarse))
     costs = np.array([cost(r) for r in coarse])
-    if not np.isfinite(costs).all():
-        raise RuntimeError(f"focal search: the odometry gave no cost at some candidates ({costs}) although it "
-                           "started at the default focal")
+    if not np.isfinite(costs).all():  # not expected (whether the VO starts does not depend on the focal)
+        return FocalEstimate(default, default, math.inf, False, coarse, costs, [],
+                             "focal not observable: the odometry gave no cost at some candidate focal lengths; "
+                             f"keeping the default {default:.0f} px")
     best = int(np.argmin(costs))
     contrast = min(costs[0], costs[-1]) / costs[best] - 1.0 if costs[best] > 0 else 0.0
     step = np.log(coarse[1] / coarse[0])
