@@ -142,3 +142,10 @@ def test_focal_node_keeps_given_intrinsics_and_can_be_switched_off(rng):
         assert out["camera"]["source"] == source and out["camera"]["focal_estimate"] is None
         np.testing.assert_array_equal(out["camera"]["intrinsics"], inputs["camera"]["intrinsics"])
         assert out["body"] is inputs["body"]
+
+
+def test_textureless_video_is_uninformative_not_an_error():
+    frames = np.full((6, H, W), 128, np.uint8)  # nothing for the odometry to track
+    estimate = estimate_focal(frames, config=FocalSearchConfig(**FAST))
+    assert not estimate.informative and estimate.focal == pytest.approx(DIAGONAL)
+    assert "could not run" in estimate.message and "no texture" in estimate.message

@@ -192,19 +192,25 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
     if not (width > 0 and height > 0):
         raise ValueError(f"image size must be positive, got {width} x {height}")
     default = float(default_intrinsics(width, height)[0])
+    failures: list[str] = []
+
     def window_cost(frames, masks, ratio):
         h, w = frames.shape[1:3]
-        return _window_cost(frames, masks, ratio * float(np.hypot(w, h)), w, h, config)
+        try:
+            return _window_cost(frames, masks, ratio * float(np.hypot(w, h)), w, h, config)
+        except ValueError as err:  # the odometry cannot run on this window (no texture outside the masks)
+            failures.append(str(err))
+            return math.nan
 
     # A window where the camera stood still (no frame moved the patches by keyframe_flow_px; the same at any
     # focal, the VO decides it before using the focal) has no cost: it is left out.
     start = [window_cost(frames, masks, 1.0) for frames, masks in clips]
     moving = [clip for clip, c in zip(clips, start) if math.isfinite(c)]
     if not moving:
+        why = (f"the odometry could not run ({failures[0]})" if failures else "the camera did not move enough for "
+               f"the odometry to start in any window ({config.keyframe_flow_px:g} px of image motion)")
         return FocalEstimate(default, default, math.inf, False, np.array([1.0]), np.array([math.nan]), [],
-                             "focal not observable: the camera did not move enough for the odometry to start in any "
-                             f"window ({config.keyframe_flow_px:g} px of image motion); keeping the default "
-                             f"{default:.0f} px")
+                             f"focal not observable: {why}; keeping the default {default:.0f} px")
     tried: dict[float, float] = {1.0: float(sum(c for c in start if math.isfinite(c)))}
 
     def cost(ratio: float) -> float:
