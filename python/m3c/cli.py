@@ -95,6 +95,8 @@ def _pipeline_config(args):
         for name, entry in config.nodes.items():
             if entry.type == "perception":
                 overrides[f"{name}.static_camera"] = True  # contacts from foot speeds in the camera frame
+            if entry.type == "focal":
+                overrides[f"{name}.enabled"] = False  # a still camera's motion cannot tell its focal length
     if getattr(args, "frames", None):
         start, stop, step = args.frames
         overrides.update({"frames.start": start, "frames.stop": stop, "frames.step": step})

@@ -123,7 +123,8 @@ def test_video_with_no_people_given_as_perception_outputs(small_video, tmp_path,
     config["nodes"]["perception"] = {"type": "load", "config": {
         "path": str(folder), "outputs": ["detections", "keypoints", "body", "tracking"]}}
     del config["nodes"]["local_tracks"]["inputs"]["contacts"]
-    del config["nodes"]["vo"]["inputs"]["masks"], config["nodes"]["vo"]["inputs"]["detections"]
+    for node in ("focal", "vo"):  # the nodes that hide people's masks from the odometry
+        del config["nodes"][node]["inputs"]["masks"], config["nodes"][node]["inputs"]["detections"]
     path = tmp_path / "no_people.yaml"
     path.write_text(yaml.safe_dump(config))
     out = tmp_path / "out"

@@ -135,7 +135,8 @@ def test_person_seen_in_two_frames_is_named(small_video, tmp_path, capsys):
     config["nodes"]["perception"] = {"type": "load", "config": {
         "path": str(folder), "outputs": ["detections", "keypoints", "body", "tracking"]}}
     del config["nodes"]["local_tracks"]["inputs"]["contacts"]
-    del config["nodes"]["vo"]["inputs"]["masks"], config["nodes"]["vo"]["inputs"]["detections"]
+    for node in ("focal", "vo"):  # the nodes that hide people's masks from the odometry
+        del config["nodes"][node]["inputs"]["masks"], config["nodes"][node]["inputs"]["detections"]
     path = tmp_path / "two_frames.yaml"
     path.write_text(yaml.safe_dump(config))
     code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config", path,

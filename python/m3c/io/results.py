@@ -58,6 +58,15 @@ def _scale_uncertainty(camera: dict) -> str:
     return f", +-{100 * sigma:.1f}%" if sigma else ""
 
 
+def _focal_uncertainty(camera: dict) -> str:
+    estimate = camera.get("focal_estimate")
+    if not estimate:
+        return ""
+    if not estimate["informative"]:
+        return " (focal search uninformative: default kept)"
+    return f" (focal {estimate['ratio']:.2f} x the image diagonal, log-sigma {estimate['log_sigma']:.3f})"
+
+
 def json_ready(value):
     """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
     (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
@@ -135,7 +144,8 @@ def describe(folder: str | Path) -> str:
              f"({video['frames']} processed)",
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
              f"camera      {'static' if camera['static'] else 'moving'}, intrinsics {camera['intrinsics_source']} "
-             f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}], odometry: {camera['odometry']}, scale "
+             f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
+             f"{camera['odometry']}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
              f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}",
              f"lift        {summary['lift']['method']}; optimization: "

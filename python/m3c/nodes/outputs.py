@@ -143,7 +143,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    "static": bool(cameras["static"]), "odometry": cameras["source"],
                    "scale": float(result["camera_scale"]), "scale_source": scale["source"],
                    # m3c.vo.scale's estimate: value, sigma (standard deviation of log(value)), every observation
-                   "scale_estimate": json_ready(scale)},
+                   "scale_estimate": json_ready(scale),
+                   # m3c.vo.focal's search when the focal node ran one: focal, log_sigma, informative, costs
+                   "focal_estimate": json_ready(camera.get("focal_estimate"))},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"], "windows": result.get("windows", [])},
@@ -157,7 +159,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 
 @register_node
 class ResultsNode(Node):
-    version = "2"  # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale
+    # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate
+    version = "3"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")

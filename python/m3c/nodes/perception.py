@@ -16,7 +16,7 @@ import numpy as np
 
 from m3c.nodes import adapters
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.records import encode_packed_masks, mask_in_region, table_length
+from m3c.nodes.records import encode_packed_masks, people_mask, rows_by_frame, table_length
 from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, register_node
 from m3c.vo.scale import MAX_WANDER, MIN_BASELINE, translation_baseline, turns_in_place
 
@@ -524,10 +524,7 @@ class VisualOdometryNode(AdapterNode):
         if (masks is None) != (detections is None):
             raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
                                 "odometry) or neither")
-        rows_of_frame: dict[int, list[int]] = {}
-        if masks is not None:
-            for n, frame in enumerate(np.asarray(detections["frame"])):
-                rows_of_frame.setdefault(int(frame), []).append(n)
+        rows_of_frame = rows_by_frame(detections) if masks is not None else {}
         depth = inputs["depth"]
         maps = depth.get("depth") if depth is not None and depth.get("available") else None
         height, width = int(video["height"]), int(video["width"])
@@ -541,11 +538,7 @@ class VisualOdometryNode(AdapterNode):
                             front_end=front_end)
         with ctx.progress("camera", int(video["num_frames"])) as bar:
             for i, frame in stream_frames(ctx, video):
-                mask = None
-                if masks is not None:
-                    mask = np.zeros((height, width), dtype=bool)
-                    for n in rows_of_frame.get(i, ()):
-                        mask |= mask_in_region(masks, n, (0, 0, width, height))
+                mask = None if masks is None else people_mask(masks, rows_of_frame.get(i, []), width, height)
                 frame_depth = None
                 if maps is not None:
                     import cv2

@@ -81,6 +81,22 @@ def mask_in_region(masks: dict, n: int, region: tuple[int, int, int, int]) -> np
     return out
 
 
+
+def rows_by_frame(detections: dict) -> dict[int, list[int]]:
+    """frame index -> the detection rows in that frame."""
+    rows: dict[int, list[int]] = {}
+    for n, frame in enumerate(np.asarray(detections["frame"])):
+        rows.setdefault(int(frame), []).append(n)
+    return rows
+
+
+def people_mask(masks: dict, rows: list[int], width: int, height: int) -> np.ndarray:
+    """bool (height, width): the union of the masks of detection rows `rows` (everyone seen in one frame)."""
+    mask = np.zeros((height, width), dtype=bool)
+    for n in rows:
+        mask |= mask_in_region(masks, n, (0, 0, width, height))
+    return mask
+
 # Patches ----------------------------------------------------------------------------------------------------
 def encode_images(images: list[np.ndarray], quality: int) -> dict:
     """BGR uint8 images -> {"jpeg": uint8 buffer, "offsets": (N + 1,) int64}."""

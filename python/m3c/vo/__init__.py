@@ -10,8 +10,10 @@ and optional depth maps (initialise patch inverse depth).
     result.points                                         # (M, 3) the final map, VO units
     plane = map_ground_plane(result.points, result.world_from_cam, up)    # the ground among the map points
     scale = scale_from_camera_height(contacts_in_camera, result.world_from_cam, plane[:2])  # metres per VO unit
+    focal = estimate_focal(frames, masks)                 # the focal length of a camera that turns (m3c.vo.focal)
 """
 
+from m3c.vo.focal import FocalEstimate, FocalSearchConfig, estimate_focal
 from m3c.vo.metrics import absolute_trajectory_error, path_length, relative_ate, umeyama_sim3
 from m3c.vo.odometry import VisualOdometry, VOConfig, VOResult, default_intrinsics, run_vo
 from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
@@ -21,4 +23,5 @@ from m3c.vo.video import iter_video_frames, read_video, run_vo_video, video_info
 __all__ = ["VOConfig", "VOResult", "VisualOdometry", "run_vo", "run_vo_video", "read_video",
            "iter_video_frames", "video_info", "default_intrinsics", "absolute_trajectory_error",
            "relative_ate", "path_length", "umeyama_sim3", "ScaleEstimate", "ScaleObservation", "fuse",
-           "map_ground_plane", "scale_from_camera_height", "scale_from_depth", "scale_from_planted_feet"]
+           "map_ground_plane", "scale_from_camera_height", "scale_from_depth", "scale_from_planted_feet",
+           "estimate_focal", "FocalEstimate", "FocalSearchConfig"]

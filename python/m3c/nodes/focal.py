@@ -1,0 +1,98 @@
+"""The focal length of a camera nobody calibrated, found from the camera's own motion (m3c.vo.focal)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from m3c.nodes.frames import stream_frames
+from m3c.nodes.records import people_mask, rows_by_frame
+from m3c.pipeline import InputError, Node, PipelineError, register_node
+
+
+@register_node
+class FocalNode(Node):
+    """Estimates the focal length when the camera node has only its default (no --intrinsics), by the search of
+    m3c.vo.focal: the patch odometry's first bundle adjustment over windows of frames (people's masks hidden
+    from it, as in the vo node) at candidate focal lengths; the least cost wins. A camera that only translates or
+    stands still leaves the cost flat: the default is kept and the log says so.
+
+    It runs after perception because the odometry needs the people's masks, and perception fitted the bodies at
+    the camera node's focal: a body's camera-local depth scales with the focal (its root keeps its pixel when x, y
+    stay and z is multiplied by f_new / f_old), so the body output is the perception's with transl re-expressed
+    at the estimated focal (a weak-perspective crop_cam needs nothing: local_tracks converts it with this camera).
+
+    Output camera: intrinsics (4,), source ("given", "default" or "estimated"), focal_estimate (the search's
+    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output body: the body table.
+    Config: enabled (false: pass the camera node's intrinsics through), search: m3c.vo.focal.FocalSearchConfig
+    settings."""
+
+    type_name = "focal"
+    level = "patch"
+    inputs = ("video", "camera", "masks", "detections", "body")
+    optional_inputs = ("masks", "detections", "body")
+    outputs = ("camera", "body")
+
+    @dataclass
+    class Config:
+        enabled: bool = True
+        search: dict[str, Any] = field(default_factory=dict)
+
+    def _search_config(self):
+        from m3c.vo.focal import FocalSearchConfig
+
+        try:
+            return FocalSearchConfig(**self.config.search)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"node {self.name!r}: bad setting in focal.search ({err}); settings are "
+                             "m3c.vo.focal.FocalSearchConfig fields") from None
+
+    def check(self, ctx) -> None:
+        self._search_config()
+
+    def run(self, ctx, inputs):
+        from m3c.vo.focal import estimate_focal_windows, focal_windows, reduce_frame
+
+        camera, body = dict(inputs["camera"]), inputs["body"]
+        camera["focal_estimate"] = None
+        if camera.get("source") != "default" or not self.config.enabled:
+            return {"camera": camera, "body": body}
+        video, masks, detections = inputs["video"], inputs["masks"], inputs["detections"]
+        if (masks is None) != (detections is None):
+            raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
+                                "odometry) or neither")
+        config = self._search_config()
+        T, width, height = int(video["num_frames"]), int(video["width"]), int(video["height"])
+        windows = focal_windows(T, config)
+        wanted = {i: k for k, (a, b) in enumerate(windows) for i in range(a, b)}
+        rows = rows_by_frame(detections) if masks is not None else {}
+        clips: list[tuple[list, list]] = [([], []) for _ in windows]
+        with ctx.progress("frames", len(wanted)) as bar:
+            for i, frame in stream_frames(ctx, video):
+                if i in wanted:
+                    mask = None if masks is None else people_mask(masks, rows.get(i, []), width, height)
+                    gray, small = reduce_frame(frame, mask, config.max_image_side)
+                    clips[wanted[i]][0].append(gray)
+                    clips[wanted[i]][1].append(small)
+                    bar.update()
+                if i >= windows[-1][1] - 1:
+                    break
+        clips = [(np.stack(f), None if masks is None else np.stack(m)) for f, m in clips]
+        estimate = estimate_focal_windows(clips, width, height, config, log=ctx.log.debug)
+        estimate.windows = windows
+        ctx.log.info("focal search over frames %s: %s", ", ".join(f"{a}..{b - 1}" for a, b in windows),
+                     estimate.message)
+        camera["focal_estimate"] = estimate.summary()
+        if not estimate.informative:
+            return {"camera": camera, "body": body}
+        old = np.asarray(camera["intrinsics"], dtype=np.float64)
+        camera["intrinsics"] = np.array([estimate.focal, estimate.focal, old[2], old[3]])
+        camera["source"] = "estimated"
+        if body is not None and "transl" in body:
+            body = dict(body)
+            transl = np.array(body["transl"], dtype=np.float64)
+            transl[:, 2] *= estimate.focal / float(np.mean(old[:2]))  # the depth that keeps each root's pixel
+            body["transl"] = transl
+        return {"camera": camera, "body": body}

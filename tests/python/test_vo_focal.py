@@ -1,0 +1,151 @@
+"""The focal length from the camera's motion (m3c.vo.focal, the focal node): a turning camera rendered at a known
+focal length is found within a few percent; a camera that only translates is reported as uninformative (the
+focal is unobservable then); bad input gets a clear error; the node re-expresses the bodies at the estimate."""
+
+import logging
+
+import numpy as np
+import pytest
+
+from m3c.io.video import VideoWriter
+from m3c.nodes.focal import FocalNode
+from m3c.pipeline import InputError
+from m3c.pipeline.progress import Progress
+from m3c.vo.focal import FocalSearchConfig, estimate_focal, focal_windows
+from m3c.vo.synthetic import RoomRenderer, look_rotation
+
+W, H = 192, 144
+DIAGONAL = float(np.hypot(W, H))
+# Small and fast: one window, a coarse grid of 5 candidates and 2 refinements.
+FAST = {"windows": 1, "num_coarse": 5, "num_refine": 2, "keyframe_flow_px": 4.0}
+
+
+def _room_frames(ratio: float, motion: str, T: int = 30) -> np.ndarray:
+    """Gray frames of the textured room seen by a camera of focal `ratio` x the image diagonal that turns by
+    34 degrees while moving a little ("turn") or slides sideways without turning ("translate")."""
+    f = ratio * DIAGONAL
+    renderer = RoomRenderer(W, H, np.array([f, f, W / 2, H / 2]), supersample=1, seed=0)
+    frames = []
+    for i in range(T):
+        s = i / (T - 1)
+        pose = np.eye(4)
+        if motion == "turn":
+            pose[:3, :3] = look_rotation(0.6 * s - 0.3, 0.1 * np.sin(3 * s), 0.0)
+            pose[:3, 3] = [0.2 * s, 0.0, 0.3 * s]
+        else:
+            pose[:3, 3] = [s - 0.5, 0.05 * s, 0.3 * s]
+        frames.append(renderer.render(pose)[0])
+    return np.array(frames)
+
+
+def test_turning_camera_focal_is_recovered():
+    ratio = 1.3  # longer than the default (the node's test below renders a shorter one, 0.7)
+    estimate = estimate_focal(_room_frames(ratio, "turn"), config=FocalSearchConfig(**FAST))
+    assert estimate.informative, estimate.message
+    assert estimate.default == pytest.approx(DIAGONAL)
+    # Within 5% of the rendering's focal, and the truth within 2 reported widths of the estimate.
+    assert estimate.focal == pytest.approx(ratio * DIAGONAL, rel=0.05)
+    assert 0 < estimate.log_sigma < 0.25
+    assert abs(np.log(estimate.ratio / ratio)) < 2 * estimate.log_sigma
+    # The cost it minimised is lowest at the estimate's candidate and higher at the default.
+    best = estimate.ratios[np.argmin(estimate.costs)]
+    assert abs(np.log(best / ratio)) < 0.15
+    assert estimate.costs[np.argmin(np.abs(estimate.ratios - 1.0))] > 1.1 * estimate.costs.min()
+
+
+def test_translating_camera_is_uninformative():
+    estimate = estimate_focal(_room_frames(0.8, "translate"), config=FocalSearchConfig(**FAST))
+    assert not estimate.informative
+    assert estimate.focal == estimate.default == pytest.approx(DIAGONAL)
+    assert "not observable" in estimate.message and "flat" in estimate.message
+    assert np.ptp(estimate.costs) < 0.1 * estimate.costs.min()  # the cost barely changes with the focal
+
+
+def test_still_camera_is_uninformative():
+    frames = np.repeat(_room_frames(1.0, "turn", T=3)[:1], 12, axis=0)
+    estimate = estimate_focal(frames, config=FocalSearchConfig(**FAST))
+    assert not estimate.informative and estimate.focal == pytest.approx(DIAGONAL)
+    assert "did not move" in estimate.message
+
+
+def test_bad_input_is_named():
+    frames = _room_frames(1.0, "turn", T=4)
+    with pytest.raises(ValueError, match="at least 3 frames"):
+        estimate_focal(frames[:2])
+    with pytest.raises(ValueError, match="uint8"):
+        estimate_focal(np.full(frames.shape, np.nan))
+    with pytest.raises(ValueError, match="masks must be"):
+        estimate_focal(frames, masks=np.zeros((4, 10, 10), bool))
+    with pytest.raises(ValueError, match="low < 1 < high"):
+        FocalSearchConfig(low=1.2)
+    with pytest.raises(ValueError, match="num_coarse"):
+        FocalSearchConfig(num_coarse=2)
+    with pytest.raises(InputError, match="focal.search"):
+        FocalNode("focal", FocalNode.Config(search={"windows": 0})).check(None)
+
+
+def test_windows_spread_over_the_video():
+    config = FocalSearchConfig(windows=3, window_frames=40)
+    assert focal_windows(150, config) == [(0, 40), (55, 95), (110, 150)]
+    assert focal_windows(70, config) == [(0, 40)]  # room for one window only
+    assert focal_windows(20, config) == [(0, 20)]
+
+
+class _Context:
+    def __init__(self, video_path):
+        self.log = logging.getLogger("test")
+        self._video = str(video_path)
+
+    def source(self, name):
+        return self._video
+
+    def progress(self, desc, total):
+        return Progress(desc, total, self.log, enabled=False)
+
+
+def _node_inputs(source, rng, n=5):
+    transl = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(-0.5, 0.5, n), rng.uniform(3, 8, n)])
+    return {"video": {"num_frames": 30, "width": W, "height": H, "frame_ids": np.arange(30), "start": 0,
+                      "stop": 30, "step": 1},
+            "camera": {"intrinsics": np.array([DIAGONAL, DIAGONAL, W / 2, H / 2]), "source": source},
+            "masks": None, "detections": None,
+            "body": {"pose": np.zeros((n, 24, 3)), "betas": np.zeros((n, 10)), "transl": transl}}
+
+
+def test_focal_node_estimates_and_moves_the_bodies(tmp_path, rng):
+    path = tmp_path / "turn.mp4"
+    with VideoWriter(path, 30.0, (W, H)) as writer:
+        for gray in _room_frames(0.7, "turn"):
+            writer.write(np.repeat(gray[..., None], 3, axis=2))
+    inputs = _node_inputs("default", rng)
+    out = FocalNode("focal", FocalNode.Config(search=FAST)).run(_Context(path), inputs)
+    camera, body = out["camera"], out["body"]
+    assert camera["source"] == "estimated" and camera["focal_estimate"]["informative"]
+    new = camera["intrinsics"]
+    assert new[0] == pytest.approx(0.7 * DIAGONAL, rel=0.06) and new[0] == new[1]
+    np.testing.assert_allclose(new[2:], [W / 2, H / 2])
+    # Every body root keeps its pixel: projected at the estimate as it was at the default.
+    old = inputs["camera"]["intrinsics"]
+
+    def pixels(k, x):
+        return np.column_stack([k[0] * x[:, 0] / x[:, 2] + k[2], k[1] * x[:, 1] / x[:, 2] + k[3]])
+
+    np.testing.assert_allclose(pixels(new, body["transl"]), pixels(old, inputs["body"]["transl"]), atol=1e-9)
+    np.testing.assert_allclose(body["transl"][:, 2] / inputs["body"]["transl"][:, 2], new[0] / old[0])
+    assert body["pose"] is inputs["body"]["pose"]
+
+
+def test_focal_node_keeps_given_intrinsics_and_can_be_switched_off(rng):
+    for source, config in (("given", FocalNode.Config()), ("default", FocalNode.Config(enabled=False))):
+        inputs = _node_inputs(source, rng)
+        out = FocalNode("focal", config).run(None, inputs)  # reads no frames
+        assert out["camera"]["source"] == source and out["camera"]["focal_estimate"] is None
+        np.testing.assert_array_equal(out["camera"]["intrinsics"], inputs["camera"]["intrinsics"])
+        assert out["body"] is inputs["body"]
+
+
+def test_textureless_video_is_uninformative_not_an_error():
+    frames = np.full((6, H, W), 128, np.uint8)  # nothing for the odometry to track
+    estimate = estimate_focal(frames, config=FocalSearchConfig(**FAST))
+    assert not estimate.informative and estimate.focal == pytest.approx(DIAGONAL)
+    assert "could not run" in estimate.message and "no texture" in estimate.message
