@@ -12,7 +12,7 @@ check equals the C++ one. Stages before the first motion-prior stage are shared 
 Both sides use 2 threads.
 
     python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor] [--no-torch]
-    python bench/motion_optimizer.py --torch-limit-max 120     # the report's run (~40 min on 2 cores)
+    python bench/motion_optimizer.py --torch-limit-max 300     # the README's run (~10 min on 2 cores)
     python bench/motion_optimizer.py --frames 20 --max-iterations 3 --humor-iterations 2 \
         --torch-limit-max 2 --torch-limit-min 1                 # quick: ~1 min
 
