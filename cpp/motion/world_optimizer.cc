@@ -4,6 +4,7 @@
 #include <cmath>
 #include <sstream>
 #include <unordered_map>
+#include <unordered_set>
 
 #include "body/kinematics.h"
 #include "motion/humor_term.h"
@@ -258,10 +259,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   // it; else (the pose constant, or only evaluated: the world check) the whole pose block. Set per problem before
   // its blocks are added.
   bool split_body = false;
-  std::unordered_map<const double*, std::pair<int, int>> body_frame;  // whole body block -> (track, frame)
-  for (size_t i = 0; i < tracks.size(); ++i) {
-    for (size_t f = 0; f < vars.body[i].size(); ++f) body_frame[vars.body[i][f]] = {static_cast<int>(i), static_cast<int>(f)};
-  }
+  std::unordered_set<const double*> body_blocks;  // the whole body blocks
+  for (const auto& track : vars.body) body_blocks.insert(track.begin(), track.end());
   // Adds a residual block whose cost takes whole body blocks (vars.body): with latent poses it is wrapped to
   // take the latents instead, with split_body to take the per-joint blocks.
   auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
@@ -274,14 +273,14 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         slots.push_back(static_cast<int>(k));
         frames.push_back(it->second);
         blocks[k] = decoder->latent(it->second);
-      } else if (split_body && body_frame.count(blocks[k])) {
+      } else if (split_body && body_blocks.count(blocks[k])) {
         slots.push_back(static_cast<int>(k));
       }
     }
     if (slots.empty()) return problem->AddResidualBlock(cost, nullptr, blocks);
     if (decoder) return problem->AddResidualBlock(new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames)), nullptr, blocks);
     for (size_t k = 0; k < blocks.size(); ++k) {
-      if (!body_frame.count(blocks[k])) {
+      if (!body_blocks.count(blocks[k])) {
         split.push_back(blocks[k]);
         continue;
       }
@@ -300,6 +299,20 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       joint_frame[i].push_back(shared_joints.AddFrame(vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]));
     }
   }
+  // A JointStencilCost over frames first..first+len(stencil)-1 of track i, on the per-joint blocks.
+  auto add_joint_stencil = [&](ceres::Problem* problem, size_t i, int first, const std::vector<double>& stencil,
+                               std::vector<int> joints, std::vector<double> weights) {
+    const int F = static_cast<int>(stencil.size());
+    auto* cost = new JointStencilCost(&shared_joints, {joint_frame[i].begin() + first, joint_frame[i].begin() + first + F},
+                                      stencil, std::move(joints), std::move(weights));
+    std::vector<double*> blocks;
+    for (int g = first; g < first + F; ++g) {
+      blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
+      for (int a : cost->ancestors()) blocks.push_back(vars.body[i][g] + 3 * (a - 1));
+    }
+    blocks.push_back(vars.betas[i]);
+    problem->AddResidualBlock(cost, nullptr, blocks);
+  };
   vars.scale = &state.scale;
   vars.offset = state.offset.data();
   groups[vars.scale] = Group::kScale;
@@ -375,17 +388,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                                                                        : std::vector<double>{1.0, -2.0, 1.0};
         const int F = static_cast<int>(stencil.size());
         for (int f = 0; split_body && f + F <= n; ++f) {  // a residual block per chain, on the shared joints
-          const std::vector<int> frames(joint_frame[i].begin() + f, joint_frame[i].begin() + f + F);
           for (const std::vector<int>& chain : shared_joints.Chains()) {
-            auto* cost = new JointStencilCost(&shared_joints, frames, stencil, chain,
-                                              std::vector<double>(chain.size(), weight));
-            std::vector<double*> blocks;
-            for (int g = f; g < f + F; ++g) {
-              blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
-              for (int a : cost->ancestors()) blocks.push_back(vars.body[i][g] + 3 * (a - 1));
-            }
-            blocks.push_back(vars.betas[i]);
-            problem->AddResidualBlock(cost, nullptr, blocks);
+            add_joint_stencil(problem, i, f, stencil, chain, std::vector<double>(chain.size(), weight));
           }
         }
         for (int f = 0; !split_body && f + F <= n; ++f) {  // whole pose blocks (or latents: every joint moves with them)
@@ -401,16 +405,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           if (w.empty()) continue;
           if (split_body && !contact_joints.empty()) {  // a residual block per planted joint, on the shared joints
             for (size_t c = 0; c < w.size(); ++c) {
-              if (w[c] <= 0) continue;
-              auto* cost = new JointStencilCost(&shared_joints, {joint_frame[i][f], joint_frame[i][f + 1]}, {-1.0, 1.0},
-                                                {contact_joints[c]}, {w[c]});
-              std::vector<double*> blocks;
-              for (int g = f; g <= f + 1; ++g) {
-                blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
-                for (int a : cost->ancestors()) blocks.push_back(vars.body[i][g] + 3 * (a - 1));
-              }
-              blocks.push_back(vars.betas[i]);
-              problem->AddResidualBlock(cost, nullptr, blocks);
+              if (w[c] > 0) add_joint_stencil(problem, i, f, {-1.0, 1.0}, {contact_joints[c]}, {w[c]});
             }
             continue;
           }
