@@ -507,15 +507,34 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
     return cost;
   };
-  // The cost of one term's residual blocks within a stage's problem (its own levels and weights).
-  auto blocks_cost = [&](ceres::Problem* problem, const std::vector<ceres::ResidualBlockId>& ids) {
-    if (ids.empty()) return 0.0;  // an empty list would mean every block to Ceres
-    double cost = 0.0;
+  // The cost of each term's residual blocks within a stage's problem (its own levels and weights) and their sum,
+  // from one evaluation of the residuals: a block without a loss function costs half its squared norm. (A term
+  // at a time, the reports cost two evaluations per term and stage.)
+  auto terms_cost = [&](ceres::Problem* problem, const std::vector<std::vector<ceres::ResidualBlockId>>& terms,
+                        double* total) {
+    std::vector<double> costs(terms.size(), 0.0);
     ceres::Problem::EvaluateOptions options;
     options.num_threads = config_.num_threads;
-    options.residual_blocks = ids;
-    if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
-    return cost;
+    for (const auto& ids : terms) options.residual_blocks.insert(options.residual_blocks.end(), ids.begin(), ids.end());
+    *total = 0.0;
+    if (options.residual_blocks.empty()) return costs;  // an empty list would mean every block to Ceres
+    std::vector<double> residuals;
+    if (!problem->Evaluate(options, total, &residuals, nullptr, nullptr)) {
+      *total = std::nan("");
+      return std::vector<double>(terms.size(), std::nan(""));
+    }
+    size_t at = 0;
+    for (size_t k = 0; k < terms.size(); ++k) {
+      for (const ceres::ResidualBlockId id : terms[k]) {
+        M3C_CHECK(problem->GetLossFunctionForResidualBlock(id) == nullptr)
+            << "a residual block of the stage's term " << k + 1 << " has a Ceres loss function; the optimizer's "
+            << "terms put robustness into their residuals instead (as ReprojectionCost does)";
+        const int n = problem->GetCostFunctionForResidualBlock(id)->num_residuals();
+        for (int r = 0; r < n; ++r) costs[k] += 0.5 * residuals[at + r] * residuals[at + r];
+        at += n;
+      }
+    }
+    return costs;
   };
 
   // The world check: every term of config_.world_check over all people and frames, built once over the state's
@@ -587,8 +606,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
     const State checkpoint = state;
     report.world_before = world_now;
-    report.objective_before = cost_of(&problem);
-    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = blocks_cost(&problem, term_blocks[k]);
+    std::vector<double> term_costs = terms_cost(&problem, term_blocks, &report.objective_before);
+    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = term_costs[k];
 
     ceres::Solver::Options options;
     options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
@@ -631,7 +650,9 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       report.status = "ok";
     }
     world_now = report.world_after;
-    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].after = blocks_cost(&problem, term_blocks[k]);
+    double unused_total;
+    term_costs = terms_cost(&problem, term_blocks, &unused_total);
+    for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].after = term_costs[k];
     report.scale = state.scale;
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     result.stages.push_back(report);

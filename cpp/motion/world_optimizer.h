@@ -123,7 +123,9 @@ class WorldOptimizer {
     // add its blocks through it; blocks of other groups may be given to problem->AddResidualBlock directly.
     std::function<ceres::ResidualBlockId(ceres::Problem*, ceres::CostFunction*, std::vector<double*>)> add_block;
   };
-  // Adds residual blocks of an extra term (e.g. a learned motion prior) to `problem` with `weight`.
+  // Adds residual blocks of an extra term (e.g. a learned motion prior) to `problem` with `weight`, without Ceres
+  // loss functions (a stage reports each term's cost as half its squared residuals; a robust term puts its
+  // robustness into the residual, as ReprojectionCost does).
   using TermBuilder = std::function<void(ceres::Problem* problem, const Variables& variables, double weight)>;
 
   WorldOptimizer(const body::BodyModel* model, const body::KeypointRegressor* keypoint_regressor,
