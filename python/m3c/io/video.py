@@ -38,6 +38,16 @@ def open_capture(path: str | Path):
     return cap
 
 
+def default_intrinsics(width: int, height: int) -> np.ndarray:
+    """(fx, fy, cx, cy) of a camera nobody calibrated: focal length sqrt(W^2 + H^2) pixels (a ~53 degree diagonal
+    field of view, typical of phones, WHAM's choice and the synthetic scenes'), principal point at the centre. The
+    one definition: the frames node, the odometry and perception use it."""
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
+    focal = float(np.hypot(width, height))
+    return np.array([focal, focal, width / 2.0, height / 2.0])
+
+
 @dataclass(frozen=True)
 class VideoInfo:
     path: str

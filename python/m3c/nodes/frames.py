@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m3c.io.video import VideoError, frame_rate, frame_times, iter_frames, probe_video
+from m3c.io.video import VideoError, default_intrinsics, frame_rate, frame_times, iter_frames, probe_video
 from m3c.pipeline import InputError, Node, register_node
 
 
@@ -112,13 +112,6 @@ def stream_frames(ctx, video: dict) -> Iterator[tuple[int, np.ndarray]]:
         if frame_id != ids[i]:
             raise InputError(f"video frames changed while reading: expected frame {ids[i]}, got {frame_id}")
         yield i, frame
-
-
-def default_intrinsics(width: int, height: int) -> np.ndarray:
-    """(fx, fy, cx, cy) when the camera is unknown: focal length sqrt(W^2 + H^2) pixels (a ~53 degree
-    diagonal field of view, WHAM's choice) and the principal point at the image centre."""
-    focal = float(np.hypot(width, height))
-    return np.array([focal, focal, width / 2.0, height / 2.0])
 
 
 # Focal lengths of real cameras in units of the image diagonal: 0.2 is a ~136 degree diagonal field of view

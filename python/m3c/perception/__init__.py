@@ -6,6 +6,7 @@ per-frame body fit (cpp/fit) for camera-local bodies; a SORT/DeepSORT-style trac
 cues; kinematic contacts; neutral gender; no depth.
 """
 
+from m3c.io.video import default_intrinsics
 from m3c.perception.appearance import appearance_descriptor, bhattacharyya_distance
 from m3c.perception.body import BodyFitConfig, BodyFits, fit_bodies, rough_location
 from m3c.perception.boxes import crop, iou, iou_matrix, isolate, process_box
@@ -17,7 +18,7 @@ from m3c.perception.pipeline import (EstimatorSpec, PerceptionConfig, Perception
 from m3c.perception.registry import available, create, register
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person
-from m3c.perception.video import default_intrinsics, read_frames, video_info
+from m3c.perception.video import read_frames, video_info
 
 __all__ = ["TASKS", "BodyEstimator", "BodyFitConfig", "BodyFits", "ContactEstimator", "DepthEstimator", "Detector",
            "EstimatorSpec", "FrameContext", "GenderEstimator", "KinematicContactConfig", "Observation",

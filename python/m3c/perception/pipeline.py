@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.io import atomic_path, save_npz_atomic
+from m3c.io.video import default_intrinsics
 from m3c.perception.appearance import appearance_descriptor
 from m3c.perception.body import BodyFits, rough_location
 from m3c.perception.contacts import contact_rest_heights
@@ -26,7 +27,7 @@ from m3c.perception.registry import create
 from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person, pack_mask
-from m3c.perception.video import default_intrinsics, read_frames, video_info
+from m3c.perception.video import read_frames, video_info
 
 DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
                       "contacts": "kinematic", "depth": "none", "gender": "neutral"}

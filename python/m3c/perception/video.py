@@ -59,12 +59,3 @@ def read_frames(path: str | Path, max_frames: int | None = None) -> Iterator[tup
             index += 1
     finally:
         capture.release()
-
-
-def default_intrinsics(width: int, height: int) -> np.ndarray:
-    """fx, fy, cx, cy of an unknown camera: focal length = the image diagonal in pixels (a 53 degree diagonal
-    field of view, typical of phones and the value the synthetic scenes use), principal point at the centre."""
-    if width <= 0 or height <= 0:
-        raise ValueError(f"image size must be positive, got {width} x {height}")
-    f = float(np.hypot(width, height))
-    return np.array([f, f, width / 2.0, height / 2.0])

@@ -13,9 +13,10 @@ and optional depth maps (initialise patch inverse depth).
     focal = estimate_focal(frames, masks)                 # the focal length of a camera that turns (m3c.vo.focal)
 """
 
+from m3c.io.video import default_intrinsics
 from m3c.vo.focal import FocalEstimate, FocalSearchConfig, estimate_focal
 from m3c.vo.metrics import absolute_trajectory_error, path_length, relative_ate, umeyama_sim3
-from m3c.vo.odometry import VisualOdometry, VOConfig, VOResult, default_intrinsics, run_vo
+from m3c.vo.odometry import VisualOdometry, VOConfig, VOResult, run_vo
 from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
                           scale_from_depth, scale_from_planted_feet)
 from m3c.vo.video import iter_video_frames, read_video, run_vo_video, video_info

@@ -20,7 +20,8 @@ from numbers import Integral, Real
 
 import numpy as np
 
-from m3c.vo.odometry import VOConfig, default_intrinsics, run_vo
+from m3c.io.video import default_intrinsics
+from m3c.vo.odometry import VOConfig, run_vo
 
 
 @dataclass

@@ -11,12 +11,6 @@ import numpy as np
 from m3c import _core
 
 
-def default_intrinsics(width: int, height: int) -> np.ndarray:
-    """(fx, fy, cx, cy) used when the camera is unknown, as WHAM: f = sqrt(W^2 + H^2), centre (W/2, H/2)."""
-    f = float(np.hypot(width, height))
-    return np.array([f, f, width / 2.0, height / 2.0])
-
-
 @dataclass
 class VOConfig:
     """Patch VO settings (pixel quantities at the processing resolution, longer side <= max_image_side).
