@@ -62,7 +62,8 @@ void BindMotion(py::module_& m) {
       .def_readwrite("intrinsics", &CameraInput::intrinsics)
       .def_readwrite("static_camera", &CameraInput::static_camera)
       .def_readwrite("initial_scale", &CameraInput::initial_scale)
-      .def_readwrite("scale_sigma", &CameraInput::scale_sigma);
+      .def_readwrite("scale_sigma", &CameraInput::scale_sigma)
+      .def_readwrite("times", &CameraInput::times);
 
   py::class_<TermCost>(m, "TermCost")
       .def_readonly("term", &TermCost::term)

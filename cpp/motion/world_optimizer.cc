@@ -1,5 +1,6 @@
 #include "motion/world_optimizer.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -178,6 +179,12 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   for (const auto& pose : cameras.world_from_cam) M3C_CHECK(pose.allFinite()) << "world_from_cam contains NaN/Inf";
   M3C_CHECK(std::isfinite(cameras.initial_scale) && cameras.initial_scale > 0)
       << "initial camera scale must be finite and > 0, got " << cameras.initial_scale;
+  M3C_CHECK(cameras.times.empty() || static_cast<int>(cameras.times.size()) == T)
+      << "times must be empty or have one value per camera frame (" << T << "), got " << cameras.times.size();
+  for (size_t t = 0; t < cameras.times.size(); ++t) {
+    M3C_CHECK(std::isfinite(cameras.times[t]) && (t == 0 || cameras.times[t] > cameras.times[t - 1]))
+        << "frame times must be finite and increasing (frame " << t << ")";
+  }
   const util::ScopedBlasThreads blas_threads(config_.num_threads);  // results independent of the environment
 
   // Validate the tracks and copy their initial values into the parameter storage.
@@ -299,6 +306,23 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       joint_frame[i].push_back(shared_joints.AddFrame(vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]));
     }
   }
+  // The finite-difference stencil of a velocity (order 1: frames t, t+1) or acceleration (order 2: t..t+2) in
+  // units of the median frame step: -1, 1 and 1, -2, 1 for equally spaced frames, else the differences at the
+  // frames' times (CameraInput::times), so that a motion across a longer step is not smoothed as a faster one.
+  double median_step = 0.0;
+  if (!cameras.times.empty() && T > 1) {
+    std::vector<double> steps(T - 1);
+    for (int t = 0; t + 1 < T; ++t) steps[t] = cameras.times[t + 1] - cameras.times[t];
+    std::nth_element(steps.begin(), steps.begin() + steps.size() / 2, steps.end());
+    median_step = steps[steps.size() / 2];
+  }
+  auto stencil_at = [&](int t, int order) -> std::vector<double> {
+    if (median_step <= 0.0) return order == 1 ? std::vector<double>{-1.0, 1.0} : std::vector<double>{1.0, -2.0, 1.0};
+    const double h = median_step, d1 = (cameras.times[t + 1] - cameras.times[t]) / h;
+    if (order == 1) return {-1.0 / d1, 1.0 / d1};
+    const double d2 = (cameras.times[t + 2] - cameras.times[t + 1]) / h;
+    return {2.0 / (d1 * (d1 + d2)), -2.0 / (d1 * d2), 2.0 / (d2 * (d1 + d2))};
+  };
   // A JointStencilCost over frames first..first+len(stencil)-1 of track i, on the per-joint blocks.
   auto add_joint_stencil = [&](ceres::Problem* problem, size_t i, int first, const std::vector<double>& stencil,
                                std::vector<int> joints, std::vector<double> weights) {
@@ -384,10 +408,9 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           }
         }
       } else if (term == "joint_smoothness" || term == "joint_acceleration") {
-        const std::vector<double> stencil = term == "joint_smoothness" ? std::vector<double>{-1.0, 1.0}
-                                                                       : std::vector<double>{1.0, -2.0, 1.0};
-        const int F = static_cast<int>(stencil.size());
+        const int order = term == "joint_smoothness" ? 1 : 2, F = order + 1;
         for (int f = 0; split_body && f + F <= n; ++f) {  // a residual block per chain, on the shared joints
+          const std::vector<double> stencil = stencil_at(tr.first_frame + f, order);
           for (const std::vector<int>& chain : shared_joints.Chains()) {
             add_joint_stencil(problem, i, f, stencil, chain, std::vector<double>(chain.size(), weight));
           }
@@ -396,7 +419,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           std::vector<double*> blocks;
           for (int g = f; g < f + F; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
           blocks.push_back(vars.betas[i]);
-          add_block(problem, new PointStencilCost(model_, joint_regressor_.get(), stencil, std::vector<double>(J, weight)),
+          add_block(problem, new PointStencilCost(model_, joint_regressor_.get(), stencil_at(tr.first_frame + f, order),
+                                                  std::vector<double>(J, weight)),
                     blocks);
         }
       } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
@@ -405,11 +429,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           if (w.empty()) continue;
           if (split_body && !contact_joints.empty()) {  // a residual block per planted joint, on the shared joints
             for (size_t c = 0; c < w.size(); ++c) {
-              if (w[c] > 0) add_joint_stencil(problem, i, f, {-1.0, 1.0}, {contact_joints[c]}, {w[c]});
+              if (w[c] > 0) add_joint_stencil(problem, i, f, stencil_at(tr.first_frame + f, 1), {contact_joints[c]}, {w[c]});
             }
             continue;
           }
-          add_block(problem, new PointStencilCost(model_, contact_regressor_, {-1.0, 1.0}, w),
+          add_block(problem, new PointStencilCost(model_, contact_regressor_, stencil_at(tr.first_frame + f, 1), w),
                     {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.transl[i][f + 1], vars.root[i][f + 1],
                      vars.body[i][f + 1], vars.betas[i]});
         }

@@ -41,6 +41,10 @@ struct CameraInput {
   // "scale_prior" term holds the scale to the estimate within it. <= 0 or non-finite: no prior (the term adds
   // nothing).
   double scale_sigma = 0.0;
+  // (T) each frame's time in seconds, increasing, for a video whose frame rate varies; empty: equally spaced.
+  // The joint and contact stencils are then the finite differences at these times, in units of the median step
+  // (equal to the equally spaced ones when the steps are). The motion prior still takes frames as equally spaced.
+  std::vector<double> times;
 };
 
 // Which parameter groups a stage frees and which terms it minimises (weight 0 = inactive).

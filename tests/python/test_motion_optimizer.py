@@ -2,6 +2,8 @@
 handheld camera whose VO trajectory is off by an unknown scale, noisy keypoints with dropped frames and an
 occlusion gap, and an initial lift with depth, orientation, pose and shape errors."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -112,6 +114,29 @@ def test_bad_inputs_raise_clear_errors(model, scene):
     late = type(bad)(**{**bad.__dict__, "first_frame": 10})
     with pytest.raises(ValueError, match="outside the 60 camera frames"):
         optimize(model, [late], scene.cameras_vo)
+    stuck = dataclasses.replace(scene.cameras_vo, times=np.r_[np.arange(30), np.arange(29, 59)] / 30.0)
+    with pytest.raises(ValueError, match="increasing frame times"):
+        optimize(model, scene.init, stuck)
+
+
+def test_frame_times_reach_the_smoothness_terms(model, start):
+    """Equally spaced times change nothing; doubling every other step changes the acceleration term by the
+    finite differences at those times (its cost before the stage, as the C++ test checks in detail)."""
+    tracks, cameras = start
+    config = OptimizerConfig.default()
+    config.stages = [dataclasses.replace(next(s for s in config.stages if s.name == "joint_smoothness"),
+                                         max_iterations=0)]
+    config.world_check = {}
+    T = len(cameras.world_from_cam)
+
+    def acceleration(times):
+        res = optimize(model, tracks, dataclasses.replace(cameras, times=times), config)
+        return res.stages[0].terms["joint_acceleration"][0]
+
+    plain = acceleration(None)
+    assert acceleration(np.arange(T) / 30.0) == pytest.approx(plain, rel=1e-12)
+    uneven = np.cumsum(np.r_[0.0, np.where(np.arange(T - 1) % 2, 2.0, 1.0)]) / 30.0
+    assert not acceleration(uneven) == pytest.approx(plain, rel=1e-3)
 
 
 def test_motion_prior_stage_with_exported_humor(model, tmp_path):

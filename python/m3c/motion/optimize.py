@@ -46,13 +46,15 @@ class Cameras:
     """world_from_cam: T x 4 x 4 (VO, translation up to scale); intrinsics: T x 4 or 4 (fx, fy, cx, cy).
     initial_scale: the metric size of one VO unit to start from (m3c.vo.scale's estimate; refined by stages that
     free the scale, unless static); scale_sigma: its uncertainty, the standard deviation of log(initial_scale)
-    (the "scale_prior" term; None: no prior)."""
+    (the "scale_prior" term; None: no prior). times: (T,) each frame's time in seconds when the frame rate varies
+    (the smoothness and contact stencils are then finite differences at these times); None: equally spaced."""
 
     world_from_cam: np.ndarray
     intrinsics: np.ndarray
     static: bool = False
     initial_scale: float = 1.0
     scale_sigma: float | None = None
+    times: np.ndarray | None = None
 
 
 @dataclass
@@ -141,6 +143,11 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
     core_cams.static_camera = bool(cameras.static)
     core_cams.initial_scale = float(cameras.initial_scale)
     core_cams.scale_sigma = float(cameras.scale_sigma) if cameras.scale_sigma is not None else 0.0
+    if cameras.times is not None:
+        times = np.asarray(cameras.times, dtype=np.float64)
+        if times.shape != (T,) or not np.isfinite(times).all() or (np.diff(times) <= 0).any():
+            raise ValueError(f"times must be T={T} finite, increasing frame times in seconds, got shape {times.shape}")
+        core_cams.times = list(times)
     contact_regressor = None
     if any(t.contacts is not None for t in tracks):
         jw = np.zeros((len(CONTACT_JOINTS), model.num_joints))

@@ -129,7 +129,8 @@ def optimize_in_windows(model, tracks: list[Track], cameras: Cameras, config: Op
             log.info("optimization window %d/%d: frames %d..%d, %d track piece(s)", k + 1, len(ranges), start,
                      stop - 1, len(pieces))
         window_cams = Cameras(world_from_cam[start:stop], intrinsics[start:stop], cameras.static,
-                              cameras.initial_scale, cameras.scale_sigma)
+                              cameras.initial_scale, cameras.scale_sigma,
+                              None if cameras.times is None else np.asarray(cameras.times)[start:stop])
         if pieces:
             result = optimize(model, pieces, window_cams, config, **kwargs)
         else:  # no one to optimise: the cameras at the initial scale

@@ -94,9 +94,9 @@ class FramesNode(Node):
         ctx.log.warning(
             "%s has a variable frame rate: %.1f to %.1f ms between the processed frames (median %.1f ms; the file "
             "states %.3f fps). Each frame's time is read from its timestamp and written to the results (times), "
-            "but the optimizer's smoothness terms and motion prior treat consecutive frames as equally spaced (the "
-            "mean rate, %.3f fps): motion across the longer steps is smoothed as if it took as long as the others. For "
-            "exact timing convert it to a constant rate first (ffmpeg -i IN -fps_mode cfr -r %.0f OUT.mp4).",
+            "and the optimizer's smoothness and contact terms use these times, but its motion prior (HuMoR) treats "
+            "consecutive frames as equally spaced (the mean rate, %.3f fps). For exact timing there too, convert it "
+            "to a constant rate first (ffmpeg -i IN -fps_mode cfr -r %.0f OUT.mp4).",
             name, 1000 * rate.min_step, 1000 * rate.max_step, 1000 * rate.median_step, source_fps, rate.fps,
             round(rate.fps))
         return times, rate.fps, True

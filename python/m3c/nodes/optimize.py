@@ -125,9 +125,11 @@ class OptimizeNode(Node):
     def run(self, ctx, inputs):
         world = inputs["world"]
         world_from_cam = np.asarray(world["world_from_cam"], dtype=np.float64)
+        video = inputs["video"]
         cameras = Cameras(world_from_cam, np.asarray(inputs["camera"]["intrinsics"], dtype=np.float64),
                           static=bool(world["static"]), initial_scale=float(world["initial_scale"]),
-                          scale_sigma=world.get("scale_sigma"))
+                          scale_sigma=world.get("scale_sigma"),
+                          times=np.asarray(video["times"]) if video.get("variable_rate") else None)
         tracks = world["tracks"]
         if not self.config.enabled or not tracks:
             if tracks:

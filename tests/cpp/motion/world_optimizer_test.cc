@@ -159,6 +159,36 @@ TEST(WorldOptimizer, StageThatMakesTheWorldWorseIsRevertedAndTheNextGoesOn) {
   EXPECT_LT((result.tracks[0].transl - s.truth.transl).cwiseAbs().maxCoeff(), 1e-4);
 }
 
+// A person gliding at constant speed through frames taken at irregular times: with the times, the joint
+// acceleration (and the velocity's change) is zero on both the per-joint and the whole-pose blocks; treated as
+// equally spaced, the longer steps look like accelerations.
+TEST(WorldOptimizer, StencilsFollowTheFrameTimes) {
+  const std::vector<double> times = {0.0, 0.033, 0.1, 0.133, 0.2, 0.3, 0.333, 0.4};
+  Scene s = MakeScene(static_cast<int>(times.size()));
+  for (int f = 0; f < static_cast<int>(times.size()); ++f) {
+    s.truth.transl.row(f) << 1.2 * times[f], 0.0, 0.3 * times[f];
+    s.truth.root.row(f).setZero();
+  }
+  s.init = s.truth;
+  for (const bool body_free : {true, false}) {  // per-joint blocks, whole pose blocks
+    OptimizerConfig config;
+    config.world_check.clear();
+    config.stages = {{"accel", true, false, body_free, false, false, false, {{"joint_acceleration", 1.0}}, 0}};
+    WorldOptimizer opt(&s.model, &s.joints, nullptr, config);
+    s.cameras.times = times;
+    const double timed = opt.Optimize({s.init}, s.cameras).stages[0].objective_before;
+    s.cameras.times.clear();
+    const double equal = opt.Optimize({s.init}, s.cameras).stages[0].objective_before;
+    EXPECT_LT(timed, 1e-20) << "body free: " << body_free;
+    EXPECT_GT(equal, 1e-4) << "body free: " << body_free;
+  }
+  s.cameras.times = {0.0, 0.1, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6};  // not increasing
+  OptimizerConfig config;
+  config.stages = {{"accel", true, false, false, false, false, false, {{"joint_acceleration", 1.0}}, 0}};
+  EXPECT_THROW(WorldOptimizer(&s.model, &s.joints, nullptr, config).Optimize({s.init}, s.cameras),
+               std::invalid_argument);
+}
+
 // sqrt(w) (scale - target): a pull of the camera scale towards `target`.
 struct PullScale : ceres::SizedCostFunction<1, 1> {
   double target, sqrt_w;
