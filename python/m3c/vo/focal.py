@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from numbers import Integral, Real
 
 import numpy as np
 
 from m3c.io.video import default_intrinsics
-from m3c.vo.odometry import VOConfig, run_vo
+from m3c.vo.odometry import VOConfig, check_settings, run_vo
 
 
 @dataclass
@@ -52,15 +51,10 @@ class FocalSearchConfig:
     multi_start: bool = True
 
     def __post_init__(self):
-        for name, least in (("windows", 1), ("window_frames", 3), ("max_keyframes", 3), ("num_coarse", 3),
-                            ("num_refine", 0), ("max_image_side", 16), ("iterations", 1)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
-                raise ValueError(f"focal search: {name} must be an integer >= {least}, got {value!r}")
-        for name in ("keyframe_flow_px", "low", "high", "min_contrast", "max_log_sigma", "width_rise"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value) or value <= 0:
-                raise ValueError(f"focal search: {name} must be a finite number > 0, got {value!r}")
+        check_settings(self, {"windows": 1, "window_frames": 3, "max_keyframes": 3, "num_coarse": 3, "num_refine": 0,
+                              "max_image_side": 16, "iterations": 1},
+                       ("keyframe_flow_px", "low", "high", "min_contrast", "max_log_sigma", "width_rise"),
+                       strictly_positive=True, what="focal search: ")
         if not isinstance(self.multi_start, bool):
             raise TypeError(f"focal search: multi_start must be true or false, got {self.multi_start!r}")
         if not self.low < 1.0 < self.high:

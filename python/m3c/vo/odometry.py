@@ -11,6 +11,23 @@ import numpy as np
 from m3c import _core
 
 
+def check_settings(settings, integers: dict[str, int], numbers: tuple[str, ...], strictly_positive: bool = False,
+                   what: str = "") -> None:
+    """Raises ValueError naming the first setting of a settings dataclass that is not an integer (bool excluded)
+    >= its least value (`integers`: name -> least), or not a finite number >= 0 (> 0 if strictly_positive).
+    `what` prefixes the message (e.g. "focal search: ")."""
+    for name, least in integers.items():
+        value = getattr(settings, name)
+        if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
+            raise ValueError(f"{what}{name} must be an integer >= {least}, got {value!r}")
+    for name in numbers:
+        value = getattr(settings, name)
+        if (isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value) or value < 0
+                or (strictly_positive and value == 0)):
+            raise ValueError(f"{what}{name} must be a finite number {'>' if strictly_positive else '>='} 0, "
+                             f"got {value!r}")
+
+
 @dataclass
 class VOConfig:
     """Patch VO settings (pixel quantities at the processing resolution, longer side <= max_image_side).
@@ -56,16 +73,10 @@ class VOConfig:
 
     def __post_init__(self):
         # The C++ core checks the patch-graph sizes; these would otherwise reach OpenCV or Ceres unchecked.
-        for name, least in (("num_threads", 1), ("max_image_side", 1), ("lk_window_px", 1), ("init_iterations", 0),
-                            ("window_iterations", 0), ("final_iterations", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Integral) or value < least:
-                raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
-        for name in ("keyframe_threshold_px", "new_keyframe_flow_px", "init_min_flow_px", "loss_scale_px",
-                     "outlier_threshold_px", "forward_backward_px", "min_gradient"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, Real) or not math.isfinite(value) or value < 0:
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        check_settings(self, {"num_threads": 1, "max_image_side": 1, "lk_window_px": 1, "init_iterations": 0,
+                              "window_iterations": 0, "final_iterations": 0},
+                       ("keyframe_threshold_px", "new_keyframe_flow_px", "init_min_flow_px", "loss_scale_px",
+                        "outlier_threshold_px", "forward_backward_px", "min_gradient"))
 
     def to_core(self) -> _core.PatchVOOptions:
         options = _core.PatchVOOptions()
