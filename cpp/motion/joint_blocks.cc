@@ -163,14 +163,18 @@ std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor) {
   return joints;
 }
 
-SplitBodyCost::SplitBodyCost(ceres::CostFunction* inner, std::vector<int> slots)
-    : inner_(inner), slots_(std::move(slots)) {
+SplitBodyCost::SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots) : inner_(inner) {
   set_num_residuals(inner_->num_residuals());
   const std::vector<int32_t>& inner_sizes = inner_->parameter_block_sizes();
+  split_.assign(inner_sizes.size(), false);
+  for (int slot : slots) {
+    M3C_CHECK(slot >= 0 && slot < static_cast<int>(inner_sizes.size())) << "no parameter block " << slot;
+    split_[slot] = true;
+  }
   auto* sizes = mutable_parameter_block_sizes();
   for (size_t b = 0; b < inner_sizes.size(); ++b) {
     first_.push_back(static_cast<int>(sizes->size()));
-    if (std::find(slots_.begin(), slots_.end(), static_cast<int>(b)) == slots_.end()) {
+    if (!split_[b]) {
       sizes->push_back(inner_sizes[b]);
       continue;
     }
@@ -187,9 +191,8 @@ bool SplitBodyCost::Evaluate(double const* const* parameters, double* residuals,
   thread_local std::vector<double*> jacs;
   bodies.resize(n), body_jacobians.resize(n), params.assign(n, nullptr), jacs.assign(n, nullptr);
   for (int b = 0; b < n; ++b) {
-    const bool split = std::find(slots_.begin(), slots_.end(), b) != slots_.end();
     const int first = first_[b], joints = inner_sizes[b] / 3;
-    if (!split) {
+    if (!split_[b]) {
       params[b] = parameters[first];
       if (jacobians) jacs[b] = jacobians[first];
       continue;
@@ -210,7 +213,7 @@ bool SplitBodyCost::Evaluate(double const* const* parameters, double* residuals,
   if (!inner_->Evaluate(params.data(), residuals, jacobians ? jacs.data() : nullptr)) return false;
   if (!jacobians) return true;
   for (int b = 0; b < n; ++b) {
-    if (std::find(slots_.begin(), slots_.end(), b) == slots_.end() || jacs[b] == nullptr) continue;
+    if (!split_[b] || jacs[b] == nullptr) continue;
     const int first = first_[b], size = inner_sizes[b];
     for (int k = 0; k < size / 3; ++k) {
       double* out = jacobians[first + k];

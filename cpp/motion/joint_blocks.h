@@ -30,6 +30,11 @@ class SharedJoints {
   // Evaluates every frame from its parameter memory (Ceres writes the evaluation point there before it calls the
   // problem's evaluation callback).
   void EvaluateAll(bool with_jacobian);
+  // For the problem's evaluation callback: EvaluateAll when the point is new or Jacobians are wanted that the
+  // last evaluation did not compute.
+  void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) {
+    if (new_evaluation_point || (evaluate_jacobians && !with_jacobian_)) EvaluateAll(evaluate_jacobians);
+  }
   // Frame i's joints at these values of the blocks that move the joints of interest (transl, root, the body
   // blocks of `ancestors`, a union of Ancestors(), betas; other body values do not move them): the cached
   // evaluation when it was at these values, else computed into `scratch` (valid for those joints only).
@@ -82,13 +87,13 @@ std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor);
 // (owned) becomes J-1 blocks of 3 in its place, in joint order.
 class SplitBodyCost : public ceres::CostFunction {
  public:
-  SplitBodyCost(ceres::CostFunction* inner, std::vector<int> slots);
+  SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots);
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
-  std::vector<int> slots_;
-  std::vector<int> first_;  // per inner block, its first block here
+  std::vector<bool> split_;  // per inner block, whether it is a body block split per joint
+  std::vector<int> first_;   // per inner block, its first block here
 };
 
 }  // namespace m3c::motion

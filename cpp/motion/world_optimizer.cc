@@ -45,10 +45,7 @@ class StageCallback : public ceres::EvaluationCallback {
       : decoder_(decoder), joints_(joints), humor_(humor) {}
   void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) override {
     if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
-    if (joints_ && (new_evaluation_point || (evaluate_jacobians && !joints_evaluated_with_jacobians_))) {
-      joints_->EvaluateAll(evaluate_jacobians);
-      joints_evaluated_with_jacobians_ = evaluate_jacobians;
-    }
+    if (joints_) joints_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
     if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
   }
 
@@ -56,7 +53,6 @@ class StageCallback : public ceres::EvaluationCallback {
   LatentPoseDecoder* decoder_;
   SharedJoints* joints_;
   HumorTransitionBatch* humor_;
-  bool joints_evaluated_with_jacobians_ = false;
 };
 
 }  // namespace
@@ -293,7 +289,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       }
       for (int j = 0; j + 1 < J; ++j) split.push_back(blocks[k] + 3 * j);
     }
-    return problem->AddResidualBlock(new SplitBodyCost(cost, std::move(slots)), nullptr, split);
+    return problem->AddResidualBlock(new SplitBodyCost(cost, slots), nullptr, split);
   };
   vars.add_block = add_block;
   // The contact points as body joints (empty if the contact regressor is not a joint selection).
