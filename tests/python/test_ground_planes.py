@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from m3c.ground import (CAMERA_UP, ContactTrack, GroundParams, estimate_ground_planes, fit_plane,
-                        foot_vertex_ids, frame_planes)
+                        contact_vertices, foot_vertex_ids, frame_planes)
 
 
 def angle_deg(a, b):
@@ -309,3 +309,47 @@ def test_level_with_body_up_takes_the_tilt_the_soles_cannot_fix():
     fixed, changed = level_with_body_up(fit, points * [0.1, 1, 1], body_up)
     assert changed
     np.testing.assert_allclose(fixed.normal, body_up / np.linalg.norm(body_up), atol=1e-9)
+
+
+def _camera_track(rng, n: int, first_frame: int = 0) -> dict:
+    contacts = rng.uniform(size=(n, 4))
+    visible = rng.uniform(size=n) > 0.2
+    return {"first_frame": first_frame, "num_frames": n, "root_orient": rng.normal(scale=0.3, size=(n, 3)),
+            "body_pose": rng.normal(scale=0.2, size=(n, 23, 3)), "betas": rng.normal(size=10),
+            "transl": rng.normal(size=(n, 3)) + [0.0, 0.0, 5.0], "contacts": contacts, "visible": visible}
+
+
+def test_contact_vertices_match_the_skinned_feet_and_stay_bounded(synthetic_body_model):
+    """contact_vertices against a direct reference (every vertex skinned, the contact rule written out), and its
+    bound: a small max_points keeps the same vertex subset in every frame and the total within the bound."""
+    rng = np.random.default_rng(3)
+    model = synthetic_body_model
+    tracks = [_camera_track(rng, 30), _camera_track(rng, 20, first_frame=5), {"first_frame": 0, "num_frames": 3}]
+    weights = np.asarray(model.data.weights)
+    feet = foot_vertex_ids(weights)
+    joint_of_vertex = np.argmax(weights[feet][:, [7, 8, 10, 11]], axis=1)
+    full = contact_vertices(model, tracks, 0.5)
+    assert [len(p) for p in full] == [30, 20, 3]
+    total = 0
+    for track, points in zip(tracks[:2], full):
+        poses = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        vertices = model.forward(poses, track["betas"], track["transl"]).vertices[:, feet]
+        for i in range(track["num_frames"]):
+            keep = (track["contacts"][i] > 0.5)[joint_of_vertex] & track["visible"][i]
+            np.testing.assert_allclose(points[i], vertices[i][keep], atol=1e-12)
+            total += int(keep.sum())
+    assert all(len(p) == 0 for p in full[2])
+    assert total > 100
+    bound = total // 5
+    bounded = contact_vertices(model, tracks, 0.5, max_points=bound)
+    step = -(-total // bound)
+    kept = sum(len(p) for points in bounded for p in points)
+    assert 0 < kept <= bound
+    for track, points, reference in zip(tracks[:2], bounded, full):
+        poses = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        vertices = model.forward(poses, track["betas"], track["transl"]).vertices[:, feet[::step]]
+        for i in range(track["num_frames"]):
+            keep = (track["contacts"][i] > 0.5)[joint_of_vertex[::step]] & track["visible"][i]
+            np.testing.assert_allclose(points[i], vertices[i][keep], atol=1e-12)
+    with pytest.raises(ValueError, match="max_points must be >= 1"):
+        contact_vertices(model, tracks, 0.5, max_points=0)

@@ -2,7 +2,9 @@
 
 from m3c.ground.planes import (CAMERA_UP, FramePlanes, GroundParams, PlaneFit, dbscan, fit_plane, level_with_body_up,
                                frame_planes)
-from m3c.ground.tracks import ContactTrack, GroundTrack, estimate_ground_planes, foot_vertex_ids
+from m3c.ground.tracks import (MAX_CONTACT_POINTS, ContactTrack, GroundTrack, contact_vertices, estimate_ground_planes,
+                               foot_vertex_ids)
 
-__all__ = ["CAMERA_UP", "ContactTrack", "FramePlanes", "GroundParams", "GroundTrack", "PlaneFit", "dbscan",
-           "estimate_ground_planes", "fit_plane", "foot_vertex_ids", "level_with_body_up", "frame_planes"]
+__all__ = ["CAMERA_UP", "MAX_CONTACT_POINTS", "ContactTrack", "FramePlanes", "GroundParams", "GroundTrack", "PlaneFit",
+           "contact_vertices", "dbscan", "estimate_ground_planes", "fit_plane", "foot_vertex_ids", "level_with_body_up",
+           "frame_planes"]

@@ -34,6 +34,48 @@ def foot_vertex_ids(weights, joint_names: Sequence[str] = SMPL_JOINT_NAMES,
     return np.flatnonzero(weights[:, columns].sum(axis=1) >= min_weight)
 
 
+# A bound on the contact vertices placed per video: a plane fit and the soles' height saturate long before
+# (each frame's points are one or two soles), and the points would otherwise grow with the video's length
+# (about 1.2 million per minute of a walking clip, several float64 copies each in the ground node).
+MAX_CONTACT_POINTS = 1_000_000
+
+
+def contact_vertices(model, tracks: Sequence[dict], threshold: float,
+                     max_points: int = MAX_CONTACT_POINTS) -> list[list[np.ndarray]]:
+    """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
+
+    tracks: camera-frame tracks (root_orient, body_pose, betas, transl, contacts (n, 4) over FOOT_JOINTS,
+    visible (n,)). A foot vertex is in contact when the foot joint that moves it most has probability >
+    threshold in a visible frame. When all tracks together would place more than max_points points, every
+    `step`-th foot vertex is kept (the same subset in every frame, spread over the soles; step the smallest
+    that keeps the total within max_points), so the count stays bounded on a video of any length."""
+    if max_points < 1:
+        raise ValueError(f"max_points must be >= 1, got {max_points}")
+    foot_ids = foot_vertex_ids(model.data.weights)
+    columns = [SMPL_JOINT_NAMES.index(name) for name in FOOT_JOINTS]
+    foot_joint = np.argmax(np.asarray(model.data.weights)[foot_ids][:, columns], axis=1)
+    masks = [(t["contacts"] > threshold) & t["visible"][:, None] if "contacts" in t else None for t in tracks]
+    per_joint = np.bincount(foot_joint, minlength=len(FOOT_JOINTS))
+    total = sum(int((m @ per_joint).sum()) for m in masks if m is not None)
+    step = max(1, -(-total // max_points))
+    foot_ids, foot_joint = foot_ids[::step], foot_joint[::step]
+    out = []
+    for track, in_contact in zip(tracks, masks):
+        points = [np.zeros((0, 3)) for _ in range(track["num_frames"])]
+        out.append(points)
+        if in_contact is None:
+            continue
+        frames = np.flatnonzero(in_contact.any(axis=1))
+        poses = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
+            if len(chunk) == 0:
+                continue
+            verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
+            for k, i in enumerate(chunk):
+                points[i] = verts[k][in_contact[i][foot_joint]]
+    return out
+
+
 @dataclass
 class ContactTrack:
     """Contacts of one tracked person over its T frames.

@@ -15,7 +15,7 @@ from typing import Literal
 import numpy as np
 
 from m3c.body.transform import rest_root_joint, transform_smpl
-from m3c.ground import (CAMERA_UP, ContactTrack, GroundParams, estimate_ground_planes, fit_plane, foot_vertex_ids,
+from m3c.ground import (CAMERA_UP, ContactTrack, GroundParams, contact_vertices, estimate_ground_planes, fit_plane,
                         level_with_body_up)
 from m3c.motion import CONTACT_JOINTS
 from m3c.pipeline import ComponentUnavailable, Node, PipelineError, register_node
@@ -35,27 +35,6 @@ def contact_joints_in_camera(model, track: dict) -> np.ndarray:
     """(n, 4, 3) positions of the contact joints (ankles, feet) of a camera-frame track."""
     joints = model.joints(_poses(track), track["betas"], track["transl"])
     return joints[:, list(CONTACT_JOINTS)]
-
-
-def contact_vertices_in_camera(model, track: dict, threshold: float) -> list[np.ndarray]:
-    """Per frame of a camera-frame track, its foot vertices in contact (the contact joint that moves a vertex most
-    has probability > threshold, in detected frames), in that frame's camera (metres)."""
-    n = track["num_frames"]
-    points = [np.zeros((0, 3)) for _ in range(n)]
-    if "contacts" not in track:
-        return points
-    foot_ids = foot_vertex_ids(model.data.weights)
-    foot_joint = np.argmax(model.data.weights[foot_ids][:, list(CONTACT_JOINTS)], axis=1)
-    in_contact = (track["contacts"] > threshold) & track["visible"][:, None]
-    frames = np.flatnonzero(in_contact.any(axis=1))
-    poses = _poses(track)
-    for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
-        if len(chunk) == 0:
-            continue
-        verts = model.forward(poses[chunk], track["betas"], track["transl"][chunk]).vertices[:, foot_ids]
-        for k, i in enumerate(chunk):
-            points[i] = verts[k][in_contact[i][foot_joint]]
-    return points
 
 
 def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray:
@@ -93,8 +72,8 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
                                              f"{len(points)} map points"))
     else:
         per_frame = [[] for _ in range(len(vo))]
-        for track in tracks:
-            for i, p in enumerate(contact_vertices_in_camera(model, track, contact_threshold)):
+        for track, points in zip(tracks, contact_vertices(model, tracks, contact_threshold)):
+            for i, p in enumerate(points):
                 if len(p):
                     per_frame[track["first_frame"] + i].append(p)
         contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
@@ -231,11 +210,7 @@ class GroundNode(Node):
         tracks = inputs["tracks"]["tracks"]
         vo_cameras = np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64)
         scale = dict(inputs["scale"])
-        with ctx.progress("contact vertices", len(tracks)) as bar:
-            in_camera = []
-            for track in tracks:
-                in_camera.append(contact_vertices_in_camera(model, track, self.config.contact_threshold))
-                bar.update()
+        in_camera = contact_vertices(model, tracks, self.config.contact_threshold)
         up = body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
         cameras = metric_cameras(vo_cameras, scale["value"])
         dominant, pooled, raw = self._dominant(ctx, tracks, in_camera, cameras, up)

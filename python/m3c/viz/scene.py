@@ -114,18 +114,12 @@ class WorldView:
         # test), and a drop line from the camera to the ground, so the camera's height reads at a glance.
         shadow = camera_path.copy()
         shadow[:, 1] = self.ground_height
-        uv, z = self.project(shadow)
-        points = [tuple(int(round(c)) for c in p) for p, d in zip(uv, z) if d > 0.05 and np.isfinite(p).all()]
-        for p, q in zip(points[:-1], points[1:]):
-            cv2.line(image, p, q, (150, 150, 150), 2, cv2.LINE_AA)
+        self._draw_path(image, shadow, (150, 150, 150))
         drop, dz = self.project(np.stack([camera_path[-1], shadow[-1]]))
         if (dz > 0.05).all() and np.isfinite(drop).all():
             cv2.line(image, tuple(int(round(c)) for c in drop[0]), tuple(int(round(c)) for c in drop[1]),
                      (120, 120, 120), 1, cv2.LINE_AA)
-        uv, z = self.project(camera_path)
-        points = [tuple(int(round(c)) for c in p) for p, d in zip(uv, z) if d > 0.05 and np.isfinite(p).all()]
-        for p, q in zip(points[:-1], points[1:]):
-            cv2.line(image, p, q, (40, 40, 40), 2, cv2.LINE_AA)
+        self._draw_path(image, camera_path, (40, 40, 40))
         # The video camera's frustum: its centre and the image corners at frustum_depth.
         w, h = video_size
         fx, fy, cx, cy = video_intrinsics
@@ -139,3 +133,17 @@ class WorldView:
                 cv2.line(image, p[0], p[k], (30, 30, 200), 2, cv2.LINE_AA)
                 cv2.line(image, p[k], p[1 + k % 4], (30, 30, 200), 2, cv2.LINE_AA)
         return image
+
+    def _draw_path(self, image: np.ndarray, points_in_world: np.ndarray, colour) -> None:
+        """One polyline through the points in front of the view camera, in one call: a frame of a long video
+        draws the path so far (thousands of points), and a Python loop of cv2.line per segment made the world
+        view quadratic in the video's length in Python time. Repeated pixels (a camera at rest) are dropped."""
+        import cv2
+
+        uv, z = self.project(points_in_world)
+        keep = (z > 0.05) & np.isfinite(uv).all(axis=1)
+        pixels = np.round(np.clip(uv[keep], -1e6, 1e6)).astype(np.int32)
+        if len(pixels) < 2:
+            return
+        pixels = pixels[np.r_[True, (np.diff(pixels, axis=0) != 0).any(axis=1)]]
+        cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
