@@ -316,6 +316,18 @@ py::dict RunPatchVO(const py::handle& frames_in, const py::handle& masks, const 
 }  // namespace
 
 void BindVO(py::module_& m) {
+  m.def(
+      "default_intrinsics",
+      [](int width, int height) {
+        if (width <= 0 || height <= 0) {
+          throw py::value_error("image size must be positive, got " + std::to_string(width) + " x " +
+                                std::to_string(height));
+        }
+        const Intrinsics K = Intrinsics::Default(width, height);
+        return py::make_tuple(K.fx, K.fy, K.cx, K.cy);
+      },
+      py::arg("width"), py::arg("height"),
+      "(fx, fy, cx, cy) of a camera nobody calibrated (util/pinhole.h, the one rule; m3c.io.video.default_intrinsics).");
   py::class_<vo::GradientSamplingOptions>(
       m, "GradientSamplingOptions", "Gradient-biased patch sampling (DPVO GRADIENT_BIAS, masks zero the gradient).")
       .def(py::init<>())

@@ -6,7 +6,7 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['BodyFitOptions', 'BodyModel', 'CameraInput', 'GapFill', 'GradientSamplingOptions', 'GroundOptions', 'HumorPrior', 'KeypointRegressor', 'LucasKanadeOptions', 'OptimizerConfig', 'OptimizerResult', 'PatchVO', 'PatchVOOptions', 'PlaneFitOptions', 'RenderFrame', 'StageConfig', 'StageReport', 'TermCost', 'Texture', 'TrackInput', 'TrackResult', 'VPoser', 'builtin_optimizer_terms', 'dbscan', 'default_optimizer_config', 'fit_body_sequence', 'fit_plane', 'forward', 'forward_kinematics', 'frame_planes', 'humor_build_states', 'humor_canonicalize', 'joints_jacobian', 'keypoints', 'keypoints_jacobian', 'learned_optimizer_terms', 'optimize_world', 'read_safetensors', 'run_patch_vo', 'track_planes']
+__all__: list[str] = ['BodyFitOptions', 'BodyModel', 'CameraInput', 'GapFill', 'GradientSamplingOptions', 'GroundOptions', 'HumorPrior', 'KeypointRegressor', 'LucasKanadeOptions', 'OptimizerConfig', 'OptimizerResult', 'PatchVO', 'PatchVOOptions', 'PlaneFitOptions', 'RenderFrame', 'StageConfig', 'StageReport', 'TermCost', 'Texture', 'TrackInput', 'TrackResult', 'VPoser', 'builtin_optimizer_terms', 'dbscan', 'default_intrinsics', 'default_optimizer_config', 'fit_body_sequence', 'fit_plane', 'forward', 'forward_kinematics', 'frame_planes', 'humor_build_states', 'humor_canonicalize', 'joints_jacobian', 'keypoints', 'keypoints_jacobian', 'learned_optimizer_terms', 'optimize_world', 'read_safetensors', 'run_patch_vo', 'track_planes']
 class BodyModel:
     """
     SMPL-layout body model held by the C++ core. Any vertex count V, joint count J (parents before children)
@@ -880,6 +880,10 @@ def dbscan(points: typing.Any, eps: typing.SupportsFloat | typing.SupportsIndex,
     DBSCAN of points (N, 3), eps in metres, min_samples counting the point itself.
     
     Returns (labels (N,) int64, -1 = noise, ids numbered like scikit-learn; is_core (N,) bool).
+    """
+def default_intrinsics(width: typing.SupportsInt | typing.SupportsIndex, height: typing.SupportsInt | typing.SupportsIndex) -> tuple[float, float, float, float]:
+    """
+    (fx, fy, cx, cy) of a camera nobody calibrated (util/pinhole.h, the one rule; m3c.io.video.default_intrinsics).
     """
 def default_optimizer_config() -> OptimizerConfig:
     """
