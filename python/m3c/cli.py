@@ -84,8 +84,10 @@ def _frame_range(text: str) -> tuple[int, int | None, int]:
 
 
 def _pipeline_config(args):
+    from m3c.nodes import register_builtin_nodes
     from m3c.pipeline import PipelineConfig, parse_override
 
+    register_builtin_nodes()
     config = PipelineConfig.from_yaml(Path(args.config)) if args.config else PipelineConfig.default()
     overrides = {}
     if getattr(args, "intrinsics", None):
@@ -168,6 +170,7 @@ def _run(args) -> int:
 def _batch(args) -> int:
     import logging
 
+    from m3c.nodes import register_builtin_nodes
     from m3c.pipeline.batch import collect_videos, run_batch
 
     _setup_logging(args.verbose - args.quiet)
@@ -179,7 +182,7 @@ def _batch(args) -> int:
     config = _pipeline_config(args)
     report = run_batch(config, videos, args.out, use_ray=not args.sequential, address=args.address,
                        cpus_per_video=args.cpus_per_video, memory_per_video_gb=args.memory_per_video,
-                       show_progress=not args.no_progress)
+                       show_progress=not args.no_progress, setup=register_builtin_nodes)
     print(report.table())
     print(f"wrote {Path(args.out) / 'batch_summary.json'}")
     return 1 if report.failed else 0

@@ -176,7 +176,7 @@ class ResultsNode(Node):
                 if key in node["config"]:
                     entry[key] = node["config"][key]
             backends[name] = entry
-        arrays, summary = build_results(ctx.body_model(), inputs["video"], inputs["camera"], inputs["cameras"],
+        arrays, summary = build_results(ctx.loaded("body_model"), inputs["video"], inputs["camera"], inputs["cameras"],
                                         inputs["scale"], inputs["ground"], inputs["world"], inputs["result"],
                                         backends)
         write_npz(ctx.work_path("results.npz"), arrays, compress=True)
@@ -228,7 +228,7 @@ class OverlayNode(Node):
         from m3c.viz.scene import overlay_frame
 
         video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
+        model = ctx.loaded("body_model")
         bodies = _BodyFrames(model, result["tracks"])
         intrinsics = np.asarray(inputs["camera"]["intrinsics"])
         world_from_cam = np.asarray(result["world_from_cam"])
@@ -263,7 +263,7 @@ class WorldViewNode(Node):
         from m3c.viz.scene import WorldView
 
         video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
+        model = ctx.loaded("body_model")
         world_from_cam = np.asarray(result["world_from_cam"])
         roots = [np.asarray(t["transl"]) for t in result["tracks"]]
         people = np.concatenate(roots) if roots else np.zeros((0, 3))
@@ -309,7 +309,7 @@ class CameraPlotNode(Node):
         from m3c.viz.plots import camera_trajectory_plot
 
         video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
+        model = ctx.loaded("body_model")
         people = [(int(t["track_id"]), model.joints(_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))[:, 0])
                   for t in result["tracks"]]
         scale = f"{result['camera_scale']:.3f} m per odometry unit"

@@ -126,7 +126,7 @@ class ScaleNode(Node):
             return {"scale": ScaleEstimate(1.0, None, "static camera" if cameras["static"] else "rotation only")
                     .to_dict()}
         camera = inputs.get("camera")
-        estimate = estimate_camera_scale(ctx.body_model(), inputs["tracks"]["tracks"], cameras,
+        estimate = estimate_camera_scale(ctx.loaded("body_model"), inputs["tracks"]["tracks"], cameras,
                                          self.config.contact_threshold, inputs.get("depth"),
                                          camera["intrinsics"] if camera is not None else None, ctx.log)
         if estimate.sigma is None:
@@ -206,7 +206,7 @@ class GroundNode(Node):
         return GroundParams(**c)
 
     def run(self, ctx, inputs):
-        model = ctx.body_model()
+        model = ctx.loaded("body_model")
         tracks = inputs["tracks"]["tracks"]
         vo_cameras = np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64)
         scale = dict(inputs["scale"])
@@ -363,7 +363,7 @@ class LiftNode(Node):
         self._lifter = None
 
     def run(self, ctx, inputs):
-        model = ctx.body_model()
+        model = ctx.loaded("body_model")
         video, tracks, ground = inputs["video"], inputs["tracks"]["tracks"], inputs["ground"]
         scale = float(inputs["scale"]["value"])
         world_from_vo = ground["world_from_vo"]
