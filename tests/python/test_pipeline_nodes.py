@@ -13,7 +13,8 @@ from m3c.nodes.patches import box_region, extract_patch, isolation_mask, process
 from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
 from m3c.nodes.tracks import (LocalTracksNode, crop_to_full_camera, full_to_crop_camera, interpolate_linear,
                               interpolate_rotations)
-from m3c.nodes.world import estimate_camera_scale, gravity_frame
+from m3c.ground.world_frame import gravity_frame
+from m3c.motion.scale import estimate_camera_scale
 from m3c.pipeline import InputError
 
 

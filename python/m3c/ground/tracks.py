@@ -40,6 +40,16 @@ def foot_vertex_ids(weights, joint_names: Sequence[str] = SMPL_JOINT_NAMES,
 MAX_CONTACT_POINTS = 1_000_000
 
 
+def track_poses(track: dict) -> np.ndarray:
+    """(n, J, 3) axis-angle poses of a track dict: root_orient as joint 0, then body_pose."""
+    return np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+
+
+def track_frames(track: dict) -> np.ndarray:
+    """(n,) video frame indices of a track dict's frames."""
+    return track["first_frame"] + np.arange(track["num_frames"])
+
+
 def contact_vertices(model, tracks: Sequence[dict], threshold: float,
                      max_points: int = MAX_CONTACT_POINTS) -> list[list[np.ndarray]]:
     """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
@@ -66,7 +76,7 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
         if in_contact is None:
             continue
         frames = np.flatnonzero(in_contact.any(axis=1))
-        poses = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        poses = track_poses(track)
         for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
             if len(chunk) == 0:
                 continue

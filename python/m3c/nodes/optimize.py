@@ -11,7 +11,7 @@ import yaml
 
 from m3c.motion import Cameras, OptimizerConfig, Track
 from m3c.motion.windows import check_windows, optimize_in_windows
-from m3c.nodes.world import metric_cameras
+from m3c.ground.world_frame import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
 

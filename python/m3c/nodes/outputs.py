@@ -15,7 +15,7 @@ from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
 from m3c.io.video import VideoWriter
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.world import metric_cameras
+from m3c.ground.world_frame import metric_cameras
 from m3c.pipeline import ComponentUnavailable, FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
