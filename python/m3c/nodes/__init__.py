@@ -1,8 +1,8 @@
 """The built-in node types of the M3C pipeline, in the thesis's order.
 
-frame level   frames, camera, detections, masks, depth
-patch level   boxes, patches, keypoints, body, focal, vo
-SMPL level    tracking, contacts, ground
+frame level   frames, camera, depth
+patch level   perception (detections, masks, keypoints, bodies, tracking, contacts), boxes, patches, focal, vo
+SMPL level    ground
 track level   local_tracks, scale, lift, optimize
 outputs       results, overlay, world_view, camera_plot
 any           load (outputs read from a folder)
@@ -19,8 +19,8 @@ from pathlib import Path
 def register_builtin_nodes() -> None:
     """Registers the built-in node types with m3c.pipeline (importing their modules runs their @register_node) and
     the loader of the body-model setting they read. Idempotent."""
-    from m3c.nodes import (focal, frames, ground, lift, load, optimize, outputs, patches,  # noqa: F401
-                           perception, scale, tracks)
+    from m3c.nodes import (depth, focal, frames, ground, lift, load, optimize, outputs, patches,  # noqa: F401
+                           perception, scale, tracks, vo)
     from m3c.pipeline.node import register_setting_loader
 
     register_setting_loader("body_model", _body_model_fingerprint, _load_body_model)
