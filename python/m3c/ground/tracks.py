@@ -42,12 +42,12 @@ MAX_CONTACT_POINTS = 1_000_000
 
 def track_poses(track: dict) -> np.ndarray:
     """(n, J, 3) axis-angle poses of a track dict: root_orient as joint 0, then body_pose."""
-    return np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+    return np.concatenate([np.asarray(track["root_orient"])[:, None], np.asarray(track["body_pose"])], axis=1)
 
 
 def track_frames(track: dict) -> np.ndarray:
     """(n,) video frame indices of a track dict's frames."""
-    return track["first_frame"] + np.arange(track["num_frames"])
+    return int(track["first_frame"]) + np.arange(int(track["num_frames"]))
 
 
 def contact_vertices(model, tracks: Sequence[dict], threshold: float,

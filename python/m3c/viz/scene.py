@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.ground.tracks import track_poses
 from m3c.viz.raster import Mesh, render
 
 # One colour per track id (RGB, [0, 1]): well separated hues, readable over video.
@@ -147,3 +148,28 @@ class WorldView:
             return
         pixels = pixels[np.r_[True, (np.diff(pixels, axis=0) != 0).any(axis=1)]]
         cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
+
+
+class BodyFrames:
+    """World-frame vertices of every track at a frame, computed a chunk of frames at a time."""
+
+    def __init__(self, model, tracks: list[dict], chunk: int = 16):
+        self.model, self.tracks, self.chunk = model, tracks, chunk
+        self._cache: dict[int, tuple[int, np.ndarray]] = {}
+
+    def at(self, frame: int) -> list[tuple[np.ndarray, int]]:
+        bodies = []
+        for k, track in enumerate(self.tracks):
+            i = frame - int(track["first_frame"])
+            if not 0 <= i < int(track["num_frames"]):
+                continue
+            start, verts = self._cache.get(k, (-1, None))
+            if verts is None or not start <= i < start + len(verts):
+                start = i
+                stop = min(i + self.chunk, int(track["num_frames"]))
+                pose = track_poses(track)[start:stop]
+                verts = self.model.forward(pose, np.asarray(track["betas"]),
+                                           np.asarray(track["transl"])[start:stop]).vertices
+                self._cache[k] = (start, verts)
+            bodies.append((verts[i - start], int(track["track_id"])))
+        return bodies
