@@ -19,7 +19,7 @@ from m3c.eval.scenes import make_scene
 from m3c.io.video import VideoWriter
 from m3c.nodes.load import save_outputs
 from m3c.nodes.patches import process_boxes
-from m3c.nodes.tracks import full_to_crop_camera
+from m3c.perception.boxes import full_to_crop_camera
 from m3c.viz.scene import WorldView, overlay_frame
 
 PERCEPTION = ("detections", "keypoints", "body", "tracking", "contacts", "cameras")

@@ -11,8 +11,9 @@ from scipy.spatial.transform import Rotation
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.nodes.patches import box_region, extract_patch, isolation_mask, process_boxes
 from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
-from m3c.nodes.tracks import (LocalTracksNode, crop_to_full_camera, full_to_crop_camera, interpolate_linear,
-                              interpolate_rotations)
+from m3c.motion.interpolate import interpolate_linear, interpolate_rotations
+from m3c.nodes.local_tracks import LocalTracksNode
+from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera
 from m3c.ground.world_frame import gravity_frame
 from m3c.motion.scale import estimate_camera_scale
 from m3c.pipeline import InputError

@@ -32,7 +32,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
 from m3c.body.transform import rest_root_joint, transform_smpl
@@ -42,6 +42,7 @@ from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.motion.interpolate import interpolate_rotations
 from m3c.motion.scale import estimate_scale, rescaled
 from m3c.nn import VPoser
 from m3c.synth.cameras import ou_noise
@@ -301,14 +302,6 @@ def _simulate_keypoints(truth: list[Track], model: BodyModel, world_from_cam, in
     return keypoints, detected
 
 
-def _interpolate_rotvecs(known_t, rotvecs, query_t) -> np.ndarray:
-    """Slerp of axis-angle rotations (k, 3) known at times known_t to query_t (clamped at the ends)."""
-    if len(known_t) == 1:
-        return np.repeat(rotvecs[:1], len(query_t), 0)
-    q = np.clip(query_t, known_t[0], known_t[-1])
-    return Slerp(known_t, Rotation.from_rotvec(rotvecs))(q).as_rotvec()
-
-
 def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_from_cam, config, fps, rng):
     """Camera-local estimates of one person over its span (None when it is never detected)."""
     hits = np.flatnonzero(detected)
@@ -335,9 +328,8 @@ def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_fr
         kt, qt = np.flatnonzero(seen).astype(float), np.flatnonzero(~seen).astype(float)
         for d in range(3):
             transl[~seen, d] = np.interp(qt, kt, transl[seen, d])
-        root[~seen] = _interpolate_rotvecs(kt, root[seen], qt)
-        for j in range(body.shape[1]):
-            body[~seen, j] = _interpolate_rotvecs(kt, body[seen, j], qt)
+        root[~seen] = interpolate_rotations(kt, root[seen][:, None], qt)[:, 0]
+        body[~seen] = interpolate_rotations(kt, body[seen], qt)
     truth_contacts = tr.contacts[frames]
     prob = np.where(truth_contacts > 0.5, rng.uniform(0.7, 1.0, truth_contacts.shape),
                     rng.uniform(0.0, 0.3, truth_contacts.shape))

@@ -20,7 +20,7 @@ def register_builtin_nodes() -> None:
     """Registers the built-in node types with m3c.pipeline (importing their modules runs their @register_node) and
     the loader of the body-model setting they read. Idempotent."""
     from m3c.nodes import (boxes, camera, camera_plot, depth, focal, frames, ground, lift, load,  # noqa: F401
-                           optimize, overlay, patches, perception, results, scale, tracks, vo, world_view)
+                           local_tracks, optimize, overlay, patches, perception, results, scale, vo, world_view)
     from m3c.pipeline.node import register_setting_loader
 
     register_setting_loader("body_model", _body_model_fingerprint, _load_body_model)
