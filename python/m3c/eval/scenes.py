@@ -16,7 +16,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
-from m3c.motion import CONTACT_JOINTS, Cameras, Track, track_joints
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.motion import Cameras, Track, track_joints
 
 UP = np.array([0.0, 1.0, 0.0])
 

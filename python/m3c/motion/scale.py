@@ -11,7 +11,8 @@ import numpy as np
 from m3c.body import BodyModel
 from m3c.ground.tracks import contact_vertices, track_frames, track_poses
 from m3c.ground.world_frame import body_up
-from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track, track_joints
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.motion.optimize import Cameras, Track, track_joints
 from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
                           scale_from_depth, scale_from_planted_feet)
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.ground.tracks import track_poses
 from m3c.io.video import VideoWriter
 from m3c.pipeline import FileRef, Node, register_node
@@ -40,8 +41,8 @@ class WorldViewNode(Node):
         if inputs["ground"]["up_source"] == "ground":
             ground_height = 0.0
         else:  # no ground found: draw one under the lowest foot
-            lows = [model.joints(track_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))[:, [7, 8, 10, 11], 1]
-                    .min() for t in result["tracks"]]
+            lows = [model.joints(track_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))
+                    [:, list(CONTACT_JOINTS), 1].min() for t in result["tracks"]]
             ground_height = float(min(lows)) - 0.05 if lows else 0.0
         view = WorldView(people, world_from_cam[:, :3, 3], ground_height, self.config.width, self.config.height,
                          self.config.yaw, self.config.elevation)

@@ -19,7 +19,7 @@ import numpy as np
 
 from m3c.body import BodyModel
 from m3c.ground import ContactTrack, foot_vertex_ids
-from m3c.motion import CONTACT_JOINTS
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.perception.interfaces import ContactEstimator
 from m3c.perception.registry import register
 
@@ -135,7 +135,7 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
 
 @register("contacts", NAME)
 class KinematicContacts(ContactEstimator):
-    """Contact probabilities of m3c.motion.CONTACT_JOINTS (ankles, feet) from a track's joints."""
+    """Contact probabilities of m3c.body.joint_names.CONTACT_JOINTS (ankles, feet) from a track's joints."""
 
     def __init__(self, **options):
         self.config = KinematicContactConfig(**options)
