@@ -38,7 +38,7 @@ def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0,
     with VideoWriter(folder / "video.mp4", scene.fps, (W, H)) as writer:
         for i in range(num_frames):
             from m3c.viz.raster import Mesh, render
-            from m3c.viz.scene import to_camera
+            from m3c.camera import to_camera
 
             background, _ = render([Mesh(to_camera(ground.ground.vertices, truth_cams[i]), ground.ground.faces,
                                          face_colours=ground.ground.face_colours, smooth=False, cull=False)],

@@ -36,10 +36,10 @@ from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.camera import UP, look_at, world_to_image
 from m3c.eval import metrics as M
 from m3c.eval.evaluate import aggregate, evaluate_sequence, format_method_table, format_value
 from m3c.eval.retarget import RetargetedMotion
-from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
 from m3c.motion.interpolate import interpolate_rotations
@@ -242,7 +242,7 @@ def _camera_path(motion: str, truth: list[Track], model: BodyModel, n: int, fps:
         W, H = config.image_size
         for dist in np.arange(5.0, 20.0, 0.5):  # back off until every pelvis stays in view with a margin
             eye0 = middle + ring(np.array([phi0]), dist)[0]
-            uv, depth = project(pelvis.reshape(-1, 3), look_at(eye0, middle), intrinsics)
+            uv, depth = world_to_image(pelvis.reshape(-1, 3), look_at(eye0, middle), intrinsics)
             if (depth > 0).all() and (np.abs(uv[:, 0] - W / 2) < 0.4 * W).all() and \
                     (np.abs(uv[:, 1] - H / 2) < 0.4 * H).all():
                 break
@@ -261,7 +261,7 @@ def _simulate_keypoints(truth: list[Track], model: BodyModel, world_from_cam, in
     for tr in truth:
         pose = np.concatenate([tr.root_orient[:, None], tr.body_pose], axis=1)
         kp = model.keypoints(regressor, pose, tr.betas, tr.transl)
-        proj = [project(kp[i], world_from_cam[i], intrinsics) for i in range(n)]
+        proj = [world_to_image(kp[i], world_from_cam[i], intrinsics) for i in range(n)]
         uv.append(np.stack([p[0] for p in proj]))
         depth.append(np.stack([p[1] for p in proj]))
     uv, depth = np.stack(uv), np.stack(depth)  # (P, n, 17, 2), (P, n, 17)

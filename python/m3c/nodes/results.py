@@ -8,6 +8,7 @@ import numpy as np
 
 import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.camera import project, to_camera
 from m3c.eval.plausibility import results_plausibility
 from m3c.ground.tracks import track_frames, track_poses
 from m3c.ground.world_frame import metric_cameras
@@ -16,15 +17,6 @@ from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
 from m3c.pipeline import FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
-
-
-def project(points: np.ndarray, world_from_cam: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """points (n, K, 3) world, one camera per row (n, 4, 4), intrinsics (n, 4) -> (n, K, 2) pixels."""
-    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
-    cam = np.einsum("nji,nkj->nki", R, points - c[:, None])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.stack([intrinsics[:, None, 0] * cam[..., 0] / cam[..., 2] + intrinsics[:, None, 2],
-                         intrinsics[:, None, 1] * cam[..., 1] / cam[..., 2] + intrinsics[:, None, 3]], axis=-1)
 
 
 def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, ground: dict, world: dict,
@@ -94,8 +86,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         if track.get("ground_normal") is not None:
             arrays["ground_normal"][p, frames] = track["ground_normal"]
             arrays["ground_offset"][p, frames] = track["ground_offset"]
-        predicted = project(model.keypoints(regressor, pose, betas, transl), world_from_cam[frames],
-                            intrinsics[frames])
+        predicted = project(to_camera(model.keypoints(regressor, pose, betas, transl), world_from_cam[frames]),
+                            intrinsics[frames][:, None])
         distance = np.linalg.norm(predicted - keypoints[..., :2], axis=-1)
         scored = keypoints[..., 2] >= MIN_CONFIDENCE
         with np.errstate(invalid="ignore"):

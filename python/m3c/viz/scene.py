@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.camera import look_at, to_camera, world_to_image
 from m3c.ground.tracks import track_poses
 from m3c.viz.raster import Mesh, render
 
@@ -19,11 +20,6 @@ def track_colour(track_id: int) -> np.ndarray:
     return PALETTE[int(track_id) % len(PALETTE)]
 
 
-def to_camera(points_in_world: np.ndarray, world_from_cam: np.ndarray) -> np.ndarray:
-    R, c = world_from_cam[:3, :3], world_from_cam[:3, 3]
-    return (points_in_world - c) @ R
-
-
 def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces: np.ndarray,
                   world_from_cam: np.ndarray, intrinsics, alpha: float = 0.8) -> np.ndarray:
     """bodies: (vertices in the world (V, 3), track id). Returns the frame with the shaded meshes over it."""
@@ -31,19 +27,6 @@ def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces
     height, width = frame.shape[:2]
     image, _ = render(meshes, intrinsics, width, height, background=frame, alpha=alpha)
     return image
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """world_from_cam of an OpenCV camera at `eye` looking at `target`, image y pointing against `up`."""
-    z = target - eye
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = eye
-    return pose
 
 
 def nice_step(length: float) -> float:
@@ -95,11 +78,7 @@ class WorldView:
         return Mesh(vertices, np.array(faces), face_colours=np.array(colours), smooth=False, cull=False)
 
     def project(self, points_in_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cam = to_camera(points_in_world, self.pose)
-        fx, fy, cx, cy = self.intrinsics
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = np.stack([fx * cam[:, 0] / cam[:, 2] + cx, fy * cam[:, 1] / cam[:, 2] + cy], axis=1)
-        return uv, cam[:, 2]
+        return world_to_image(points_in_world, self.pose, self.intrinsics)
 
     def frame(self, bodies: list[tuple[np.ndarray, int]], faces: np.ndarray, camera_path: np.ndarray,
               current_camera: np.ndarray, video_intrinsics, video_size: tuple[int, int],
