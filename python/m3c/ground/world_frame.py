@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from m3c.body.transform import spine_directions
 from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, fit_plane, level_with_body_up
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
 
@@ -27,8 +28,7 @@ def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray
     for track in tracks:
         frames = np.flatnonzero(track["visible"])
         joints = model.joints(track_poses(track)[frames], track["betas"], track["transl"][frames])
-        spine = joints[:, 12] - joints[:, 0]
-        spine /= np.linalg.norm(spine, axis=1, keepdims=True)
+        spine = spine_directions(joints)
         rotations = world_from_cam[track["first_frame"] + frames, :3, :3]
         directions.append(np.einsum("nij,nj->ni", rotations, spine))
     mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
