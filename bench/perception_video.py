@@ -18,7 +18,8 @@ import warnings
 
 import numpy as np
 
-from m3c.perception import PerceptionConfig, read_frames, run_perception_frames, video_info
+from m3c.io.video import iter_frames, probe_video
+from m3c.perception import PerceptionConfig, run_perception_frames
 from m3c.perception.evaluation import keypoints_in_mask_box
 from m3c.perception.mediapipe_pose import import_mediapipe
 
@@ -42,8 +43,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=None)
     parser.add_argument("--static-camera", action="store_true")
     args = parser.parse_args()
-    info = video_info(args.video)
-    frames = [image for _, image in read_frames(args.video, args.frames)]
+    info = probe_video(args.video)
+    frames = [image for _, image in iter_frames(args.video, stop=args.frames, colour="rgb")]
     n = len(frames)
     print(f"{args.video}: {n} frames {info.width}x{info.height} at {info.fps:.2f} fps")
 

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from m3c.vo import VOConfig, read_video, relative_ate, run_vo, umeyama_sim3
+from m3c.io.video import read_video
+from m3c.vo import VOConfig, relative_ate, run_vo, umeyama_sim3
 from m3c.vo.synthetic import following_occluders, forward_trajectory, render_sequence
 
 DEFAULT_VIDEO = Path("/work/shared/data/video/moving_camera/glamr_pexels-walking-dynamic-5738706.mp4")

@@ -15,10 +15,12 @@ void BindRender(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "M3C C++ core (Eigen, Ceres, OpenCV). Use the m3c package's public API rather than this module.";
+  // Types before the functions whose signatures name them (the motion optimizer takes the networks), so the
+  // docstrings and the .pyi stubs name Python types.
   m3c::bindings::BindBody(m);
+  m3c::bindings::BindNN(m);
   m3c::bindings::BindMotion(m);
   m3c::bindings::BindGround(m);
-  m3c::bindings::BindNN(m);
   m3c::bindings::BindVO(m);
   m3c::bindings::BindFit(m);
   m3c::bindings::BindRender(m);

@@ -27,7 +27,7 @@ py::array_t<double, py::array::c_style> ParseRows(const py::handle& obj, const s
   return a;
 }
 
-render::Intrinsics ParseIntrinsics(const py::handle& obj) {
+Intrinsics ParseIntrinsics(const py::handle& obj) {
   auto a = AsArray<double>(obj, "intrinsics");
   if (a.ndim() != 1 || a.shape(0) != 4) ShapeError("intrinsics", "(4,) fx, fy, cx, cy", a);
   RequireFinite(a, "intrinsics");
@@ -44,7 +44,7 @@ std::shared_ptr<Texture> MakeTexture(const py::handle& obj) {
 void Draw(Frame& frame, const py::handle& intrinsics, const py::handle& vertices, const py::handle& faces,
           const py::handle& light, double ambient, int id, bool cull, double near, const py::handle& normals,
           const std::shared_ptr<Texture>& texture, const py::handle& uv, const py::handle& face_rgb) {
-  const render::Intrinsics K = ParseIntrinsics(intrinsics);
+  const Intrinsics K = ParseIntrinsics(intrinsics);
   auto v = ParseRows(vertices, "vertices", 3);
   // Face ids as int32 for the core; the core checks them against the vertex count.
   auto f64 = AsIntegers(faces, "faces");

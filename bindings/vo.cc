@@ -18,7 +18,7 @@ namespace m3c::bindings {
 
 namespace {
 
-using vo::Intrinsics;
+using m3c::Intrinsics;
 using vo::PatchVO;
 using vo::PatchVOOptions;
 using vo::PatchVOResult;
@@ -388,8 +388,8 @@ Args:
       .def_property_readonly("num_frames", &PyPatchVO::num_frames);
 
   m.def("run_patch_vo", &RunPatchVO, py::arg("frames"), py::arg("masks") = py::none(),
-        py::arg("depths") = py::none(), py::arg("intrinsics") = py::none(), py::arg("options") = PatchVOOptions(),
-        py::arg("bgr") = false, R"doc(
+        py::arg("depths") = py::none(), py::arg("intrinsics") = py::none(),
+        py::arg_v("options", PatchVOOptions(), "PatchVOOptions()"), py::arg("bgr") = false, R"doc(
 Patch visual odometry over a whole sequence.
 
 Args:

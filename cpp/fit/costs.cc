@@ -9,18 +9,6 @@ namespace m3c::fit {
 
 namespace {
 
-// Geman-McClure shaping of an error vector e: r = a g e with g = sigma / sqrt(sigma^2 + |e|^2);
-// d r / d e = a (g I - g^3 / sigma^2 e e^T).
-template <int N>
-Eigen::Matrix<double, N, N> ShapeGemanMcClure(const Eigen::Matrix<double, N, 1>& e, double a, double sigma,
-                                              double* residual) {
-  const double s2 = sigma * sigma;
-  const double g = sigma / std::sqrt(s2 + e.squaredNorm());
-  Eigen::Map<Eigen::Matrix<double, N, 1>> out(residual);
-  out = a * g * e;
-  return a * (g * Eigen::Matrix<double, N, N>::Identity() - (g * g * g / s2) * e * e.transpose());
-}
-
 void ZeroJacobians(const ceres::CostFunction& cost, double** jacobians) {
   if (!jacobians) return;
   const auto& sizes = cost.parameter_block_sizes();
@@ -57,7 +45,6 @@ bool KeypointReprojectionCost::Evaluate(double const* const* parameters, double*
   points.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]},
                   jacobians != nullptr);
   ZeroJacobians(*this, jacobians);
-  const Intrinsics& c = intrinsics_;
   for (int k = 0; k < K; ++k) {
     const double conf = observations_(k, 2);
     if (conf <= 0.0) {
@@ -66,13 +53,10 @@ bool KeypointReprojectionCost::Evaluate(double const* const* parameters, double*
     }
     const Eigen::Vector3d x = points.point(k);
     if (!(x.z() > min_depth_)) return false;  // behind or too close to the camera: reject the step
-    const double iz = 1.0 / x.z();
-    const Eigen::Vector2d e(c.fx * x.x() * iz + c.cx - observations_(k, 0), c.fy * x.y() * iz + c.cy - observations_(k, 1));
-    const Eigen::Matrix2d dres_de = ShapeGemanMcClure<2>(e, conf * sqrt_weight_, sigma_, residuals + 2 * k);
+    const Eigen::Matrix<double, 2, 3> dres_dx = RobustReprojection(intrinsics_, x, observations_(k, 0),
+                                                                   observations_(k, 1), conf * sqrt_weight_, sigma_,
+                                                                   residuals + 2 * k);
     if (!jacobians) continue;
-    Eigen::Matrix<double, 2, 3> de_dx;
-    de_dx << c.fx * iz, 0.0, -c.fx * x.x() * iz * iz, 0.0, c.fy * iz, -c.fy * x.y() * iz * iz;
-    const Eigen::Matrix<double, 2, 3> dres_dx = dres_de * de_dx;
     for (int b = 0; b < 4; ++b) {
       if (!jacobians[b]) continue;
       Eigen::Map<RowMatrixXd> out(jacobians[b], num_residuals(), points.block_size(b));

@@ -10,14 +10,11 @@
 
 #include "body/body_model.h"
 #include "body/block_points.h"
+#include "util/pinhole.h"
 
 namespace m3c::fit {
 
 using body::RowMatrixXd;
-
-struct Intrinsics {
-  double fx = 1.0, fy = 1.0, cx = 0.0, cy = 0.0;
-};
 
 using Observations3 = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
 using Observations4 = Eigen::Matrix<double, Eigen::Dynamic, 4, Eigen::RowMajor>;

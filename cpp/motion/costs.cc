@@ -56,7 +56,6 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
       if (jacobians[b]) std::fill(jacobians[b], jacobians[b] + num_residuals() * parameter_block_sizes()[b], 0.0);
     }
   }
-  const double s2 = sigma_ * sigma_;
   for (int k = 0; k < K; ++k) {
     const double conf = observations_(k, 2);
     if (conf <= 0.0) {
@@ -65,18 +64,10 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
     }
     const Eigen::Vector3d xc = R * (points.point(k) - centre);
     if (!(xc.z() > min_depth_)) return false;  // behind or too close to the camera: reject the step
-    const double iz = 1.0 / xc.z();
-    const Eigen::Vector2d r(camera_.fx * xc.x() * iz + camera_.cx - observations_(k, 0),
-                            camera_.fy * xc.y() * iz + camera_.cy - observations_(k, 1));
-    const double g = sigma_ / std::sqrt(s2 + r.squaredNorm());
-    const double a = conf * sqrt_weight_;
-    Eigen::Map<Eigen::Vector2d>(residuals + 2 * k) = a * g * r;
+    const Eigen::Matrix<double, 2, 3> dres_dxc = RobustReprojection(
+        camera_.intrinsics, xc, observations_(k, 0), observations_(k, 1), conf * sqrt_weight_, sigma_, residuals + 2 * k);
     if (!jacobians) continue;
-    // d res / d r = a (g I - g^3 / sigma^2 r r^T); d r / d xc = projection Jacobian; d xc / d x_world = R.
-    const Eigen::Matrix2d dres_dr = a * (g * Eigen::Matrix2d::Identity() - (g * g * g / s2) * r * r.transpose());
-    Eigen::Matrix<double, 2, 3> dr_dxc;
-    dr_dxc << camera_.fx * iz, 0.0, -camera_.fx * xc.x() * iz * iz, 0.0, camera_.fy * iz, -camera_.fy * xc.y() * iz * iz;
-    const RowMatrixXd dres_dxw = dres_dr * dr_dxc * R;  // 2 x 3
+    const RowMatrixXd dres_dxw = dres_dxc * R;  // d xc / d x_world = R
     for (int b = 0; b < 4; ++b) {
       if (jacobians[b]) ChainPointJacobian(dres_dxw, points, k, b, jacobians[b], 2 * k, 1.0);
     }

@@ -10,6 +10,7 @@
 
 #include "body/body_model.h"
 #include "body/block_points.h"
+#include "util/pinhole.h"
 
 namespace m3c::motion {
 
@@ -20,7 +21,7 @@ using body::RowMatrixXd;
 struct FrameCamera {
   Eigen::Matrix3d cam_from_world_rotation;
   Eigen::Vector3d centre_in_world;  // unscaled, from world_from_cam
-  double fx, fy, cx, cy;
+  Intrinsics intrinsics;
 };
 
 // 2D keypoint reprojection, SLAHMR's robust form: cost = weight * sum_k conf_k^2 GM(|r_k|^2), with the

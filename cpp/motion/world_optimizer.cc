@@ -342,8 +342,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     FrameCamera cam;
     cam.cam_from_world_rotation = cameras.world_from_cam[t].topLeftCorner<3, 3>().transpose();
     cam.centre_in_world = cameras.world_from_cam[t].topRightCorner<3, 1>();
-    cam.fx = cameras.intrinsics(t, 0), cam.fy = cameras.intrinsics(t, 1);
-    cam.cx = cameras.intrinsics(t, 2), cam.cy = cameras.intrinsics(t, 3);
+    cam.intrinsics = {cameras.intrinsics(t, 0), cameras.intrinsics(t, 1), cameras.intrinsics(t, 2),
+                      cameras.intrinsics(t, 3)};
     return cam;
   };
 

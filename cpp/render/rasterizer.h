@@ -15,11 +15,9 @@
 #include <memory>
 #include <vector>
 
-namespace m3c::render {
+#include "util/pinhole.h"
 
-struct Intrinsics {
-  double fx = 1.0, fy = 1.0, cx = 0.0, cy = 0.0;
-};
+namespace m3c::render {
 
 // An RGB texture that repeats in both directions, with its mip chain: level 0 is the image, each further level
 // halves both sides by 2x2 box averaging, down to one texel. Width and height must be powers of two.

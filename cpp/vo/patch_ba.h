@@ -22,7 +22,7 @@
 
 #include <Eigen/Core>
 
-#include "vo/camera.h"
+#include "util/pinhole.h"
 #include "vo/rigid3.h"
 
 namespace m3c::vo {

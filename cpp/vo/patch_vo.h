@@ -29,7 +29,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "vo/camera.h"
+#include "util/pinhole.h"
 #include "vo/front_end.h"
 #include "vo/lk_front_end.h"
 #include "vo/patch_ba.h"

@@ -9,9 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from m3c.io.video import iter_frames, probe_video
-from m3c.perception.video import read_frames
 from m3c.pipeline import PipelineConfig, Runner
-from m3c.vo.video import iter_video_frames, video_info
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 SIZE = (320, 180)  # stored width, height
@@ -52,9 +50,9 @@ def test_rotation_metadata_is_read_and_applied(clips):
 def test_every_reader_sees_the_same_upright_frames(clips):
     plain, rotated = clips
     bgr = [f for _, f in iter_frames(rotated)]
-    rgb = [f for _, f in read_frames(rotated)]
-    gray = list(iter_video_frames(rotated, gray=True))
-    assert (video_info(rotated)["width"], video_info(rotated)["height"]) == (SIZE[1], SIZE[0])
+    rgb = [f for _, f in iter_frames(rotated, colour="rgb")]
+    gray = [f for _, f in iter_frames(rotated, colour="gray")]
+    assert len(bgr) == len(rgb) == len(gray) == 6
     for a, b, c in zip(bgr, rgb, gray):
         np.testing.assert_array_equal(a[..., ::-1], b)
         np.testing.assert_array_equal(cv2.cvtColor(a, cv2.COLOR_BGR2GRAY), c)

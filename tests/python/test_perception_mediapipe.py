@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from m3c.body.joint_names import COCO17_NAMES
-from m3c.perception import PerceptionConfig, read_frames, run_perception, run_perception_frames, video_info
+from m3c.io.video import iter_frames, probe_video
+from m3c.perception import PerceptionConfig, run_perception, run_perception_frames
 from m3c.perception.evaluation import keypoints_in_mask_box
 from m3c.perception.mediapipe_pose import (MP_TO_COCO17, MP_TO_FEET, _piece_of, landmarks_to_keypoints,
                                            mediapipe_available, square_tiles, tight_box)
@@ -123,11 +124,11 @@ def test_two_people_side_by_side_keep_their_ids():
     import cv2
 
     def frames():
-        for _, image in read_frames(TAIJI, 90):
+        for _, image in iter_frames(TAIJI, stop=90, colour="rgb"):
             half = cv2.resize(image, (640, 360), interpolation=cv2.INTER_AREA)
             yield np.ascontiguousarray(np.concatenate([half, half[:, ::-1]], axis=1))
 
-    result = run_perception_frames(frames(), video_info(TAIJI).fps, (360, 1280),
+    result = run_perception_frames(frames(), probe_video(TAIJI).fps, (360, 1280),
                                    PerceptionConfig(static_camera=True), source="taiji twice")
     assert len(result.tracks) == 2
     for track in result.tracks:
@@ -159,7 +160,7 @@ def test_hog_detector_finds_the_walker():
 
     detector = create("detector", "hog")
     found = 0
-    for index, image in read_frames(WALK, 20):
+    for index, image in iter_frames(WALK, stop=20, colour="rgb"):
         people = detector.detect(FrameContext(image, index))
         found += bool(people)
         for p in people:

@@ -174,7 +174,8 @@ def test_clear_errors_for_bad_input(short_sequence):
 
 def test_video_helpers_round_trip(short_sequence, tmp_path):
     cv2 = pytest.importorskip("cv2", reason="opencv-python-headless is needed for video files")
-    from m3c.vo import read_video, run_vo_video, video_info
+    from m3c.io.video import VideoError, probe_video, read_video
+    from m3c.vo import run_vo_video
 
     path = tmp_path / "clip.avi"
     writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 12.5, (160, 120))
@@ -182,21 +183,23 @@ def test_video_helpers_round_trip(short_sequence, tmp_path):
     for frame in short_sequence.frames:
         writer.write(cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR))
     writer.release()
-    info = video_info(path)
-    assert (info["width"], info["height"]) == (160, 120)
-    assert info["fps"] == pytest.approx(12.5)
-    frames, fps = read_video(path, stride=2)
+    info = probe_video(path)
+    assert (info.width, info.height) == (160, 120)
+    assert info.fps == pytest.approx(12.5)
+    frames, fps = read_video(path, step=2)
     assert frames.shape == (12, 120, 160) and frames.dtype == np.uint8
     assert fps == pytest.approx(6.25)
     # Lossy MJPG, so compare loosely with what was written.
     assert np.abs(frames.astype(int) - short_sequence.frames[::2].astype(int)).mean() < 4.0
-    rgb, _ = read_video(path, gray=False, max_frames=3)
+    rgb, _ = read_video(path, colour="rgb", max_frames=3)
     assert rgb.shape == (3, 120, 160, 3)
     result = run_vo_video(path, intrinsics=short_sequence.intrinsics)
     assert result.world_from_cam.shape == (24, 4, 4)
     assert result.extra["fps"] == pytest.approx(12.5)
-    with pytest.raises(FileNotFoundError, match="cannot open video"):
+    with pytest.raises(VideoError, match="video not found"):
         read_video(tmp_path / "missing.mp4")
+    with pytest.raises(ValueError, match="colour must be one of"):
+        read_video(path, colour="hsv")
 
 
 def test_cli_writes_the_trajectory_with_user_permissions(short_sequence, tmp_path, capsys):
@@ -221,4 +224,4 @@ def test_cli_writes_the_trajectory_with_user_permissions(short_sequence, tmp_pat
     os.umask(umask)
     assert stat.S_IMODE((out / "camera_trajectory.npz").stat().st_mode) == 0o666 & ~umask
     assert main(["vo", str(tmp_path / "missing.mp4"), "--out", str(out)]) == 2
-    assert "cannot open video" in capsys.readouterr().err
+    assert "video not found" in capsys.readouterr().err

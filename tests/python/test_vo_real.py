@@ -34,7 +34,7 @@ def test_euroc_zero_motion_is_reported_static():
 
 @pytest.mark.skipif(not VIDEO.exists(), reason=f"{VIDEO} not present")
 def test_moving_camera_video_is_smooth_and_forward():
-    from m3c.vo import read_video
+    from m3c.io.video import read_video
 
     frames, fps = read_video(VIDEO)
     assert frames.shape == (178, 540, 960)

@@ -20,6 +20,7 @@ from m3c import _core
 CAMERA_UP = np.array([0.0, -1.0, 0.0])
 
 _FILL_MODES = {"hold": _core.GapFill.hold, "linear": _core.GapFill.linear}
+_GROUND = _core.GroundOptions()  # the defaults (cpp/ground), read from the core, never copied
 
 
 @dataclass(frozen=True)
@@ -38,16 +39,16 @@ class GroundParams:
         take the first one in both modes.
     """
 
-    eps: float = 0.15
-    min_samples: int = 10
-    robust: bool = True
-    inlier_threshold: float = 0.02
-    min_support: int = 20
-    max_iterations: int = 1000
-    confidence: float = 0.999
-    seed: int = 0
-    max_distance: float = 0.10
-    fill: str = "hold"
+    eps: float = _GROUND.eps
+    min_samples: int = _GROUND.min_samples
+    robust: bool = _GROUND.fit.robust
+    inlier_threshold: float = _GROUND.fit.inlier_threshold
+    min_support: int = _GROUND.fit.min_support
+    max_iterations: int = _GROUND.fit.max_iterations
+    confidence: float = _GROUND.fit.confidence
+    seed: int = _GROUND.fit.seed
+    max_distance: float = _GROUND.max_distance
+    fill: str = _GROUND.fill.name
 
     def fit_options(self) -> "_core.PlaneFitOptions":
         if int(self.seed) < 0:
@@ -97,8 +98,10 @@ class PlaneFit:
         return np.asarray(points, dtype=np.float64) @ self.normal + self.offset
 
 
-def fit_plane(points, *, up, robust: bool = True, inlier_threshold: float = 0.02, min_support: int = 20,
-              max_iterations: int = 1000, confidence: float = 0.999, seed: int = 0) -> PlaneFit:
+def fit_plane(points, *, up, robust: bool = GroundParams.robust,
+              inlier_threshold: float = GroundParams.inlier_threshold, min_support: int = GroundParams.min_support,
+              max_iterations: int = GroundParams.max_iterations, confidence: float = GroundParams.confidence,
+              seed: int = GroundParams.seed) -> PlaneFit:
     """Fits a plane to points (N, 3), metres; up (3,) in the points' frame orients the normal.
 
     Total least squares (the smallest right singular vector of the centred points); robust=True first finds

@@ -143,14 +143,23 @@ def frame_rate(times: np.ndarray) -> FrameRate | None:
                      float(steps.max()), variable)
 
 
-def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step: int = 1) \
+_CONVERSIONS = {"bgr": None, "rgb": "COLOR_BGR2RGB", "gray": "COLOR_BGR2GRAY"}
+
+
+def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step: int = 1, colour: str = "bgr") \
         -> Iterator[tuple[int, np.ndarray]]:
-    """Yields (video frame id, BGR uint8 H x W x 3 frame) for ids start, start + step, ... < stop."""
+    """Yields (video frame id, frame) for ids start, start + step, ... < stop, upright (rotation metadata applied):
+    uint8 H x W x 3 BGR (OpenCV's order, the default), H x W x 3 RGB (colour="rgb") or H x W (colour="gray").
+    M3C's one video reader: every node, perception, the odometry and the tools read frames through it."""
     if start < 0 or step < 1 or (stop is not None and stop < start):
         raise ValueError(f"bad frame range start={start} stop={stop} step={step}")
+    if colour not in _CONVERSIONS:
+        raise ValueError(f"colour must be one of {sorted(_CONVERSIONS)}, got {colour!r}")
+    cv2 = _cv2()
+    conversion = None if _CONVERSIONS[colour] is None else getattr(cv2, _CONVERSIONS[colour])
     cap = open_capture(path)
     if not cap.isOpened():
-        raise VideoError(f"cannot open {path} as a video")
+        raise VideoError(f"cannot open {path} as a video (a missing file, or a codec OpenCV cannot read)")
     try:
         index = 0
         while stop is None or index < stop:
@@ -161,10 +170,21 @@ def iter_frames(path: str | Path, start: int = 0, stop: int | None = None, step:
                 ok, frame = cap.read()
                 if not ok:
                     return
-                yield index, frame
+                yield index, frame if conversion is None else cv2.cvtColor(frame, conversion)
             index += 1
     finally:
         cap.release()
+
+
+def read_video(path: str | Path, colour: str = "gray", max_frames: int | None = None, step: int = 1) \
+        -> tuple[np.ndarray, float]:
+    """Every step-th frame, up to max_frames of them, as one array ((T, H, W) gray or (T, H, W, 3), uint8) and
+    the frame rate of the kept frames. The whole clip in memory: for tests and tools on short clips; the
+    pipeline streams frames with iter_frames."""
+    info = probe_video(path)
+    stop = None if max_frames is None else max_frames * step
+    frames = [frame for _, frame in iter_frames(path, 0, stop, step, colour)]
+    return np.stack(frames), info.fps / step
 
 
 class VideoWriter:

@@ -18,12 +18,11 @@ from m3c.perception.pipeline import (EstimatorSpec, PerceptionConfig, Perception
 from m3c.perception.registry import available, create, register
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person
-from m3c.perception.video import read_frames, video_info
 
 __all__ = ["TASKS", "BodyEstimator", "BodyFitConfig", "BodyFits", "ContactEstimator", "DepthEstimator", "Detector",
            "EstimatorSpec", "FrameContext", "GenderEstimator", "KinematicContactConfig", "Observation",
            "PerceptionConfig", "PerceptionResult", "Person", "PersonTrack", "PoseEstimator2D", "Segmenter",
            "Tracker", "TrackerConfig", "appearance_descriptor", "available", "bhattacharyya_distance",
            "contact_track", "create", "crop", "default_intrinsics", "estimate_up", "fit_bodies", "iou",
-           "iou_matrix", "isolate", "kinematic_contacts", "process_box", "read_frames", "register",
-           "load_result", "rough_location", "run_perception", "run_perception_frames", "video_info"]
+           "iou_matrix", "isolate", "kinematic_contacts", "process_box", "register",
+           "load_result", "rough_location", "run_perception", "run_perception_frames"]

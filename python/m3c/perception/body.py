@@ -43,6 +43,9 @@ def keypoint_regressor(model: BodyModel, num_keypoints: int = NUM_COCO):
     return model.regressor(vw, jw)
 
 
+_FIT = _core.BodyFitOptions()  # the defaults (cpp/fit/frame_fit.h), read from the core, never copied
+
+
 @dataclass
 class BodyFitConfig:
     """Weights and settings of the per-frame fit (defaults = cpp/fit's FitOptions; see fit/frame_fit.h).
@@ -51,20 +54,20 @@ class BodyFitConfig:
     radians and shape units; a weight w on a term means a residual of size 1/sqrt(w) costs as much as 1 px.
     """
 
-    robust_sigma_px: float = 30.0
-    min_confidence: float = 0.3
-    min_keypoints: int = 6
-    keypoints3d_weight: float = 400.0
-    keypoints3d_sigma: float = 0.15
-    pose_prior_weight: float = 5.0
-    shape_prior_weight: float = 10.0
-    temporal_pose_weight: float = 20.0
-    temporal_betas_weight: float = 100.0
-    temporal_transl_weight: float = 3000.0
-    optimize_betas: bool = True
-    min_depth: float = 0.1
-    max_iterations: int = 40
-    reinit_error_px: float = 20.0
+    robust_sigma_px: float = _FIT.robust_sigma_px
+    min_confidence: float = _FIT.min_confidence
+    min_keypoints: int = _FIT.min_keypoints
+    keypoints3d_weight: float = _FIT.keypoints3d_weight
+    keypoints3d_sigma: float = _FIT.keypoints3d_sigma
+    pose_prior_weight: float = _FIT.pose_prior_weight
+    shape_prior_weight: float = _FIT.shape_prior_weight
+    temporal_pose_weight: float = _FIT.temporal_pose_weight
+    temporal_betas_weight: float = _FIT.temporal_betas_weight
+    temporal_transl_weight: float = _FIT.temporal_transl_weight
+    optimize_betas: bool = _FIT.optimize_betas
+    min_depth: float = _FIT.min_depth
+    max_iterations: int = _FIT.max_iterations
+    reinit_error_px: float = _FIT.reinit_error_px
 
     def to_core(self) -> "_core.BodyFitOptions":
         options = _core.BodyFitOptions()

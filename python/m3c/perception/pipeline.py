@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.io import atomic_path, save_npz_atomic
-from m3c.io.video import default_intrinsics
+from m3c.io.video import default_intrinsics, iter_frames, probe_video
 from m3c.perception.appearance import appearance_descriptor
 from m3c.perception.body import BodyFits, rough_location
 from m3c.perception.contacts import contact_rest_heights
@@ -27,7 +27,6 @@ from m3c.perception.registry import create
 from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person, pack_mask
-from m3c.perception.video import read_frames, video_info
 
 DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
                       "contacts": "kinematic", "depth": "none", "gender": "neutral"}
@@ -237,9 +236,9 @@ def _frame_mask(people: list[Person], size: tuple[int, int]) -> np.ndarray:
 def run_perception(video: str | Path, config: PerceptionConfig | None = None, max_frames: int | None = None,
                    progress: Callable[[int], None] | None = None) -> PerceptionResult:
     """Runs every perception estimator of `config` over a video file (its frame rate read from the file)."""
-    info = video_info(video)
-    return run_perception_frames((image for _, image in read_frames(video, max_frames)), info.fps,
-                                 (info.height, info.width), config, progress, str(video))
+    info = probe_video(video)
+    frames = (image for _, image in iter_frames(video, stop=max_frames, colour="rgb"))
+    return run_perception_frames(frames, info.fps, (info.height, info.width), config, progress, str(video))
 
 
 def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: tuple[int, int],

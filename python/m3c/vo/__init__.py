@@ -19,10 +19,9 @@ from m3c.vo.metrics import absolute_trajectory_error, path_length, relative_ate,
 from m3c.vo.odometry import VisualOdometry, VOConfig, VOResult, run_vo
 from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
                           scale_from_depth, scale_from_planted_feet)
-from m3c.vo.video import iter_video_frames, read_video, run_vo_video, video_info
+from m3c.vo.video import run_vo_video
 
-__all__ = ["VOConfig", "VOResult", "VisualOdometry", "run_vo", "run_vo_video", "read_video",
-           "iter_video_frames", "video_info", "default_intrinsics", "absolute_trajectory_error",
+__all__ = ["VOConfig", "VOResult", "VisualOdometry", "run_vo", "run_vo_video", "default_intrinsics", "absolute_trajectory_error",
            "relative_ate", "path_length", "umeyama_sim3", "ScaleEstimate", "ScaleObservation", "fuse",
            "map_ground_plane", "scale_from_camera_height", "scale_from_depth", "scale_from_planted_feet",
            "estimate_focal", "FocalEstimate", "FocalSearchConfig"]

@@ -28,6 +28,11 @@ def check_settings(settings, integers: dict[str, int], numbers: tuple[str, ...],
                              f"got {value!r}")
 
 
+# The settings' defaults are the C++ core's (cpp/vo/patch_vo.h), read from it, never copied.
+_VO = _core.PatchVOOptions()
+_LK = _VO.lucas_kanade
+
+
 @dataclass
 class VOConfig:
     """Patch VO settings (pixel quantities at the processing resolution, longer side <= max_image_side).
@@ -35,35 +40,35 @@ class VOConfig:
     The patch graph is DPVO's; DPVO's numbers (96 patches, lifetime 13, window 10, removal 22, keyframe
     index 4) are sized for a GPU, the defaults here for a CPU (64, 10, 8, 16, 4).
     """
-    max_image_side: int = 640
-    patches_per_frame: int = 64
-    patch_lifetime: int = 10
-    backward_frames: int = 3
-    optimization_window: int = 8
-    removal_window: int = 16
-    keyframe_index: int = 4
-    keyframe_threshold_px: float = 12.0
-    new_keyframe_flow_px: float = 6.0
-    init_frames: int = 8
-    init_min_flow_px: float = 3.0
-    init_iterations: int = 12
-    init_multi_start: bool = True
-    window_iterations: int = 4
-    final_iterations: int = 25
-    loss_scale_px: float = 1.5
-    outlier_threshold_px: float = 3.0
-    refine_non_keyframes: bool = True
-    use_depth: bool = True
-    num_threads: int = 1
+    max_image_side: int = _VO.max_image_side
+    patches_per_frame: int = _VO.patches_per_frame
+    patch_lifetime: int = _VO.patch_lifetime
+    backward_frames: int = _VO.backward_frames
+    optimization_window: int = _VO.optimization_window
+    removal_window: int = _VO.removal_window
+    keyframe_index: int = _VO.keyframe_index
+    keyframe_threshold_px: float = _VO.keyframe_threshold_px
+    new_keyframe_flow_px: float = _VO.new_keyframe_flow_px
+    init_frames: int = _VO.init_frames
+    init_min_flow_px: float = _VO.init_min_flow_px
+    init_iterations: int = _VO.init_iterations
+    init_multi_start: bool = _VO.init_multi_start
+    window_iterations: int = _VO.window_iterations
+    final_iterations: int = _VO.final_iterations
+    loss_scale_px: float = _VO.loss_scale_px
+    outlier_threshold_px: float = _VO.outlier_threshold_px
+    refine_non_keyframes: bool = _VO.refine_non_keyframes
+    use_depth: bool = _VO.use_depth
+    num_threads: int = _VO.num_threads
     # Front-end (Lucas-Kanade + gradient-biased sampling).
-    lk_window_px: int = 15
-    lk_pyramid_levels: int = 3
-    forward_backward_px: float = 0.75
-    reject_masked: bool = True
-    mask_dilation_px: int = 4
-    gradient_pool_px: int = 7
-    min_gradient: float = 3.0
-    seed: int = 0
+    lk_window_px: int = _LK.window_px
+    lk_pyramid_levels: int = _LK.pyramid_levels
+    forward_backward_px: float = _LK.forward_backward_px
+    reject_masked: bool = _LK.reject_masked
+    mask_dilation_px: int = _LK.sampling.mask_dilation_px
+    gradient_pool_px: int = _LK.sampling.pool_px
+    min_gradient: float = _LK.sampling.min_gradient
+    seed: int = _LK.seed
 
     _LK_FIELDS = {"lk_window_px": "window_px", "lk_pyramid_levels": "pyramid_levels",
                   "forward_backward_px": "forward_backward_px", "reject_masked": "reject_masked",

@@ -21,7 +21,7 @@ TEST(Costs, ReprojectionJacobians) {
   FrameCamera cam;
   cam.cam_from_world_rotation = Eigen::AngleAxisd(0.2, Eigen::Vector3d(0.3, 1.0, 0.1).normalized()).toRotationMatrix();
   cam.centre_in_world = Eigen::Vector3d(0.5, -0.2, -6.0);
-  cam.fx = 900, cam.fy = 880, cam.cx = 480, cam.cy = 270;
+  cam.intrinsics = {900, 880, 480, 270};
   Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor> obs(3, 3);
   // Residuals from ~0 to far beyond sigma, and one keypoint with no confidence.
   obs << 480, 270, 0.9, 700, 100, 0.5, 100, 900, 0.0;
@@ -79,7 +79,7 @@ FrameCamera TestCamera() {
   FrameCamera cam;
   cam.cam_from_world_rotation = Eigen::AngleAxisd(0.3, Eigen::Vector3d(1.0, 0.2, 0.1).normalized()).toRotationMatrix();
   cam.centre_in_world = Eigen::Vector3d(0.4, 1.5, -5.0);
-  cam.fx = cam.fy = 1000, cam.cx = 480, cam.cy = 270;
+  cam.intrinsics = {1000, 1000, 480, 270};
   return cam;
 }
 
