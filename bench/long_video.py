@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 from m3c.io.video import VideoWriter, iter_frames, probe_video
+from m3c.nodes import register_builtin_nodes
 from m3c.pipeline import PipelineConfig, Runner
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pexels_walking_moving_camera.mp4"
@@ -139,6 +140,7 @@ def main() -> None:
     run_dir = args.out / "run"
     if not args.resume:
         shutil.rmtree(run_dir, ignore_errors=True)
+    register_builtin_nodes()
     runner = MeasuredRunner(PipelineConfig.default(), run_dir, {"video": video}, show_progress=False)
     runner.minutes = info.frame_count_hint / info.fps / 60
     print(f"video: {info.width} x {info.height}, {info.fps:.3f} fps, {info.frame_count_hint} frames = "

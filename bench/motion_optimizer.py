@@ -7,8 +7,8 @@ The scene's lift (camera-local bodies placed with the odometry at scale 1) first
 (m3c.motion.scale, planted feet), as the pipeline's scale node does; the optimizer starts there, with the
 estimate's uncertainty as its scale prior. Each stage runs as its own optimizer call from the previous stage's
 Ceres result; torch starts from the same state and runs until an evaluated state
-reaches the Ceres stage's final cost, or a time limit. The objective is m3c.motion.torch_objective, which the tests
-check equals the C++ one. Stages before the first motion-prior stage are shared by both variants and run once.
+reaches the Ceres stage's final cost, or a time limit. The objective is m3c.testing.torch_objective, which the
+tests check equals the C++ one. Stages before the first motion-prior stage are shared by both variants and run once.
 Both sides use 2 threads.
 
     python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor] [--no-torch]
@@ -35,7 +35,7 @@ from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import OptimizerConfig, StageSpec, optimize, track_joints
 from m3c.motion.scale import estimate_scale, rescaled
-from m3c.motion.torch_objective import StageObjective, TorchState, run_lbfgs
+from m3c.testing.torch_objective import StageObjective, TorchState, run_lbfgs
 
 
 def world_error_mm(model, tracks, truth) -> float:

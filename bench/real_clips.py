@@ -18,6 +18,7 @@ from m3c.body import default_body_model
 from m3c.eval.benchmark import load_clips
 from m3c.eval.plausibility import results_plausibility, track_plausibility
 from m3c.io.results import load_results
+from m3c.nodes import register_builtin_nodes
 from m3c.pipeline import PipelineConfig, Runner
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,6 +41,7 @@ def main() -> None:
     if not videos and not args.static:
         videos = [ROOT / "examples" / "pexels_walking_moving_camera.mp4"]
         videos += sorted((ROOT.parent / "shared" / "data" / "video").glob("*/*.mp4"))
+    register_builtin_nodes()
     model = default_body_model()
     clip = next(c for c in load_clips() if "131" in c.info["name"])
     walk = slice(140, 200)

@@ -3,7 +3,6 @@ licensed file or a download."""
 
 import numpy as np
 import pytest
-
 from m3c.body import BodyModel
 from m3c.body.synthetic import make_synthetic_model
 
@@ -25,8 +24,12 @@ def rng():
 
 @pytest.fixture(autouse=True, scope="session")
 def _pipeline_test_nodes():
-    """Registers the framework tests' node types (tests/python/pipeline_test_nodes.py)."""
+    """Registers M3C's built-in node types and the framework tests' own (tests/python/pipeline_test_nodes.py), as
+    the m3c command registers the built-in ones."""
     import pipeline_test_nodes  # noqa: F401
+    from m3c.nodes import register_builtin_nodes
+
+    register_builtin_nodes()
 
 
 @pytest.fixture(scope="module")

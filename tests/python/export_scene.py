@@ -1,5 +1,5 @@
 """A small result folder for the export and viewer tests: two people walking in front of a camera that moves,
-written by the same code as `m3c run` (m3c.nodes.outputs.build_results) from known parameters."""
+written by the same code as `m3c run` (m3c.nodes.results.build_results) from known parameters."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from m3c.io.manifest import seal
 from m3c.io.npz import write_npz
-from m3c.nodes.outputs import build_results
+from m3c.nodes.results import build_results
 
 FPS = 10.0
 WIDTH, HEIGHT = 160, 120

@@ -19,7 +19,7 @@ from m3c.eval.scenes import make_scene
 from m3c.io.video import VideoWriter
 from m3c.nodes.load import save_outputs
 from m3c.nodes.patches import process_boxes
-from m3c.nodes.tracks import full_to_crop_camera
+from m3c.perception.boxes import full_to_crop_camera
 from m3c.viz.scene import WorldView, overlay_frame
 
 PERCEPTION = ("detections", "keypoints", "body", "tracking", "contacts", "cameras")
@@ -38,7 +38,7 @@ def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0,
     with VideoWriter(folder / "video.mp4", scene.fps, (W, H)) as writer:
         for i in range(num_frames):
             from m3c.viz.raster import Mesh, render
-            from m3c.viz.scene import to_camera
+            from m3c.camera import to_camera
 
             background, _ = render([Mesh(to_camera(ground.ground.vertices, truth_cams[i]), ground.ground.faces,
                                          face_colours=ground.ground.face_colours, smooth=False, cull=False)],

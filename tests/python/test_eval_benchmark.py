@@ -10,8 +10,16 @@ from m3c.eval import metrics as M
 from m3c.eval.benchmark import BenchmarkConfig, make_sequence, run_benchmark
 from m3c.eval.benchmark import _eval_tracks
 from m3c.eval.evaluate import evaluate_sequence
-from m3c.eval.scenes import project
 from m3c.motion import OptimizerConfig
+
+
+def project(points_in_world, world_from_cam, intrinsics):
+    """The pinhole model written out here, independently of m3c.camera: (pixels (..., 2), depth (...))."""
+    cam_from_world = np.linalg.inv(world_from_cam)
+    xc = points_in_world @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+    fx, fy, cx, cy = intrinsics
+    return np.stack([fx * xc[..., 0] / xc[..., 2] + cx, fy * xc[..., 1] / xc[..., 2] + cy], -1), xc[..., 2]
+
 
 PERFECT = dict(keypoint_noise_px=0.0, outlier_rate=0.0, occluded_noise_px=0.0, drop_rate=0.0, gaps_per_track=0,
                depth_bias=0.0, depth_jitter=0.0, orientation_bias_deg=0.0, orientation_jitter_deg=0.0,

@@ -1,4 +1,4 @@
-"""The C++ optimizer's stage objective against an independent torch implementation (m3c.motion.torch_objective):
+"""The C++ optimizer's stage objective against an independent torch implementation (m3c.testing.torch_objective):
 each term's cost at perturbed states, the HuMoR term with its levels after Ceres steps, and the torch L-BFGS
 baseline of the benchmark."""
 
@@ -14,7 +14,7 @@ from m3c.body.reference import lbs  # noqa: E402
 from m3c.body.synthetic import make_synthetic_model  # noqa: E402
 from m3c.eval.scenes import make_scene  # noqa: E402
 from m3c.motion import Cameras, OptimizerConfig, StageSpec, optimize  # noqa: E402
-from m3c.motion.torch_objective import StageObjective, TorchPoser, TorchState, run_lbfgs  # noqa: E402
+from m3c.testing.torch_objective import StageObjective, TorchPoser, TorchState, run_lbfgs  # noqa: E402
 
 RTOL = 1e-10
 

@@ -12,7 +12,8 @@ from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import Track, optimize, track_joints
 from m3c.motion.scale import estimate_scale, rescaled
-from m3c.motion.windows import _slerp, check_windows, optimize_in_windows, window_ranges, window_weights
+from m3c.motion.interpolate import slerp
+from m3c.motion.windows import check_windows, optimize_in_windows, window_ranges, window_weights
 from scipy.spatial.transform import Rotation
 
 FRAMES, WINDOW, OVERLAP = 70, 30, 10
@@ -53,7 +54,7 @@ def test_slerp_matches_scipy_slerp():
     rng = np.random.default_rng(0)
     a, b = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
     t = np.array([0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 1.0])
-    out = _slerp(a, b, t)
+    out = slerp(a, b, t)
     for k in range(7):
         from scipy.spatial.transform import Slerp
 

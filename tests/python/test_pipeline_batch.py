@@ -18,6 +18,7 @@ import pytest
 from m3c.cli import main
 from m3c.io.manifest import folder_state
 from m3c.io.results import PUBLISHED_FILES
+from m3c.nodes import register_builtin_nodes
 from m3c.perception.mediapipe_pose import mediapipe_available
 from m3c.pipeline import Needs, PipelineConfig, PipelineError, node_type
 from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch, video_needs
@@ -138,19 +139,20 @@ def test_ray_batch_matches_m3c_run_and_reuses_the_cache(videos, reference, tmp_p
     out = tmp_path / "batch"
     config = PipelineConfig.default()
     report = run_batch(config, collect_videos([videos]), out, cpus_per_video=1, memory_per_video_gb=0.5,
-                       show_progress=False)
+                       show_progress=False, setup=register_builtin_nodes)
     assert report.engine.startswith("ray")
     assert [o.name for o in report.failed] == ["broken"]
     summary = check_batch(out, reference, cached=False)
     assert summary["engine"] == report.engine
-    run_batch(config, collect_videos([videos]), out, cpus_per_video=1, memory_per_video_gb=0.5, show_progress=False)
+    run_batch(config, collect_videos([videos]), out, cpus_per_video=1, memory_per_video_gb=0.5, show_progress=False,
+              setup=register_builtin_nodes)
     check_batch(out, reference, cached=True)
 
 
 def test_ray_request_no_node_can_hold_is_refused(videos, tmp_path, local_ray):
     with pytest.raises(ValueError, match="no Ray node .* can run one video.*Lower --cpus-per-video"):
         run_batch(PipelineConfig.default(), [videos / "broken.mp4"], tmp_path / "out", cpus_per_video=64,
-                  show_progress=False)
+                  show_progress=False, setup=register_builtin_nodes)
 
 
 def start_batch(videos: Path, out: Path, *extra: str) -> subprocess.Popen:

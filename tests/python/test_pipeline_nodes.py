@@ -11,9 +11,11 @@ from scipy.spatial.transform import Rotation
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.nodes.patches import box_region, extract_patch, isolation_mask, process_boxes
 from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
-from m3c.nodes.tracks import (LocalTracksNode, crop_to_full_camera, full_to_crop_camera, interpolate_linear,
-                              interpolate_rotations)
-from m3c.nodes.world import estimate_camera_scale, gravity_frame
+from m3c.motion.interpolate import interpolate_linear, interpolate_rotations
+from m3c.nodes.local_tracks import LocalTracksNode
+from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera
+from m3c.ground.world_frame import gravity_frame
+from m3c.motion.scale import estimate_camera_scale
 from m3c.pipeline import InputError
 
 
@@ -212,20 +214,27 @@ def test_gravity_frame_puts_the_ground_at_y0_below_the_first_camera():
     assert abs(forward[0]) < 1e-12 and forward[2] > 0  # the first camera looks along +z (tilted in y)
 
 
-def test_camera_scale_from_planted_feet():
+def camera_local_scene(vo_scale: float):
+    """The synthetic scene's true people as camera-frame track dicts (as local_tracks gives them)."""
     from m3c.body import default_body_model
     from m3c.eval.scenes import make_scene
 
     model = default_body_model()
-    scene = make_scene(model, num_people=2, num_frames=40, seed=3, vo_scale=2.5)
+    scene = make_scene(model, num_people=2, num_frames=40, seed=3, vo_scale=vo_scale)
     cam_from_world = np.linalg.inv(scene.cameras_true.world_from_cam)
     tracks = []
-    for truth in scene.truth:
+    for k, truth in enumerate(scene.truth):
         root, transl = transform_smpl(cam_from_world, truth.root_orient, truth.transl,
                                       rest_root_joint(model, truth.betas))
-        tracks.append({"first_frame": 0, "num_frames": truth.num_frames, "root_orient": root, "transl": transl,
-                       "body_pose": truth.body_pose, "betas": truth.betas, "contacts": truth.contacts,
-                       "visible": np.ones(truth.num_frames, bool)})
+        tracks.append({"track_id": k, "first_frame": 0, "num_frames": truth.num_frames, "root_orient": root,
+                       "transl": transl, "body_pose": truth.body_pose, "betas": truth.betas,
+                       "contacts": truth.contacts, "visible": np.ones(truth.num_frames, bool),
+                       "keypoints": np.zeros((truth.num_frames, 17, 3))})
+    return model, scene, tracks
+
+
+def test_camera_scale_from_planted_feet():
+    model, scene, tracks = camera_local_scene(vo_scale=2.5)
     estimate = estimate_camera_scale(model, tracks, {"world_from_cam": scene.cameras_vo.world_from_cam})
     # The truth's planted joints roll a little within a stance (heel to toe); the camera walks along its view, the
     # axis the estimator trusts least (depth): 1.2% off, within its stated uncertainty.
@@ -237,6 +246,32 @@ def test_camera_scale_from_planted_feet():
     # A static camera (no baseline) gives no estimate.
     static = estimate_camera_scale(model, tracks, {"world_from_cam": np.tile(np.eye(4), (40, 1, 1))})
     assert static.sigma is None and static.source == "default"
+
+
+def test_ground_and_lift_without_the_runner():
+    """m3c.ground.world_frame.estimate_ground and m3c.motion.lift.lift_tracks on camera-local people seen by VO
+    cameras at the true scale: the world they give is the scene's up to a shift along its up and a turn about it."""
+    from m3c.ground import GroundParams
+    from m3c.ground.world_frame import estimate_ground, metric_cameras
+    from m3c.motion.lift import lift_tracks
+
+    model, scene, tracks = camera_local_scene(vo_scale=2.5)
+    vo = scene.cameras_vo.world_from_cam
+    ground = estimate_ground(model, tracks, vo, 2.5, GroundParams())
+    assert ground["up_source"] == "ground" and ground["contact_points"] > 1000
+    R = ground["world_from_vo"][:3, :3]
+    assert np.degrees(np.arccos(np.clip((R @ [0.0, 1.0, 0.0])[1], -1, 1))) < 0.5  # the scene's up is y
+    lifted = lift_tracks(model, tracks, ground["world_from_vo"] @ metric_cameras(vo, 2.5), ground["tracks"])
+    heights = []
+    for track, truth in zip(lifted, scene.truth):
+        pose = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        ours = model.joints(pose, track["betas"], track["transl"])
+        true_pose = np.concatenate([truth.root_orient[:, None], truth.body_pose], axis=1)
+        heights.append(ours[..., 1] - model.joints(true_pose, truth.betas, truth.transl)[..., 1])
+        np.testing.assert_array_equal(track["ground_normal"], np.tile([0.0, 1.0, 0.0], (40, 1)))
+    heights = np.concatenate([h.ravel() for h in heights])
+    assert np.ptp(heights) < 0.02  # one shift for every joint of everyone: the ground is level
+    assert abs(np.median(heights)) < 0.05  # the ground under the soles, the scene's near its lowest foot joint
 
 
 def test_patches_node_isolates_the_focused_person(tmp_path):

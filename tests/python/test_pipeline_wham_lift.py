@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from m3c.models.rotations import matrix_to_rotation_6d_rows
 from m3c.models.wham import WhamLifter
-from m3c.nodes.wham_lift import FLIP, wham_trajectory
+from m3c.motion.wham_lift import FLIP, wham_trajectory
 
 
 class KnownTrajectory(torch.nn.Module):
@@ -63,7 +63,7 @@ def test_lift_node_with_a_checkpoint_in_the_official_layout(tmp_path, monkeypatc
     from pipeline_scene import scene_pipeline_yaml, write_scene_inputs
 
     from m3c.body import default_body_model
-    from m3c.nodes.world import LiftNode
+    from m3c.nodes.lift import LiftNode
     from m3c.pipeline import PipelineConfig, run_pipeline
     from m3c.pipeline.cache import Cache
 

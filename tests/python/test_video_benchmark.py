@@ -7,8 +7,15 @@ import cv2
 import numpy as np
 import pytest
 from m3c.eval import video_benchmark as vb
-from m3c.eval.scenes import project
 from m3c.synth import CAMERA_KINDS, SequenceSpec, make_video, setup_sequence
+
+
+def project(points_in_world, world_from_cam, intrinsics):
+    """The pinhole model written out here, independently of m3c.camera: (pixels (..., 2), depth (...))."""
+    cam_from_world = np.linalg.inv(world_from_cam)
+    xc = points_in_world @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+    fx, fy, cx, cy = intrinsics
+    return np.stack([fx * xc[..., 0] / xc[..., 2] + cx, fy * xc[..., 1] / xc[..., 2] + cy], -1), xc[..., 2]
 
 
 @pytest.fixture(scope="module")

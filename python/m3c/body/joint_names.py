@@ -9,6 +9,11 @@ SMPL_JOINT_NAMES = (
 )
 SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21)
 
+# Contact joints: the ankles and feet, the joints that touch the ground when walking. Every per-person contact
+# probability in M3C (perception, ground, scale, optimizer, results) is over these, in this order.
+CONTACT_JOINT_NAMES = ("left_ankle", "right_ankle", "left_foot", "right_foot")
+CONTACT_JOINTS = tuple(SMPL_JOINT_NAMES.index(name) for name in CONTACT_JOINT_NAMES)  # (7, 8, 10, 11)
+
 # COCO-17 keypoint order used for every 2D keypoint array in M3C.
 COCO17_NAMES = (
     "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder", "right_shoulder",

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from m3c.body.joint_names import SMPL_JOINT_NAMES
+
 
 def rest_root_joint(model, betas) -> np.ndarray:
     """The root joint of the rest pose of shape `betas` (no translation), metres: (3,) for betas (B,), (n, 3) for
@@ -36,3 +38,11 @@ def transform_smpl(target_from_source, root_orient, transl, root_joint) -> tuple
     new_root = (Rotation.from_matrix(R) * Rotation.from_rotvec(root_orient)).as_rotvec()
     new_transl = np.einsum("nij,nj->ni", R, j0 + transl) + c - j0
     return new_root, new_transl
+
+
+def spine_directions(joints: np.ndarray) -> np.ndarray:
+    """Unit pelvis-to-neck directions (n, 3) of SMPL joints (n, J, 3), in the joints' frame: M3C's one rule for
+    reading "up" from bodies (people stand and walk mostly upright), averaged by m3c.perception.contacts.
+    estimate_up and, in the odometry's frame, m3c.ground.world_frame.body_up."""
+    spine = joints[:, SMPL_JOINT_NAMES.index("neck")] - joints[:, SMPL_JOINT_NAMES.index("pelvis")]
+    return spine / np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-9)

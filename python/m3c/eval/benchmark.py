@@ -32,16 +32,17 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.camera import UP, look_at, world_to_image
 from m3c.eval import metrics as M
 from m3c.eval.evaluate import aggregate, evaluate_sequence, format_method_table, format_value
 from m3c.eval.retarget import RetargetedMotion
-from m3c.eval.scenes import UP, look_at, project
 from m3c.eval.tracks import EvalTrack, body_eval_track
 from m3c.motion import Cameras, OptimizerConfig, Track, optimize
+from m3c.motion.interpolate import interpolate_rotations
 from m3c.motion.scale import estimate_scale, rescaled
 from m3c.nn import VPoser
 from m3c.synth.cameras import ou_noise
@@ -241,7 +242,7 @@ def _camera_path(motion: str, truth: list[Track], model: BodyModel, n: int, fps:
         W, H = config.image_size
         for dist in np.arange(5.0, 20.0, 0.5):  # back off until every pelvis stays in view with a margin
             eye0 = middle + ring(np.array([phi0]), dist)[0]
-            uv, depth = project(pelvis.reshape(-1, 3), look_at(eye0, middle), intrinsics)
+            uv, depth = world_to_image(pelvis.reshape(-1, 3), look_at(eye0, middle), intrinsics)
             if (depth > 0).all() and (np.abs(uv[:, 0] - W / 2) < 0.4 * W).all() and \
                     (np.abs(uv[:, 1] - H / 2) < 0.4 * H).all():
                 break
@@ -260,7 +261,7 @@ def _simulate_keypoints(truth: list[Track], model: BodyModel, world_from_cam, in
     for tr in truth:
         pose = np.concatenate([tr.root_orient[:, None], tr.body_pose], axis=1)
         kp = model.keypoints(regressor, pose, tr.betas, tr.transl)
-        proj = [project(kp[i], world_from_cam[i], intrinsics) for i in range(n)]
+        proj = [world_to_image(kp[i], world_from_cam[i], intrinsics) for i in range(n)]
         uv.append(np.stack([p[0] for p in proj]))
         depth.append(np.stack([p[1] for p in proj]))
     uv, depth = np.stack(uv), np.stack(depth)  # (P, n, 17, 2), (P, n, 17)
@@ -301,14 +302,6 @@ def _simulate_keypoints(truth: list[Track], model: BodyModel, world_from_cam, in
     return keypoints, detected
 
 
-def _interpolate_rotvecs(known_t, rotvecs, query_t) -> np.ndarray:
-    """Slerp of axis-angle rotations (k, 3) known at times known_t to query_t (clamped at the ends)."""
-    if len(known_t) == 1:
-        return np.repeat(rotvecs[:1], len(query_t), 0)
-    q = np.clip(query_t, known_t[0], known_t[-1])
-    return Slerp(known_t, Rotation.from_rotvec(rotvecs))(q).as_rotvec()
-
-
 def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_from_cam, config, fps, rng):
     """Camera-local estimates of one person over its span (None when it is never detected)."""
     hits = np.flatnonzero(detected)
@@ -335,9 +328,8 @@ def _simulate_local(model, tr: Track, person: int, keypoints, detected, world_fr
         kt, qt = np.flatnonzero(seen).astype(float), np.flatnonzero(~seen).astype(float)
         for d in range(3):
             transl[~seen, d] = np.interp(qt, kt, transl[seen, d])
-        root[~seen] = _interpolate_rotvecs(kt, root[seen], qt)
-        for j in range(body.shape[1]):
-            body[~seen, j] = _interpolate_rotvecs(kt, body[seen, j], qt)
+        root[~seen] = interpolate_rotations(kt, root[seen][:, None], qt)[:, 0]
+        body[~seen] = interpolate_rotations(kt, body[seen], qt)
     truth_contacts = tr.contacts[frames]
     prob = np.where(truth_contacts > 0.5, rng.uniform(0.7, 1.0, truth_contacts.shape),
                     rng.uniform(0.0, 0.3, truth_contacts.shape))

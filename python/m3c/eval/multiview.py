@@ -302,8 +302,10 @@ def run_multiview(
     """Runs M3C on each camera's video (cached under out_dir/<camera>) and scores it; a failed camera is
     reported and the others go on."""
     from m3c.io.results import load_results
+    from m3c.nodes import register_builtin_nodes
     from m3c.pipeline import PipelineConfig, Runner, parse_override
 
+    register_builtin_nodes()
     seq = load_multiview(folder)
     base = PipelineConfig.from_yaml(Path(pipeline_config)) if pipeline_config else PipelineConfig.default()
     start = time.perf_counter()

@@ -16,23 +16,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
-from m3c.motion import CONTACT_JOINTS, Cameras, Track, track_joints
-
-UP = np.array([0.0, 1.0, 0.0])
-
-
-def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """world_from_cam (4x4) of an OpenCV camera at `centre` looking at `target`, image y pointing down."""
-    z = target - centre
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, UP)  # z x up points to the camera's right when up is world-up
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = centre
-    return pose
-
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.camera import UP, look_at, world_to_image
+from m3c.motion import Cameras, Track, track_joints
 
 def walking_pose(phase: np.ndarray, num_joints: int = 24) -> np.ndarray:
     """Body pose (n, J-1, 3) of a walking cycle at the given phases (radians)."""
@@ -61,14 +47,6 @@ class SyntheticScene:
     cameras_vo: Cameras         # VO: true rotations, translations divided by vo_scale
     vo_scale: float             # true_translation = vo_scale * vo_translation
     image_size: tuple[int, int]
-
-
-def project(points_in_world: np.ndarray, world_from_cam: np.ndarray, intrinsics: np.ndarray) -> tuple:
-    """points (..., 3) with one camera: returns (uv (..., 2), depth (...))."""
-    cam_from_world = np.linalg.inv(world_from_cam)
-    xc = points_in_world @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
-    fx, fy, cx, cy = intrinsics
-    return np.stack([fx * xc[..., 0] / xc[..., 2] + cx, fy * xc[..., 1] / xc[..., 2] + cy], -1), xc[..., 2]
 
 
 def make_scene(model: BodyModel, num_people: int = 2, num_frames: int = 60, fps: float = 30.0, seed: int = 0,
@@ -119,7 +97,7 @@ def make_scene(model: BodyModel, num_people: int = 2, num_frames: int = 60, fps:
         kp3d = model.keypoints(regressor, pose, tr.betas, tr.transl)
         keypoints = np.zeros((n, 17, 3))
         for i in range(n):
-            uv, _ = project(kp3d[i], world_from_cam[i], intrinsics)
+            uv, _ = world_to_image(kp3d[i], world_from_cam[i], intrinsics)
             keypoints[i, :, :2] = uv + keypoint_noise_px * rng.normal(size=(17, 2))
             keypoints[i, :, 2] = rng.uniform(0.6, 1.0, size=17)
         keypoints[rng.uniform(size=n) < drop_rate] = 0.0  # missed detections

@@ -259,8 +259,10 @@ def score_results(model: BodyModel, truth: dict, arrays: dict, name: str) -> tup
 
 # Running ----------------------------------------------------------------------------------------------------------
 def pipeline_config(config: VideoBenchmarkConfig, video: SyntheticVideo):
+    from m3c.nodes import register_builtin_nodes
     from m3c.pipeline import PipelineConfig, parse_override
 
+    register_builtin_nodes()
     pipeline = (
         PipelineConfig.from_yaml(Path(config.pipeline_config))
         if config.pipeline_config

@@ -18,10 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from m3c import _core
-from m3c.body.joint_names import SMPL_JOINT_NAMES
+from m3c.body.joint_names import CONTACT_JOINT_NAMES, SMPL_JOINT_NAMES
 from m3c.ground.planes import GroundParams
 
-FOOT_JOINTS = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
 def foot_vertex_ids(weights, joint_names: Sequence[str] = SMPL_JOINT_NAMES,
@@ -30,7 +29,7 @@ def foot_vertex_ids(weights, joint_names: Sequence[str] = SMPL_JOINT_NAMES,
     weights = np.asarray(weights, dtype=np.float64)
     if weights.ndim != 2 or weights.shape[1] != len(joint_names):
         raise ValueError(f"weights must have shape (V, J={len(joint_names)}), got {weights.shape}")
-    columns = [list(joint_names).index(name) for name in FOOT_JOINTS]
+    columns = [list(joint_names).index(name) for name in CONTACT_JOINT_NAMES]
     return np.flatnonzero(weights[:, columns].sum(axis=1) >= min_weight)
 
 
@@ -40,11 +39,21 @@ def foot_vertex_ids(weights, joint_names: Sequence[str] = SMPL_JOINT_NAMES,
 MAX_CONTACT_POINTS = 1_000_000
 
 
+def track_poses(track: dict) -> np.ndarray:
+    """(n, J, 3) axis-angle poses of a track dict: root_orient as joint 0, then body_pose."""
+    return np.concatenate([np.asarray(track["root_orient"])[:, None], np.asarray(track["body_pose"])], axis=1)
+
+
+def track_frames(track: dict) -> np.ndarray:
+    """(n,) video frame indices of a track dict's frames."""
+    return int(track["first_frame"]) + np.arange(int(track["num_frames"]))
+
+
 def contact_vertices(model, tracks: Sequence[dict], threshold: float,
                      max_points: int = MAX_CONTACT_POINTS) -> list[list[np.ndarray]]:
     """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
 
-    tracks: camera-frame tracks (root_orient, body_pose, betas, transl, contacts (n, 4) over FOOT_JOINTS,
+    tracks: camera-frame tracks (root_orient, body_pose, betas, transl, contacts (n, 4) over CONTACT_JOINT_NAMES,
     visible (n,)). A foot vertex is in contact when the foot joint that moves it most has probability >
     threshold in a visible frame. When all tracks together would place more than max_points points, every
     `step`-th foot vertex is kept (the same subset in every frame, spread over the soles; step the smallest
@@ -52,10 +61,10 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
     if max_points < 1:
         raise ValueError(f"max_points must be >= 1, got {max_points}")
     foot_ids = foot_vertex_ids(model.data.weights)
-    columns = [SMPL_JOINT_NAMES.index(name) for name in FOOT_JOINTS]
+    columns = [SMPL_JOINT_NAMES.index(name) for name in CONTACT_JOINT_NAMES]
     foot_joint = np.argmax(np.asarray(model.data.weights)[foot_ids][:, columns], axis=1)
     masks = [(t["contacts"] > threshold) & t["visible"][:, None] if "contacts" in t else None for t in tracks]
-    per_joint = np.bincount(foot_joint, minlength=len(FOOT_JOINTS))
+    per_joint = np.bincount(foot_joint, minlength=len(CONTACT_JOINT_NAMES))
     total = sum(int((m @ per_joint).sum()) for m in masks if m is not None)
     step = max(1, -(-total // max_points))
     foot_ids, foot_joint = foot_ids[::step], foot_joint[::step]
@@ -66,7 +75,7 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
         if in_contact is None:
             continue
         frames = np.flatnonzero(in_contact.any(axis=1))
-        poses = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)
+        poses = track_poses(track)
         for chunk in np.array_split(frames, max(1, int(np.ceil(len(frames) / 64)))):
             if len(chunk) == 0:
                 continue

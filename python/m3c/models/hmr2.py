@@ -12,7 +12,7 @@ official 4D-Humans Lightning checkpoint (shubham-goel/4D-Humans, experiment hmr_
 Outputs: SMPL global orientation and body pose as rotation matrices (6D: the first two COLUMNS of R are x[:3], x[3:]
 Gram-Schmidt orthonormalised), betas (10), and the weak-perspective crop camera (s, tx, ty): a body point X projects
 to s (X_xy + t_xy) in [-1, 1] crop coordinates (HMR 2.0's translation is (tx, ty, 2 f / (256 s)) with f = 5000 px at
-256 px; m3c.nodes.tracks.crop_to_full_camera places it in the full image).
+256 px; m3c.perception.boxes.crop_to_full_camera places it in the full image).
 """
 
 from __future__ import annotations

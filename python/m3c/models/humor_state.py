@@ -50,9 +50,10 @@ OUT_JOINTS = slice(75, 141)
 OUT_JOINTS_VEL = slice(141, 207)
 OUT_CONTACTS = slice(207, 216)
 
-CONTACT_JOINT_NAMES = ("hips", "leftLeg", "rightLeg", "leftFoot", "rightFoot", "leftToeBase", "rightToeBase",
-                       "leftHand", "rightHand")
-CONTACT_JOINTS = (0, 4, 5, 7, 8, 10, 11, 20, 21)  # SMPL joint indices of the contact outputs
+# HuMoR's contact OUTPUTS (its decoder's per-joint contact logits), not M3C's contact joints (m3c.body.joint_names).
+HUMOR_CONTACT_JOINT_NAMES = ("hips", "leftLeg", "rightLeg", "leftFoot", "rightFoot", "leftToeBase",
+                             "rightToeBase", "leftHand", "rightHand")
+HUMOR_CONTACT_JOINTS = (0, 4, 5, 7, 8, 10, 11, 20, 21)  # SMPL joint indices of the contact outputs
 
 
 def _as_tensor(x, like: torch.Tensor | None = None) -> torch.Tensor:

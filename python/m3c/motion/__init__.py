@@ -1,7 +1,7 @@
 """World-frame motion: the staged global optimization (thesis 4.1.4, SLAHMR-style) over the C++ core."""
 
 from m3c.motion.config import OptimizerConfig, StageSpec
-from m3c.motion.optimize import CONTACT_JOINTS, Cameras, StageResult, Track, WorldResult, optimize, track_joints
+from m3c.motion.optimize import Cameras, StageResult, Track, WorldResult, optimize, track_joints
 
-__all__ = ["CONTACT_JOINTS", "Cameras", "OptimizerConfig", "StageResult", "StageSpec", "Track", "WorldResult",
+__all__ = ["Cameras", "OptimizerConfig", "StageResult", "StageSpec", "Track", "WorldResult",
            "optimize", "track_joints"]

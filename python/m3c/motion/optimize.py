@@ -8,11 +8,10 @@ import numpy as np
 
 from m3c import _core
 from m3c.body import BodyModel
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.config import OptimizerConfig
 from m3c.nn import HumorPrior, VPoser
 
-# Contact points: ankles and feet (SMPL joints 7, 8, 10, 11), the joints that touch the ground when walking.
-CONTACT_JOINTS = (7, 8, 10, 11)
 
 
 @dataclass

@@ -1,5 +1,6 @@
-"""The camera scale of world-frame tracks (the optimizer's input) by M3C's one scale estimator (m3c.vo.scale),
-for callers that start from lifted tracks rather than camera-local ones (the benchmarks, scripts)."""
+"""The camera scale of people's tracks by M3C's one scale estimator (m3c.vo.scale): estimate_camera_scale for
+camera-local tracks (the pipeline's scale node), estimate_scale for tracks already lifted to the world (the
+optimizer's input; the benchmarks, scripts)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,62 @@ import dataclasses
 import numpy as np
 
 from m3c.body import BodyModel
-from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track, track_joints
-from m3c.vo.scale import ScaleEstimate, fuse, scale_from_planted_feet
+from m3c.ground.tracks import contact_vertices, track_frames, track_poses
+from m3c.ground.world_frame import body_up
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.motion.optimize import Cameras, Track, track_joints
+from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
+                          scale_from_depth, scale_from_planted_feet)
+
+
+def contact_joints_in_camera(model, track: dict) -> np.ndarray:
+    """(n, 4, 3) positions of the contact joints (ankles, feet) of a camera-frame track."""
+    joints = model.joints(track_poses(track), track["betas"], track["transl"])
+    return joints[:, list(CONTACT_JOINTS)]
+
+
+def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_threshold: float = 0.5,
+                          depth: dict | None = None, intrinsics=None, log=None) -> ScaleEstimate:
+    """The camera scale from every observation that carries it (m3c.vo.scale): the planted feet against the
+    camera's motion, the camera's height above the ground (contacts) against the map's ground, and metric
+    depth maps when given. cameras: the vo node's output (world_from_cam, points, static)."""
+    vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
+    observations = []
+    feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
+                                   [(t["contacts"] >= contact_threshold) & t["visible"][:, None]
+                                    if "contacts" in t else np.zeros((t["num_frames"], len(CONTACT_JOINTS)), bool)
+                                    for t in tracks],
+                                   [track_frames(t) for t in tracks], vo)
+    observations.append(feet)
+    points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    plane = map_ground_plane(points, vo, body_up(model, tracks, vo)) if tracks else None
+    if plane is None:
+        observations.append(ScaleObservation("ground", reason="no ground plane among the odometry's "
+                                             f"{len(points)} map points"))
+    else:
+        per_frame = [[] for _ in range(len(vo))]
+        for track, points in zip(tracks, contact_vertices(model, tracks, contact_threshold)):
+            for i, p in enumerate(points):
+                if len(p):
+                    per_frame[track["first_frame"] + i].append(p)
+        contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
+        ground = scale_from_camera_height(contacts, vo, plane[:2])
+        ground.detail["map_points"] = int(plane[2].sum())
+        observations.append(ground)
+    if depth is not None and depth.get("available") and depth.get("metric"):
+        observations.append(scale_from_depth(points, vo, depth["depth"], intrinsics))
+    estimate = fuse(observations)
+    if log is not None:
+        for o in observations:
+            if o.usable():
+                log.info("camera scale from %s: %.4g m per VO unit (+-%.1f%%, %d frames)", o.source, o.value,
+                         100 * o.sigma, o.frames)
+            else:
+                log.info("camera scale from %s: not measured (%s)", o.source, o.reason)
+        if not estimate.consistent:
+            log.warning("the camera scale's sources disagree beyond their uncertainty: %s", ", ".join(
+                f"{o.source} {o.value:.4g}" for o in observations if o.usable()))
+    return estimate
 
 
 def estimate_scale(model: BodyModel, tracks: list[Track], cameras: Cameras, contact_threshold: float = 0.5

@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from m3c.motion.config import OptimizerConfig
+from m3c.motion.interpolate import slerp
 from m3c.motion.optimize import Cameras, StageResult, Track, WorldResult, optimize
 
 # A track's piece in a window shorter than this (frames) is left to the neighbouring window that holds more of
@@ -176,8 +176,8 @@ def _blend_track(track: Track, p: int, ranges, weights: np.ndarray, solved: list
         fresh = total[rows] == 0  # the first window to cover a frame sets it
         transl[rows] = np.where(fresh[:, None], piece.transl, (1 - share)[:, None] * transl[rows]
                                 + share[:, None] * piece.transl)
-        root[rows] = _slerp(root[rows], np.asarray(piece.root_orient), np.where(fresh, 1.0, share))
-        body[rows] = _slerp(body[rows], np.asarray(piece.body_pose), np.where(fresh, 1.0, share)[:, None])
+        root[rows] = slerp(root[rows], np.asarray(piece.root_orient), np.where(fresh, 1.0, share))
+        body[rows] = slerp(body[rows], np.asarray(piece.body_pose), np.where(fresh, 1.0, share)[:, None])
         total[rows] += w
         betas_sum += w.sum() * np.asarray(piece.betas, dtype=np.float64)
         betas_weight += w.sum()
@@ -186,17 +186,6 @@ def _blend_track(track: Track, p: int, ranges, weights: np.ndarray, solved: list
                  track.ground_offset, track.contacts)
 
 
-def _slerp(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Axis-angle rotations a -> b a fraction t of the way (shapes (..., 3), t broadcast over the leading axes);
-    exactly b where t == 1 and a where t == 0."""
-    t = np.broadcast_to(np.asarray(t, dtype=np.float64), a.shape[:-1])
-    out = np.where(t[..., None] >= 1.0, b, a)
-    mid = (t > 0) & (t < 1)
-    if mid.any():
-        ra, rb = Rotation.from_rotvec(a[mid]), Rotation.from_rotvec(b[mid])
-        step = (ra.inv() * rb).as_rotvec() * t[mid][:, None]
-        out[mid] = (ra * Rotation.from_rotvec(step)).as_rotvec()
-    return out
 
 
 def _blend_latent(track: Track, p: int, ranges, weights: np.ndarray, latents: list[dict[int, np.ndarray]]):

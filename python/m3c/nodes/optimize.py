@@ -11,7 +11,7 @@ import yaml
 
 from m3c.motion import Cameras, OptimizerConfig, Track
 from m3c.motion.windows import check_windows, optimize_in_windows
-from m3c.nodes.world import metric_cameras
+from m3c.ground.world_frame import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
 
@@ -146,7 +146,7 @@ class OptimizeNode(Node):
         motion_tracks, usable = [], []
         for track in tracks:
             motion = to_motion_track(track, metric)
-            reason = unusable_reason(ctx.body_model(), motion, metric, config)
+            reason = unusable_reason(ctx.loaded("body_model"), motion, metric, config)
             if reason is not None:
                 ctx.log.warning("track %s dropped: the optimizer cannot use it: %s", track["track_id"], reason)
                 continue
@@ -160,7 +160,7 @@ class OptimizeNode(Node):
         pose_prior = self._weights(ctx, "pose_prior", "vposer.safetensors")
         for name, path in (("HuMoR motion prior", motion_prior), ("VPoser pose prior", pose_prior)):
             ctx.log.info("%s: %s", name, path if path is not None else "no weights (term left out)")
-        result = optimize_in_windows(ctx.body_model(), motion_tracks, cameras, config, self.config.window,
+        result = optimize_in_windows(ctx.loaded("body_model"), motion_tracks, cameras, config, self.config.window,
                                      self.config.window_overlap, ctx.log, motion_prior=motion_prior,
                                      pose_prior=pose_prior, fps=float(inputs["video"]["fps"]))
         final_cams = result.world_from_cam(cameras)

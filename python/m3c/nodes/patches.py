@@ -16,7 +16,6 @@ white rather than black, which the thesis found the models handle better.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -91,51 +90,6 @@ def extract_patch(frame: np.ndarray, square: np.ndarray, size: int) -> np.ndarra
     M = np.array([[scale, 0.0, -scale * x0 - 0.5], [0.0, scale, -scale * y0 - 0.5]])
     return cv2.warpAffine(frame, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                           borderValue=(WHITE, WHITE, WHITE))
-
-
-@register_node
-class BoxesNode(Node):
-    """Square patch boxes per detection (process_boxes). Output boxes: square (N, 4), crop (N, 4) float32."""
-
-    type_name = "boxes"
-    level = "patch"
-    inputs = ("video", "detections")
-    outputs = ("boxes",)
-
-    @dataclass
-    class Config:
-        padding: float = 5.0  # pixels
-
-        def __post_init__(self):
-            if not (math.isfinite(self.padding) and self.padding >= 0):
-                raise ValueError(f"padding must be a finite number of pixels >= 0, got {self.padding}")
-
-    def run(self, ctx, inputs):
-        video, detections = inputs["video"], inputs["detections"]
-        table_length(detections, ("frame", "box"), "detections")
-        square, crop = process_boxes(detections["box"], video["width"], video["height"], self.config.padding)
-        return {"boxes": {"square": square.astype(np.float32), "crop": crop.astype(np.float32)}}
-
-    def visualize(self, ctx, inputs, outputs, folder):
-        import cv2
-
-        detections, boxes = inputs["detections"], outputs["boxes"]
-        if len(detections["frame"]) == 0:
-            return []
-        # The frame with the most people.
-        counts = np.bincount(detections["frame"])
-        target = int(np.argmax(counts))
-        for i, frame in stream_frames(ctx, inputs["video"]):
-            if i == target:
-                break
-        rows = np.flatnonzero(detections["frame"] == target)
-        for n in rows:
-            for box, colour in ((detections["box"][n], (0, 200, 0)), (boxes["square"][n], (0, 0, 255))):
-                cv2.rectangle(frame, tuple(int(round(v)) for v in box[:2]), tuple(int(round(v)) for v in box[2:]),
-                              colour, 2)
-        path = folder / f"boxes_frame{target:05d}.jpg"
-        cv2.imwrite(str(path), frame)
-        return [path]
 
 
 @register_node

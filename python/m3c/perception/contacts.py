@@ -19,12 +19,13 @@ import numpy as np
 
 from m3c.body import BodyModel
 from m3c.ground import ContactTrack, foot_vertex_ids
-from m3c.motion import CONTACT_JOINTS
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.body.transform import spine_directions
 from m3c.perception.interfaces import ContactEstimator
 from m3c.perception.registry import register
 
 NAME = "kinematic"
-NECK, PELVIS = 12, 0
+PELVIS = 0
 
 
 @dataclass
@@ -53,9 +54,7 @@ def _sigmoid(x: np.ndarray) -> np.ndarray:
 def estimate_up(joints: np.ndarray) -> np.ndarray:
     """The up direction (3,) as the mean pelvis-to-neck direction of SMPL joints (n, 24, 3): people are mostly
     upright, and this works in any frame (camera or world)."""
-    spine = joints[:, NECK] - joints[:, PELVIS]
-    spine = spine / np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-9)
-    up = spine.mean(axis=0)
+    up = spine_directions(joints).mean(axis=0)
     norm = np.linalg.norm(up)
     if norm < 1e-6:
         raise ValueError("cannot tell up from the joints (the spine directions cancel out); pass `up`")
@@ -135,7 +134,7 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
 
 @register("contacts", NAME)
 class KinematicContacts(ContactEstimator):
-    """Contact probabilities of m3c.motion.CONTACT_JOINTS (ankles, feet) from a track's joints."""
+    """Contact probabilities of m3c.body.joint_names.CONTACT_JOINTS (ankles, feet) from a track's joints."""
 
     def __init__(self, **options):
         self.config = KinematicContactConfig(**options)

@@ -78,7 +78,7 @@ class BodyEstimator(Estimator):
 
 class ContactEstimator(Estimator):
     """One track's SMPL joints (n, 24, 3) at frame_ids / fps -> contact probabilities (n, 4) of
-    m3c.motion.CONTACT_JOINTS; up None = estimated; ground_static: the joints' frame does not move with the
+    m3c.body.joint_names.CONTACT_JOINTS; up None = estimated; ground_static: the joints' frame does not move with the
     ground (world, static camera); rest_heights: (4,) the joints' heights above the sole when standing."""
 
     task = "contacts"

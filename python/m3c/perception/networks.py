@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.camera import project
 from m3c.perception.body import BodyFits
 from m3c.perception.boxes import crop_to_full_camera, network_input
 from m3c.perception.interfaces import BodyEstimator, PoseEstimator2D
@@ -177,9 +178,7 @@ class HMR2Estimator(BodyEstimator):
         errors = np.full((n, K), np.nan)
         if valid.any():
             points = self.model.keypoints(keypoint_regressor(self.model, K), pose[valid], betas[valid], transl[valid])
-            fx, fy, cx, cy = K_all[valid].T
-            uv = np.stack([fx[:, None] * points[..., 0] / points[..., 2] + cx[:, None],
-                           fy[:, None] * points[..., 1] / points[..., 2] + cy[:, None]], axis=-1)
+            uv = project(points, K_all[valid][:, None])
             errors[valid] = np.linalg.norm(uv - keypoints[valid, :, :2], axis=-1)
         seen = (keypoints[..., 2] >= self.min_confidence) & valid[:, None]
         errors = np.where(seen, errors, 0.0)

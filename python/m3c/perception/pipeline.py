@@ -118,7 +118,7 @@ class PersonTrack:
     boxes (n, 4), scores (n,), keypoints (n, K, 3) u, v, confidence with K = 17 (COCO-17) or 21 (COCO-17 then
     types.FOOT_KEYPOINT_NAMES), keypoints3d (n, K, 4) metric root-relative x, y, z and confidence (confidence 0
     where the pose estimator gave none), bodies: the
-    camera-local fits, contacts (n, 4) for m3c.motion.CONTACT_JOINTS, gender, estimators: task -> name.
+    camera-local fits, contacts (n, 4) for m3c.body.joint_names.CONTACT_JOINTS, gender, estimators: task -> name.
     """
 
     track_id: int

@@ -15,6 +15,7 @@ import os
 import time
 import traceback
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -185,11 +186,15 @@ def video_needs(config: PipelineConfig) -> Needs:
 def run_batch(config: PipelineConfig, videos: list[Path], out_dir: str | Path, *, use_ray: bool = True,
               address: str | None = None, cpus_per_video: float | None = None,
               memory_per_video_gb: float | None = None, show_progress: bool = True,
-              progress_stream=None) -> BatchReport:
+              progress_stream=None, setup: Callable[[], None] | None = None) -> BatchReport:
     """Every video of `videos` through `config` into out_dir/<result_names()[video]>/; the summary is written to
     out_dir/batch_summary.json. use_ray: run on Ray when it is installed (address: a cluster's address, None =
     start a local instance; each video asks Ray for cpus_per_video CPUs, memory_per_video_gb of memory and, with
-    settings.device on CUDA, one GPU; None: video_needs(config), what the pipeline's nodes declare)."""
+    settings.device on CUDA, one GPU; None: video_needs(config), what the pipeline's nodes declare). setup: called
+    once in this process and in every Ray task before its video runs, to register the node types the config uses
+    (the m3c command passes m3c.nodes.register_builtin_nodes); a module-level function, so Ray ships it by name."""
+    if setup is not None:
+        setup()
     needs = video_needs(config)
     cpus_per_video = needs.cpus if cpus_per_video is None else cpus_per_video
     memory_per_video_gb = needs.memory_gb if memory_per_video_gb is None else memory_per_video_gb
@@ -214,7 +219,8 @@ def run_batch(config: PipelineConfig, videos: list[Path], out_dir: str | Path, *
         progress.update()
 
     if use_ray:
-        engine = _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_per_video_gb, finished)
+        engine = _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_per_video_gb, finished,
+                             setup)
     else:
         engine = "sequential"
         for video in videos:
@@ -225,7 +231,16 @@ def run_batch(config: PipelineConfig, videos: list[Path], out_dir: str | Path, *
     return report
 
 
-def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_per_video_gb, finished) -> str:
+def _run_video_after(setup: Callable[[], None] | None, config: PipelineConfig, video: str, out_dir: str
+                     ) -> VideoOutcome:
+    """A Ray task: a worker process registers the node types (setup) before it runs the video."""
+    if setup is not None:
+        setup()
+    return run_video(config, video, out_dir)
+
+
+def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_per_video_gb, finished,
+                setup) -> str:
     import ray
 
     started_here = not ray.is_initialized()
@@ -242,9 +257,9 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
         _check_feasible(ray, resources, address)
         # max_retries=0: a video whose worker died is reported, not silently run again (re-running the batch
         # resumes it from its cache).
-        task = ray.remote(max_retries=0, **resources)(run_video)
+        task = ray.remote(max_retries=0, **resources)(_run_video_after)
         config_ref = ray.put(config)
-        pending = {task.remote(config_ref, str(v), str(out_dir / names[v])): v for v in videos}
+        pending = {task.remote(setup, config_ref, str(v), str(out_dir / names[v])): v for v in videos}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
             for ref in ready:

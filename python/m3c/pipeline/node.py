@@ -14,6 +14,7 @@ import hashlib
 import inspect
 import types
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -171,20 +172,40 @@ def register_node(cls: type[Node]) -> type[Node]:
 
 
 def node_type(type_name: str) -> type[Node]:
-    _load_builtin_nodes()
     try:
         return _REGISTRY[type_name]
     except KeyError:
-        raise PipelineError(f"unknown node type {type_name!r}; known types: {sorted(_REGISTRY)}") from None
+        # The framework knows no node type of its own: the program that builds a graph registers the types it uses
+        # (M3C's built-in ones: m3c.nodes.register_builtin_nodes(), which `m3c run` and the other commands call).
+        raise PipelineError(f"unknown node type {type_name!r}; known types: {sorted(_REGISTRY)} (M3C's built-in "
+                            "node types are registered by m3c.nodes.register_builtin_nodes())") from None
 
 
 def node_types() -> dict[str, type[Node]]:
-    _load_builtin_nodes()
     return dict(_REGISTRY)
 
 
-def _load_builtin_nodes() -> None:
-    import m3c.nodes  # noqa: F401  (registers the built-in node types)
+@dataclass(frozen=True)
+class SettingLoader:
+    """How the runner serves a global setting that names something to load (a model file): `fingerprint(value)` is
+    what enters the cache keys of the nodes that read the setting (the file's content digest, not its path), and
+    `load(value)` builds the object, once per run (RunContext.loaded). Registered by the program that builds the
+    graph, next to its node types, so the framework names no domain package."""
+
+    fingerprint: Callable[[Any], Any]
+    load: Callable[[Any], Any]
+
+
+_SETTING_LOADERS: dict[str, SettingLoader] = {}
+
+
+def register_setting_loader(name: str, fingerprint: Callable[[Any], Any], load: Callable[[Any], Any]) -> None:
+    """Makes Settings.<name> a loadable setting (see SettingLoader); registering it again replaces the loader."""
+    _SETTING_LOADERS[name] = SettingLoader(fingerprint, load)
+
+
+def setting_loader(name: str) -> SettingLoader | None:
+    return _SETTING_LOADERS.get(name)
 
 
 # Config dataclasses <-> YAML dicts ----------------------------------------------------------------------------

@@ -27,7 +27,15 @@ from m3c.pipeline.cache import Cache, digest, file_digest
 from m3c.pipeline.config import PipelineConfig, Settings
 from m3c.pipeline.finite import check_outputs
 from m3c.pipeline.graph import Graph
-from m3c.pipeline.node import ComponentUnavailable, FileRef, InputError, Node, PipelineError, config_to_dict
+from m3c.pipeline.node import (
+    ComponentUnavailable,
+    FileRef,
+    InputError,
+    Node,
+    PipelineError,
+    config_to_dict,
+    setting_loader,
+)
 from m3c.pipeline.progress import Progress
 
 LOG = logging.getLogger("m3c.pipeline")
@@ -76,9 +84,10 @@ class RunContext:
         path.parent.mkdir(parents=True, exist_ok=True)
         return path
 
-    def body_model(self):
-        """The configured body model (settings.body_model, else the open model), loaded once per run."""
-        return self._runner.body_model()
+    def loaded(self, setting: str):
+        """What the setting names (e.g. "body_model": the configured body model), loaded once per run by the
+        setting's registered loader (m3c.pipeline.node.register_setting_loader)."""
+        return self._runner.loaded(setting)
 
     def upstream_nodes(self) -> dict[str, dict]:
         """Type and config of every node this node depends on (they are part of its cache key through its
@@ -139,7 +148,7 @@ class Runner:
         self.sources = {k: Path(v) for k, v in (sources or {}).items()}
         self.show_progress = show_progress
         self.progress_stream = progress_stream if progress_stream is not None else sys.stderr
-        self._body_model = None
+        self._loaded: dict[str, Any] = {}  # setting -> what its loader built, once per run
         self._publishing: dict = {}  # the "running" manifest of this run, once written
         self._setting_digests: dict[str, Any] = {}
 
@@ -150,25 +159,14 @@ class Runner:
             if not hasattr(settings, name):
                 raise PipelineError(f"unknown setting {name!r}")
             value = getattr(settings, name)
-            if name == "body_model":
-                value = self._body_model_fingerprint(value)
+            loader = setting_loader(name)
+            if loader is not None:
+                value = loader.fingerprint(value)
             elif name == "models_dir":
                 folder = value or os.environ.get("M3C_MODELS")
                 value = str(Path(folder).expanduser().resolve()) if folder else None
             self._setting_digests[name] = value
         return self._setting_digests[name]
-
-    @staticmethod
-    def _body_model_fingerprint(path: str | None) -> str:
-        if path is None:
-            from m3c.body import OPEN_MODEL_NAME, open_body_model_path
-
-            return f"{OPEN_MODEL_NAME}:{file_digest(open_body_model_path())}"
-        file = Path(path).expanduser()
-        if not file.is_file():
-            raise InputError(f"body model file not found: {file}; pass an SMPL .pkl/.npz (--body-model) or leave it "
-                             "unset for M3C's open model")
-        return file_digest(file)
 
     def source_fingerprint(self, name: str) -> str:
         path = self.sources.get(name)
@@ -197,15 +195,14 @@ class Runner:
             keys[name] = digest(material)
         return keys
 
-    def body_model(self):
-        if self._body_model is None:
-            from m3c.body import default_body_model
-
-            path = self.config.settings.body_model
-            if path is not None and not Path(path).expanduser().is_file():
-                raise InputError(f"body model file not found: {path}")
-            self._body_model = default_body_model(None if path is None else Path(path).expanduser())
-        return self._body_model
+    def loaded(self, setting: str):
+        if setting not in self._loaded:
+            loader = setting_loader(setting)
+            if loader is None:
+                raise PipelineError(f"the setting {setting!r} has no loader registered; the program that builds the "
+                                    "graph registers it (m3c.nodes.register_builtin_nodes() for M3C's nodes)")
+            self._loaded[setting] = loader.load(getattr(self.config.settings, setting))
+        return self._loaded[setting]
 
     # Running ------------------------------------------------------------------------------------------------
     def plan(self, targets: list[str] | None = None) -> list[tuple[str, str, bool]]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
-from m3c.eval.scenes import UP, look_at
+from m3c.camera import UP, look_at, project, to_camera
 
 CAMERA_KINDS = ("static", "pan", "follow", "tracking", "orbit", "handheld", "high")
 AIM_HEIGHT = 0.9
@@ -49,12 +49,9 @@ def _roll(pose: np.ndarray, angle: float) -> np.ndarray:
 
 def _in_view(world_from_cam, intrinsics, points, width, height, margin=0.04) -> float:
     """Fraction of (frame, point) pairs inside the image with a margin; points (n, K, 3)."""
-    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
-    cam = np.einsum("nji,nkj->nki", R, points - c[:, None])
-    fx, fy, cx, cy = intrinsics
+    cam = to_camera(points, world_from_cam)
     z = cam[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u, v = fx * cam[..., 0] / z + cx, fy * cam[..., 1] / z + cy
+    u, v = np.moveaxis(project(cam, intrinsics), -1, 0)
     ok = (
         (z > 0.3)
         & (u > margin * width)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from m3c.body import BodyModel
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval.retarget import RetargetedMotion
-from m3c.motion import CONTACT_JOINTS
+from m3c.body.joint_names import CONTACT_JOINTS
 
 UP = np.array([0.0, 1.0, 0.0])
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.body import BodyModel
+from m3c.camera import project, to_camera
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import atomic_path, save_npz_atomic
 from m3c.synth.cameras import camera_path
@@ -293,11 +294,9 @@ def render_video(
 
 def project_points(points, world_from_cam, intrinsics, width, height):
     """(K, 3) world points -> (K, 2) pixels (-1 behind the camera) and (K,) inside the image."""
-    R, c = world_from_cam[:3, :3], world_from_cam[:3, 3]
-    cam = (points - c) @ R
-    fx, fy, cx, cy = intrinsics
-    z = np.where(cam[:, 2] > 1e-6, cam[:, 2], np.nan)
-    uv = np.stack([fx * cam[:, 0] / z + cx, fy * cam[:, 1] / z + cy], axis=-1)
+    cam = to_camera(points, world_from_cam)
+    cam[:, 2] = np.where(cam[:, 2] > 1e-6, cam[:, 2], np.nan)  # behind the camera: no pixel
+    uv = project(cam, intrinsics)
     inside = (
         np.isfinite(uv).all(-1)
         & (uv[:, 0] >= 0)

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from m3c.camera import project as project_pinhole
+
 MAX_FRAGMENTS = 4_000_000  # candidate pixels tested per batch (memory bound)
 
 
@@ -52,10 +54,7 @@ class Buffers:
 
 def project(vertices: np.ndarray, intrinsics) -> np.ndarray:
     """(V, 3) camera-frame points -> (V, 3) (u, v, z)."""
-    fx, fy, cx, cy = (float(v) for v in intrinsics)
-    z = vertices[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.stack([fx * vertices[:, 0] / z + cx, fy * vertices[:, 1] / z + cy, z], axis=1)
+    return np.concatenate([project_pinhole(vertices, intrinsics), vertices[:, 2:]], axis=1)
 
 
 def rasterize(buffers: Buffers, mesh_index: int, vertices: np.ndarray, faces: np.ndarray, intrinsics,

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.camera import look_at, to_camera, world_to_image
+from m3c.ground.tracks import track_poses
 from m3c.viz.raster import Mesh, render
 
 # One colour per track id (RGB, [0, 1]): well separated hues, readable over video.
@@ -18,11 +20,6 @@ def track_colour(track_id: int) -> np.ndarray:
     return PALETTE[int(track_id) % len(PALETTE)]
 
 
-def to_camera(points_in_world: np.ndarray, world_from_cam: np.ndarray) -> np.ndarray:
-    R, c = world_from_cam[:3, :3], world_from_cam[:3, 3]
-    return (points_in_world - c) @ R
-
-
 def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces: np.ndarray,
                   world_from_cam: np.ndarray, intrinsics, alpha: float = 0.8) -> np.ndarray:
     """bodies: (vertices in the world (V, 3), track id). Returns the frame with the shaded meshes over it."""
@@ -30,19 +27,6 @@ def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces
     height, width = frame.shape[:2]
     image, _ = render(meshes, intrinsics, width, height, background=frame, alpha=alpha)
     return image
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """world_from_cam of an OpenCV camera at `eye` looking at `target`, image y pointing against `up`."""
-    z = target - eye
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, np.asarray(up, dtype=np.float64))
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = eye
-    return pose
 
 
 def nice_step(length: float) -> float:
@@ -94,11 +78,7 @@ class WorldView:
         return Mesh(vertices, np.array(faces), face_colours=np.array(colours), smooth=False, cull=False)
 
     def project(self, points_in_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        cam = to_camera(points_in_world, self.pose)
-        fx, fy, cx, cy = self.intrinsics
-        with np.errstate(divide="ignore", invalid="ignore"):
-            uv = np.stack([fx * cam[:, 0] / cam[:, 2] + cx, fy * cam[:, 1] / cam[:, 2] + cy], axis=1)
-        return uv, cam[:, 2]
+        return world_to_image(points_in_world, self.pose, self.intrinsics)
 
     def frame(self, bodies: list[tuple[np.ndarray, int]], faces: np.ndarray, camera_path: np.ndarray,
               current_camera: np.ndarray, video_intrinsics, video_size: tuple[int, int],
@@ -147,3 +127,28 @@ class WorldView:
             return
         pixels = pixels[np.r_[True, (np.diff(pixels, axis=0) != 0).any(axis=1)]]
         cv2.polylines(image, [pixels.reshape(-1, 1, 2)], False, colour, 2, cv2.LINE_AA)
+
+
+class BodyFrames:
+    """World-frame vertices of every track at a frame, computed a chunk of frames at a time."""
+
+    def __init__(self, model, tracks: list[dict], chunk: int = 16):
+        self.model, self.tracks, self.chunk = model, tracks, chunk
+        self._cache: dict[int, tuple[int, np.ndarray]] = {}
+
+    def at(self, frame: int) -> list[tuple[np.ndarray, int]]:
+        bodies = []
+        for k, track in enumerate(self.tracks):
+            i = frame - int(track["first_frame"])
+            if not 0 <= i < int(track["num_frames"]):
+                continue
+            start, verts = self._cache.get(k, (-1, None))
+            if verts is None or not start <= i < start + len(verts):
+                start = i
+                stop = min(i + self.chunk, int(track["num_frames"]))
+                pose = track_poses(track)[start:stop]
+                verts = self.model.forward(pose, np.asarray(track["betas"]),
+                                           np.asarray(track["transl"])[start:stop]).vertices
+                self._cache[k] = (start, verts)
+            bodies.append((verts[i - start], int(track["track_id"])))
+        return bodies

@@ -32,6 +32,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from m3c.camera import project, to_camera
+
 # Relative standard deviation of a person's metric size as a monocular body estimate sees it: adult stature
 # varies by about 4% around its mean and the shape estimate recovers little of it.
 PERSON_SIZE_SIGMA = 0.05
@@ -315,17 +317,14 @@ def scale_from_depth(points: np.ndarray, world_from_cam: np.ndarray, depth_maps,
     obs = ScaleObservation("depth map", person_size=False)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
-    fx, fy, cx, cy = np.asarray(intrinsics, dtype=np.float64)
     if len(depth_maps) != len(world_from_cam):
         raise ValueError(f"{len(depth_maps)} depth maps for {len(world_from_cam)} cameras")
     logs, per_frame = [], []
     for t, depth in enumerate(depth_maps):
         depth = np.asarray(depth, dtype=np.float64)
-        cam_from_world = np.linalg.inv(world_from_cam[t])
-        x = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+        x = to_camera(points, world_from_cam[t])
         front = x[:, 2] > 1e-9
-        u = np.round(fx * x[front, 0] / x[front, 2] + cx).astype(np.int64)
-        v = np.round(fy * x[front, 1] / x[front, 2] + cy).astype(np.int64)
+        u, v = np.round(project(x[front], intrinsics)).astype(np.int64).T
         inside = (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
         metric = depth[v[inside], u[inside]]
         known = np.isfinite(metric) & (metric > 0)

@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.models.rotations import matrix_to_rotation_6d_rows
 from m3c.models.wham import camera_angular_velocity, keypoint_inputs
 from scipy.spatial.transform import Rotation
 
 FLIP = np.diag([1.0, -1.0, -1.0])  # y-up world -> y-down world (rotation by pi about x)
-FOOT_JOINTS = (7, 8, 10, 11)
 
 
 def _root_centred_keypoints(model, track: dict) -> np.ndarray:
@@ -71,4 +71,4 @@ def _feet_in_wham_world(model, track: dict, lifted: dict) -> np.ndarray:
     """(n, 4, 3) foot joints of the track posed with WHAM's root orientation and translation (its world)."""
     root = Rotation.from_matrix(lifted["root_world"][0].double().numpy()).as_rotvec()
     pose = np.concatenate([root[:, None], track["body_pose"]], axis=1)
-    return model.joints(pose, track["betas"], lifted["trans_world"][0].double().numpy())[:, list(FOOT_JOINTS)]
+    return model.joints(pose, track["betas"], lifted["trans_world"][0].double().numpy())[:, list(CONTACT_JOINTS)]

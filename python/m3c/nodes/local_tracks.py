@@ -17,34 +17,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
+from m3c.motion.interpolate import interpolate_linear, interpolate_rotations
 from m3c.nodes.records import table_length
-from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera  # noqa: F401 (re-exported)
+from m3c.perception.boxes import crop_to_full_camera
 from m3c.pipeline import InputError, Node, PipelineError, register_node
-
-
-def interpolate_linear(times: np.ndarray, values: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """Piecewise-linear interpolation of values (K, ...) known at increasing times (K,) onto query (M,);
-    constant beyond the ends."""
-    values = np.asarray(values, dtype=np.float64)
-    flat = values.reshape(len(times), -1)
-    out = np.stack([np.interp(query, times, flat[:, d]) for d in range(flat.shape[1])], axis=1)
-    return out.reshape((len(query),) + values.shape[1:])
-
-
-def interpolate_rotations(times: np.ndarray, rotvecs: np.ndarray, query: np.ndarray) -> np.ndarray:
-    """SO(3) slerp of axis-angle rotations (K, J, 3) known at increasing times (K,) onto query (M,) -> (M, J, 3);
-    constant beyond the ends. Each step takes the shorter arc between consecutive known rotations."""
-    rotvecs = np.asarray(rotvecs, dtype=np.float64)
-    K, J = rotvecs.shape[:2]
-    query = np.clip(np.asarray(query, dtype=np.float64), times[0], times[-1])
-    if K == 1:
-        return np.repeat(rotvecs, len(query), axis=0)
-    out = np.empty((len(query), J, 3))
-    for j in range(J):
-        out[:, j] = Slerp(times, Rotation.from_rotvec(rotvecs[:, j]))(query).as_rotvec()
-    return out
 
 
 @register_node

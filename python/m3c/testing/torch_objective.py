@@ -24,7 +24,8 @@ import torch
 from m3c.body import BodyModel
 from m3c.body.torch_lbs import axis_angle_to_matrix
 from m3c.motion.config import OptimizerConfig, StageSpec
-from m3c.motion.optimize import CONTACT_JOINTS, Cameras, Track
+from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness",

@@ -1,41 +1,22 @@
-"""Result nodes: results.npz + results.json, the overlay video, the world-view video, the camera-trajectory plot.
-Each writes its files into its cache entry; the runner links them into the output folder (Node.publish)."""
+"""The results node: results.npz and results.json (m3c.io.results describes them), assembled by build_results."""
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
 
 import numpy as np
 
 import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
+from m3c.camera import project, to_camera
 from m3c.eval.plausibility import results_plausibility
+from m3c.ground.tracks import track_frames, track_poses
+from m3c.ground.world_frame import metric_cameras
 from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
-from m3c.io.video import VideoWriter
-from m3c.nodes.frames import stream_frames
-from m3c.nodes.world import metric_cameras
-from m3c.pipeline import ComponentUnavailable, FileRef, Node, register_node
+from m3c.pipeline import FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
-
-
-def _poses(track: dict) -> np.ndarray:
-    return np.concatenate([np.asarray(track["root_orient"])[:, None], np.asarray(track["body_pose"])], axis=1)
-
-
-def _frames(track: dict) -> np.ndarray:
-    return int(track["first_frame"]) + np.arange(int(track["num_frames"]))
-
-
-def project(points: np.ndarray, world_from_cam: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
-    """points (n, K, 3) world, one camera per row (n, 4, 4), intrinsics (n, 4) -> (n, K, 2) pixels."""
-    R, c = world_from_cam[:, :3, :3], world_from_cam[:, :3, 3]
-    cam = np.einsum("nji,nkj->nki", R, points - c[:, None])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.stack([intrinsics[:, None, 0] * cam[..., 0] / cam[..., 2] + intrinsics[:, None, 2],
-                         intrinsics[:, None, 1] * cam[..., 1] / cam[..., 2] + intrinsics[:, None, 3]], axis=-1)
 
 
 def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, ground: dict, world: dict,
@@ -77,9 +58,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     lifted_by_id = {t["track_id"]: t for t in world["tracks"]}  # the optimizer may have dropped tracks
     for p, track in enumerate(tracks):
         lifted = lifted_by_id[track["track_id"]]
-        frames = _frames(track)
+        frames = track_frames(track)
         betas = np.asarray(track["betas"], dtype=np.float64)
-        pose = _poses(track)
+        pose = track_poses(track)
         transl = np.asarray(track["transl"], dtype=np.float64)
         arrays["valid"][p, frames] = True
         arrays["visible"][p, frames] = track["visible"]
@@ -105,8 +86,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         if track.get("ground_normal") is not None:
             arrays["ground_normal"][p, frames] = track["ground_normal"]
             arrays["ground_offset"][p, frames] = track["ground_offset"]
-        predicted = project(model.keypoints(regressor, pose, betas, transl), world_from_cam[frames],
-                            intrinsics[frames])
+        predicted = project(to_camera(model.keypoints(regressor, pose, betas, transl), world_from_cam[frames]),
+                            intrinsics[frames][:, None])
         distance = np.linalg.norm(predicted - keypoints[..., :2], axis=-1)
         scored = keypoints[..., 2] >= MIN_CONFIDENCE
         with np.errstate(invalid="ignore"):
@@ -176,143 +157,9 @@ class ResultsNode(Node):
                 if key in node["config"]:
                     entry[key] = node["config"][key]
             backends[name] = entry
-        arrays, summary = build_results(ctx.body_model(), inputs["video"], inputs["camera"], inputs["cameras"],
+        arrays, summary = build_results(ctx.loaded("body_model"), inputs["video"], inputs["camera"], inputs["cameras"],
                                         inputs["scale"], inputs["ground"], inputs["world"], inputs["result"],
                                         backends)
         write_npz(ctx.work_path("results.npz"), arrays, compress=True)
         ctx.work_path("results.json").write_text(json.dumps(json_ready(summary), indent=1, allow_nan=False) + "\n")
         return {"npz": FileRef("results.npz"), "json": FileRef("results.json")}
-
-
-class _BodyFrames:
-    """World-frame vertices of every track at a frame, computed a chunk of frames at a time."""
-
-    def __init__(self, model, tracks: list[dict], chunk: int = 16):
-        self.model, self.tracks, self.chunk = model, tracks, chunk
-        self._cache: dict[int, tuple[int, np.ndarray]] = {}
-
-    def at(self, frame: int) -> list[tuple[np.ndarray, int]]:
-        bodies = []
-        for k, track in enumerate(self.tracks):
-            i = frame - int(track["first_frame"])
-            if not 0 <= i < int(track["num_frames"]):
-                continue
-            start, verts = self._cache.get(k, (-1, None))
-            if verts is None or not start <= i < start + len(verts):
-                start = i
-                stop = min(i + self.chunk, int(track["num_frames"]))
-                pose = _poses(track)[start:stop]
-                verts = self.model.forward(pose, np.asarray(track["betas"]),
-                                           np.asarray(track["transl"])[start:stop]).vertices
-                self._cache[k] = (start, verts)
-            bodies.append((verts[i - start], int(track["track_id"])))
-        return bodies
-
-
-@register_node
-class OverlayNode(Node):
-    """overlay.mp4: the final bodies rendered over the input frames (depth-tested, shaded, one colour per track)."""
-
-    type_name = "overlay"
-    level = "output"
-    inputs = ("video", "camera", "result")
-    outputs = ("video_file",)
-    settings = ("body_model",)
-    publish = {"video_file": "overlay.mp4"}
-
-    @dataclass
-    class Config:
-        alpha: float = 0.8  # mesh opacity
-
-    def run(self, ctx, inputs):
-        from m3c.viz.scene import overlay_frame
-
-        video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
-        bodies = _BodyFrames(model, result["tracks"])
-        intrinsics = np.asarray(inputs["camera"]["intrinsics"])
-        world_from_cam = np.asarray(result["world_from_cam"])
-        with VideoWriter(ctx.work_path("overlay.mp4"), video["fps"], (video["width"], video["height"])) as writer, \
-                ctx.progress("rendering overlay", video["num_frames"]) as bar:
-            for i, frame in stream_frames(ctx, video):
-                writer.write(overlay_frame(frame, bodies.at(i), model.faces, world_from_cam[i], intrinsics,
-                                           self.config.alpha))
-                bar.update()
-        return {"video_file": FileRef("overlay.mp4")}
-
-
-@register_node
-class WorldViewNode(Node):
-    """world.mp4: ground, people and the video camera (frustum and path so far) seen from a fixed virtual camera."""
-
-    type_name = "world_view"
-    level = "output"
-    inputs = ("video", "camera", "ground", "result")
-    outputs = ("video_file",)
-    settings = ("body_model",)
-    publish = {"video_file": "world.mp4"}
-
-    @dataclass
-    class Config:
-        width: int = 960
-        height: int = 540
-        yaw: float = 35.0  # degrees about the up axis, from behind the first camera
-        elevation: float = 30.0  # degrees above the ground
-
-    def run(self, ctx, inputs):
-        from m3c.viz.scene import WorldView
-
-        video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
-        world_from_cam = np.asarray(result["world_from_cam"])
-        roots = [np.asarray(t["transl"]) for t in result["tracks"]]
-        people = np.concatenate(roots) if roots else np.zeros((0, 3))
-        if inputs["ground"]["up_source"] == "ground":
-            ground_height = 0.0
-        else:  # no ground found: draw one under the lowest foot
-            lows = [model.joints(_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))[:, [7, 8, 10, 11], 1]
-                    .min() for t in result["tracks"]]
-            ground_height = float(min(lows)) - 0.05 if lows else 0.0
-        view = WorldView(people, world_from_cam[:, :3, 3], ground_height, self.config.width, self.config.height,
-                         self.config.yaw, self.config.elevation)
-        bodies = _BodyFrames(model, result["tracks"])
-        depth = 0.15 * view.tile * 4
-        intrinsics = np.asarray(inputs["camera"]["intrinsics"])
-        with VideoWriter(ctx.work_path("world.mp4"), video["fps"], (self.config.width, self.config.height)) as writer, \
-                ctx.progress("rendering world view", video["num_frames"]) as bar:
-            for i in range(int(video["num_frames"])):
-                writer.write(view.frame(bodies.at(i), model.faces, world_from_cam[:i + 1, :3, 3], world_from_cam[i],
-                                        intrinsics, (video["width"], video["height"]), depth))
-                bar.update()
-        return {"video_file": FileRef("world.mp4")}
-
-
-@register_node
-class CameraPlotNode(Node):
-    """camera_trajectory.png: top view of the camera path and the people's paths; camera height over time."""
-
-    type_name = "camera_plot"
-    level = "output"
-    inputs = ("video", "result")
-    outputs = ("plot",)
-    settings = ("body_model",)
-    publish = {"plot": "camera_trajectory.png"}
-
-    def check(self, ctx) -> None:
-        import importlib.util
-
-        if importlib.util.find_spec("matplotlib") is None:
-            raise ComponentUnavailable(self.name, "matplotlib", "install the viz extra (pip install 'm3c[viz]'), "
-                                       "or remove the camera_plot node from the pipeline config")
-
-    def run(self, ctx, inputs):
-        from m3c.viz.plots import camera_trajectory_plot
-
-        video, result = inputs["video"], inputs["result"]
-        model = ctx.body_model()
-        people = [(int(t["track_id"]), model.joints(_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))[:, 0])
-                  for t in result["tracks"]]
-        scale = f"{result['camera_scale']:.3f} m per odometry unit"
-        camera_trajectory_plot(ctx.work_path("camera_trajectory.png"), np.asarray(result["world_from_cam"]),
-                               float(video["fps"]), people, f"{video['name']}: camera trajectory ({scale})")
-        return {"plot": FileRef("camera_trajectory.png")}

@@ -1,0 +1,250 @@
+"""The `m3c` command's argument parser: every command and its options, each command's function in the module of
+its group (body, perception, pipeline, results, evaluation)."""
+
+from __future__ import annotations
+
+import argparse
+
+from m3c.cli import body as body_commands
+from m3c.cli import evaluation as eval_commands
+from m3c.cli import perception as perception_commands
+from m3c.cli import pipeline as pipeline_commands
+from m3c.cli import results as results_commands
+
+
+# The video benchmark's camera motions (m3c.synth.cameras.CAMERA_KINDS; listed here so --help imports nothing).
+CAMERA_KINDS_TEXT = ("static", "pan", "follow", "tracking", "orbit", "handheld", "high")
+
+
+def _frame_range(text: str) -> tuple[int, int | None, int]:
+    """START:STOP[:STEP] (STOP exclusive, may be empty for the end)."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(f"expected START:STOP or START:STOP:STEP, got {text!r}")
+    try:
+        start = int(parts[0]) if parts[0] else 0
+        stop = int(parts[1]) if parts[1] else None
+        step = int(parts[2]) if len(parts) == 3 and parts[2] else 1
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"frame range {text!r} must hold integers") from None
+    return start, stop, step
+
+
+def _add_config_options(parser) -> None:
+    parser.add_argument("--config", metavar="FILE", help="pipeline config YAML (default: the built-in one; see "
+                                                         "`m3c config`)")
+    parser.add_argument("--set", action="append", metavar="NODE.SETTING=VALUE",
+                        help="change one setting, e.g. --set optimize.enabled=false (repeatable)")
+
+
+def _add_motion_options(parser) -> None:
+    """The benchmarks' motion sources, read by _benchmark_clips."""
+    parser.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use "
+                        "instead of the shipped CMU clips")
+    parser.add_argument("--mocap", action="append", metavar="DIR",
+                        help="also use every BVH under DIR (retargeted once, cached); repeatable")
+    parser.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="m3c", description="M3C: world-grounded human motion capture.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    body = sub.add_parser("body", help="inspect or convert SMPL-layout body model files").add_subparsers(
+        dest="body_command", required=True)
+    info = body.add_parser("info", help="summarise a .pkl/.npz body model file")
+    info.add_argument("model")
+    info.set_defaults(func=body_commands.body_info)
+    convert = body.add_parser("convert", help="rewrite a .pkl/.npz model (e.g. a chumpy pickle) as a plain .npz")
+    convert.add_argument("model")
+    convert.add_argument("out")
+    convert.add_argument("--smpl-layout", action="store_true", help="reduce SMPL-H/SMPL-X to SMPL's 24 joints")
+    convert.set_defaults(func=body_commands.body_convert)
+    vo = sub.add_parser("vo", help="camera trajectory of a video (patch visual odometry, no people masked yet)")
+    vo.add_argument("video")
+    vo.add_argument("--out", required=True, help="output folder")
+    vo.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                    help="pixels; default f = sqrt(W^2 + H^2), principal point at the centre")
+    vo.add_argument("--max-frames", type=int)
+    vo.set_defaults(func=perception_commands.vo)
+
+    run = sub.add_parser("run", help="capture every person's 3D motion in a video",
+                         description="Runs the pipeline on VIDEO; results, videos and the cache go to --out. "
+                                     "A second run reuses every node whose inputs and settings are unchanged.")
+    run.add_argument("video", help="input video file (any format OpenCV/FFmpeg reads)")
+    run.add_argument("--out", required=True, help="output folder (results.npz/json, overlay.mp4, world.mp4, cache/)")
+    _add_config_options(run)
+    run.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
+                     help="camera intrinsics in pixels (default: focal sqrt(W^2 + H^2), image centre)")
+    run.add_argument("--static-camera", action="store_true", help="the camera does not move (no visual odometry)")
+    run.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
+                     help="process frames START..STOP-1 (every STEP-th)")
+    run.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open model)")
+    run.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: $M3C_MODELS)")
+    run.add_argument("--until", nargs="+", metavar="NODE", help="run only these nodes and what they need")
+    run.add_argument("--visualize", action="store_true", help="also write each node's pictures under OUT/viz/")
+    run.add_argument("--no-progress", action="store_true", help="no progress lines")
+    run.add_argument("-v", "--verbose", action="count", default=0)
+    run.add_argument("-q", "--quiet", action="count", default=0)
+    run.set_defaults(func=pipeline_commands.run)
+
+    batch = sub.add_parser("batch", help="run the pipeline on many videos (on Ray when installed)",
+                           description="Runs every video of INPUTS as `m3c run` would, into OUT/<video name>/ (each "
+                                       "with its own cache: a re-run skips finished videos and resumes unfinished "
+                                       "ones). Failed videos are reported and the others go on; OUT/batch_summary.json "
+                                       "holds every video's outcome. Exit status 1 when any video failed.")
+    batch.add_argument("inputs", nargs="+", metavar="INPUT",
+                       help="video files, folders of videos, or .txt files listing one video or folder per line")
+    batch.add_argument("--out", required=True, help="output folder (one result folder per video)")
+    batch.add_argument("--address", help="Ray cluster address, or auto for the one running on this machine "
+                       "(default: start a local Ray instance for this batch)")
+    batch.add_argument("--sequential", action="store_true", help="run the videos one after another here, not on Ray")
+    batch.add_argument("--cpus-per-video", type=float, help="CPUs Ray reserves per video (default: the most any "
+                       "node of the pipeline needs, its `needs` in the config)")
+    batch.add_argument("--memory-per-video", type=float, metavar="GB",
+                       help="memory Ray reserves per video, GB (default: the most any node of the pipeline needs)")
+    _add_config_options(batch)
+    batch.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
+                       help="camera intrinsics in pixels, the same for every video")
+    batch.add_argument("--static-camera", action="store_true", help="the cameras do not move (no visual odometry)")
+    batch.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
+                       help="process frames START..STOP-1 (every STEP-th) of each video")
+    batch.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "
+                                                            "model)")
+    batch.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: "
+                                                            "$M3C_MODELS)")
+    batch.add_argument("--no-progress", action="store_true", help="no progress lines")
+    batch.add_argument("-v", "--verbose", action="count", default=0)
+    batch.add_argument("-q", "--quiet", action="count", default=0)
+    batch.set_defaults(func=pipeline_commands.batch)
+
+    info = sub.add_parser("info", help="summarise the results in an output folder")
+    info.add_argument("folder")
+    info.set_defaults(func=results_commands.info)
+
+    export = sub.add_parser("export", help="write the results as BVH, GLB or FBX, or in WHAM/SLAHMR/GVHMR layouts",
+                            description="Exports OUT_DIR's results (see README, 'Use the results' for axes and "
+                                        "units of each format).")
+    export.add_argument("folder", metavar="OUT_DIR", help="a result folder of `m3c run`")
+    export.add_argument("--format", required=True, choices=("bvh", "glb", "fbx", "wham", "slahmr", "gvhmr"))
+    export.add_argument("--tracks", metavar="IDS", help="comma-separated track ids (default: every track)")
+    export.add_argument("--out", metavar="PATH", help="output file or folder (default: OUT_DIR/export/...)")
+    export.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
+                                                             "M3C's open model")
+    export.add_argument("--bvh-unit", choices=("cm", "m"), default="cm", help="BVH length unit (default cm)")
+    export.set_defaults(func=results_commands.export)
+
+    view = sub.add_parser("view", help="interactive 3D viewer of a result folder in the browser (viser)")
+    view.add_argument("folder", metavar="OUT_DIR", help="a result folder of `m3c run`")
+    view.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    view.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    view.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
+                                                           "M3C's open model")
+    view.add_argument("--video", metavar="FILE", help="show the source video's frames (default: OUT_DIR/overlay.mp4)")
+    view.set_defaults(func=results_commands.view)
+
+    graph = sub.add_parser("graph", help="draw the pipeline graph (Graphviz dot text, or .svg/.png via `dot`)")
+    _add_config_options(graph)
+    graph.add_argument("--out", metavar="FILE", help="write FILE (.dot, .svg, .png, .pdf) instead of printing dot")
+    graph.add_argument("--status", metavar="DIR", help="colour nodes by the last run in output folder DIR")
+    graph.set_defaults(func=pipeline_commands.graph)
+
+    config = sub.add_parser("config", help="print the default pipeline config (YAML) to start your own from")
+    config.set_defaults(func=pipeline_commands.config)
+    perceive = sub.add_parser("perceive", help="people, keypoints, masks, camera-local bodies, tracks and contacts "
+                                               "from a video (offline, CPU)")
+    perceive.add_argument("video")
+    perceive.add_argument("out", help="output path; OUT.npz and OUT.json are written")
+    perceive.add_argument("--config", help="perception settings (YAML: estimators by task, tracker, ...)")
+    perceive.add_argument("--max-frames", type=int, default=None)
+    perceive.add_argument("--static-camera", action="store_true", help="the camera does not move")
+    perceive.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
+                          help="pixels (default: focal length = image diagonal, principal point at the centre)")
+    perceive.add_argument("--detector", help="detector estimator name (see m3c.perception.available)")
+    perceive.add_argument("--pose2d", help="2D pose estimator name")
+    perceive.add_argument("--body", help="camera-local body estimator name")
+    perceive.set_defaults(func=perception_commands.perceive)
+
+    ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
+        dest="eval_command", required=True)
+    rt = ev.add_parser("retarget", help="fit the body model to a BVH clip (IK) and save its parameters (.npz)")
+    rt.add_argument("bvh")
+    rt.add_argument("out")
+    rt.add_argument("--frames", help="BVH frames START:STOP[:STEP] (e.g. 1: drops CMU's added T-pose)")
+    rt.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30)")
+    rt.add_argument("--up", choices=("y", "z"), default="y", help="the BVH's up axis (default y)")
+    rt.add_argument("--scale", type=float, help="metres per BVH unit (default: from the skeleton)")
+    rt.add_argument("--joint-map", help="cmu_3dsmax, cmu_motionbuilder or bandai_namco (default: detected)")
+    rt.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    rt.add_argument("--source", help="a description of the clip stored in the file")
+    rt.set_defaults(func=eval_commands.eval_retarget)
+
+    bm = ev.add_parser("benchmark", help="the ground-truth benchmark on retargeted mocap: Local and Global Opt "
+                       "metrics tables (mm)")
+    bm.add_argument("--sequences", type=int, default=2, help="number of sequences (default 2)")
+    bm.add_argument("--frames", type=int, default=120, help="frames per sequence at 30 fps (default 120)")
+    bm.add_argument("--seed", type=int, default=0)
+    bm.add_argument("--max-people", type=int, default=3, choices=(1, 2, 3))
+    bm.add_argument("--cameras", default="walking,panning,orbiting,static",
+                    help="camera motions, used in turn (default walking,panning,orbiting,static)")
+    _add_motion_options(bm)
+    bm.add_argument("--optimizer-config", help="YAML optimizer config (default: the built-in recipe)")
+    bm.add_argument("--vposer", help="exported vposer.safetensors (python -m m3c.models.export) for the optimizer's "
+                    "pose prior (default: none; the pose_prior terms are then reported unavailable)")
+    bm.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    bm.add_argument("--json", help="also write the figures to this JSON file")
+    bm.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    bm.set_defaults(func=eval_commands.eval_benchmark)
+
+    vb = ev.add_parser("video-benchmark", help="render mocap people into textured scenes filmed by known moving "
+                       "cameras, run the real pipeline on the videos and score it against the ground truth")
+    vb.add_argument("--sequences", type=int, default=7, help="number of sequences (default 7: one per camera motion)")
+    vb.add_argument("--frames", type=int, default=150, help="frames per sequence at 30 fps (default 150)")
+    vb.add_argument("--cameras", default=",".join(CAMERA_KINDS_TEXT),
+                    help=f"camera motions, used in turn (default {','.join(CAMERA_KINDS_TEXT)})")
+    vb.add_argument("--people", type=int, default=3, choices=(1, 2, 3), help="most people in a sequence (default 3)")
+    _add_motion_options(vb)
+    vb.add_argument("--seed", type=int, default=0)
+    vb.add_argument("--size", type=int, nargs=2, default=(960, 540), metavar=("W", "H"),
+                    help="image size in pixels (default 960 540)")
+    vb.add_argument("--supersample", type=int, default=1, help="samples per pixel along each axis (default 1; "
+                    "textures are mip-mapped either way)")
+    vb.add_argument("--out", default="out/video_benchmark", help="folder for the videos, ground truth and runs "
+                    "(default out/video_benchmark; both are cached there)")
+    vb.add_argument("--render-only", action="store_true", help="write the videos and ground truth only")
+    vb.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the true intrinsics "
+                    "(default: it runs uncalibrated, as on a user's video)")
+    _add_config_options(vb)
+    vb.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    vb.add_argument("--json", help="also write the figures to this JSON file")
+    vb.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    vb.set_defaults(func=eval_commands.eval_video_benchmark)
+
+    mv = ev.add_parser("multiview", help="run M3C on each video of a calibrated multi-camera recording alone and "
+                       "compare with the calibration and the triangulated 3D keypoints")
+    mv.add_argument("folder", nargs="?", default="examples/pose2sim_single_person",
+                    help="Pose2Sim-layout folder: Calib_qualisys.toml, a .trc, videos/ (default: the repository's "
+                    "examples/pose2sim_single_person)")
+    mv.add_argument("--out", default="out/multiview", help="folder for the runs (cached; default out/multiview)")
+    mv.add_argument("--cameras", nargs="+", metavar="NAME", help="only these cameras (e.g. cam_01)")
+    mv.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the calibrated intrinsics")
+    _add_config_options(mv)
+    mv.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mv.add_argument("--json", help="also write the figures to this JSON file")
+    mv.add_argument("--quiet", action="store_true")
+    mv.set_defaults(func=eval_commands.eval_multiview)
+
+    pw = ev.add_parser("3dpw", help="evaluate prediction files on 3DPW (users bring the dataset and SMPL)")
+    pw.add_argument("root", help="the 3DPW folder that holds sequenceFiles/")
+    pw.add_argument("--split", default="test", choices=("train", "validation", "test"))
+    pw.add_argument("--results", nargs="+", required=True, metavar="METHOD=FOLDER",
+                    help="per method, a folder of <sequence>.npz prediction files (layout: m3c.eval.threedpw_eval)")
+    pw.add_argument("--smpl-neutral", required=True, help="SMPL neutral model file (.pkl/.npz), for predictions")
+    pw.add_argument("--smpl-male", required=True, help="SMPL male model file, for the ground truth")
+    pw.add_argument("--smpl-female", required=True, help="SMPL female model file, for the ground truth")
+    pw.add_argument("--h36m-regressor", help="J_regressor_h36m.npy (17 x 6890): the 14 evaluation joints; "
+                    "without it SMPL's 24 joints are used")
+    pw.add_argument("--sequences", nargs="+", help="only these sequence names")
+    pw.add_argument("--json", help="also write the figures to this JSON file")
+    pw.add_argument("--quiet", action="store_true")
+    pw.set_defaults(func=eval_commands.eval_3dpw)
+    return parser

@@ -1,0 +1,162 @@
+"""The gravity-aligned world frame from the people's contacts (thesis 4.1.3, "Ground Estimation").
+
+World frame (M3C's convention, also in the README's output section): gravity-aligned, y up, metres; the ground
+plane is y = 0 when a ground was found; the origin lies on the ground below the first camera and +z is the first
+camera's viewing direction projected onto the ground. Visual odometry gives cameras in its own frame (the first
+camera's, translations up to scale); at a camera scale (metres per VO unit) `estimate_ground` finds the planes and
+the rigid map world_from_vo.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+
+from m3c.body.transform import spine_directions
+from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, fit_plane, level_with_body_up
+from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
+
+LOG = logging.getLogger(__name__)
+
+
+def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray:
+    """Mean unit pelvis-to-neck direction of every visible person-frame in the frame of world_from_cam (camera
+    rotations only, so the same at any scale)."""
+    directions = []
+    for track in tracks:
+        frames = np.flatnonzero(track["visible"])
+        joints = model.joints(track_poses(track)[frames], track["betas"], track["transl"][frames])
+        spine = spine_directions(joints)
+        rotations = world_from_cam[track["first_frame"] + frames, :3, :3]
+        directions.append(np.einsum("nij,nj->ni", rotations, spine))
+    mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
+    return mean / max(np.linalg.norm(mean), 1e-12)
+
+
+def metric_cameras(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
+    """(T, 4, 4) cameras with their translations multiplied by `scale` (VO units -> metres)."""
+    out = np.array(world_from_cam, dtype=np.float64, copy=True)
+    out[:, :3, 3] *= scale
+    return out
+
+
+def gravity_frame(up: np.ndarray, first_camera: np.ndarray, height: float | None) -> np.ndarray:
+    """world_from_vo (4, 4): y along `up`, z along the first camera's view projected off `up`, the origin below
+    the first camera at `height` beneath it (or at the camera when height is None)."""
+    up = up / np.linalg.norm(up)
+    forward = first_camera[:3, 2] - (first_camera[:3, 2] @ up) * up
+    if np.linalg.norm(forward) < 1e-6:  # camera looking straight down or up: use its y axis instead
+        forward = -first_camera[:3, 1] - (-first_camera[:3, 1] @ up) * up
+    forward /= np.linalg.norm(forward)
+    R = np.stack([np.cross(up, forward), up, forward])  # rows: world axes in VO coordinates
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = np.array([0.0, height or 0.0, 0.0]) - R @ first_camera[:3, 3]
+    return out
+
+
+def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
+                    up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG
+                    ) -> tuple[PlaneFit | None, np.ndarray, list[list[np.ndarray]]]:
+    """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), all contact points there,
+    and per track per frame its contact points there. in_camera: contact_vertices' output; up_direction: the
+    people's upright direction (body_up), which levels a ground the contacts cannot tilt when `level`."""
+    raw = []
+    for track, points in zip(tracks, in_camera):
+        world = []
+        for i, p in enumerate(points):
+            cam = cameras[track["first_frame"] + i]
+            world.append(p @ cam[:3, :3].T + cam[:3, 3])
+        raw.append(world)
+    all_points = [p for points in raw for p in points]
+    pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
+    up_vo = cameras[0, :3, :3] @ CAMERA_UP
+    dominant = None
+    if len(pooled) >= params.min_support:
+        try:
+            dominant = fit_plane(pooled, up=up_vo, robust=params.robust,
+                                 inlier_threshold=max(params.inlier_threshold, 0.05),
+                                 min_support=params.min_support, seed=params.seed)
+        except ValueError as err:
+            log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
+    if dominant is not None and level:
+        dominant, levelled = level_with_body_up(dominant, pooled, up_direction)
+        if levelled:
+            log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
+                     "it is taken from the people's upright direction")
+    return dominant, pooled, raw
+
+
+def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale: float, params: GroundParams, *,
+                    planes: str = "shared", contact_threshold: float = 0.5, window: int = 15,
+                    max_tilt: float = 10.0, level: bool = True, log=LOG) -> dict:
+    """The ground and the gravity-aligned world frame of camera-frame tracks seen by VO cameras at `scale`.
+
+    Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
+    are placed in the metric VO frame. The dominant ground is a robust plane fit to all of them; it defines the
+    world (y up, ground y = 0). Each person's plane per frame is then either that ground (planes "shared",
+    SLAHMR's single floor) or the thesis's per-person planes (planes "per_person": DBSCAN on contact points, plane
+    fits, association and filling over time, each frame pooling the contacts of `window` frames around it; planes
+    tilted more than max_tilt degrees from the ground are replaced by it).
+
+    Returns {world_from_vo (4, 4) (metric VO frame -> world), up_source ("ground" or "camera"), plane (normal (3,),
+    offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track normal (n, 3),
+    offset (n,) in the world, observed (n,), valid (n,)}.
+    """
+    tracks = list(tracks)
+    in_camera = contact_vertices(model, tracks, contact_threshold)
+    up = body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
+    cameras = metric_cameras(vo_cameras, scale)
+    dominant, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log)
+    up_vo = cameras[0, :3, :3] @ CAMERA_UP
+    per_person = planes == "per_person" or dominant is None
+    contact_tracks = []
+    for track, points in zip(tracks, raw if per_person else []):  # (2 x window + 1) copies of every point
+        # One foot's sole in one frame hardly fixes a plane (a flexed foot tilts it): each frame also
+        # takes the contacts of the frames within `window`, steps at several places on the ground.
+        pooled_track = [np.concatenate(points[max(0, t - window):t + window + 1]) for t in range(len(points))]
+        contact_tracks.append(ContactTrack(track_frames(track), pooled_track,
+                                           [np.ones(len(p), bool) for p in pooled_track]))
+    if dominant is not None:
+        height = float(dominant.signed_distance(cameras[0, :3, 3]))
+        world_from_vo = gravity_frame(dominant.normal, cameras[0], height)
+        log.info("ground from %d contact points (rms %.3f m); first camera %.2f m above it", len(pooled),
+                 dominant.rms, height)
+    else:
+        world_from_vo = gravity_frame(up_vo, cameras[0], None)
+        log.warning("no ground found (no planted feet); world up taken from the first camera")
+    person_planes = estimate_ground_planes(contact_tracks, up=up_vo, params=params) if tracks and per_person else []
+    R, t = world_from_vo[:3, :3], world_from_vo[:3, 3]
+    out_tracks = []
+    rejected = 0
+    for plane in person_planes:
+        normal = plane.normal @ R.T
+        offset = plane.offset - normal @ t
+        valid = plane.valid.copy()
+        observed = plane.observed.copy()
+        if dominant is not None:
+            # A plane fitted to a few soles can tilt with the feet; planes parallel to the ground (steps,
+            # platforms) are kept, tilted ones give way to the dominant ground, as do frames without one.
+            with np.errstate(invalid="ignore"):
+                tilted = valid & (normal[:, 1] < np.cos(np.radians(max_tilt)))
+            rejected += int(tilted.sum())
+            replace = ~valid | tilted
+            normal[replace] = [0.0, 1.0, 0.0]
+            offset[replace] = 0.0
+            observed &= ~tilted
+            valid[:] = True
+        out_tracks.append({"normal": normal, "offset": offset, "observed": observed, "valid": valid})
+    if rejected:
+        log.info("%d person-frame plane(s) tilted more than %.0f degrees from the ground were replaced by it",
+                 rejected, max_tilt)
+    if not per_person:  # everyone on the dominant ground (y = 0 in the world)
+        out_tracks = [{"normal": np.tile([0.0, 1.0, 0.0], (track["num_frames"], 1)),
+                       "offset": np.zeros(track["num_frames"]),
+                       "observed": np.array([len(p) > 0 for p in points], dtype=bool),
+                       "valid": np.ones(track["num_frames"], bool)}
+                      for track, points in zip(tracks, raw)]
+    return {"world_from_vo": world_from_vo, "up_source": "ground" if dominant else "camera",
+            "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
+            "contact_points": int(len(pooled)), "tracks": out_tracks}

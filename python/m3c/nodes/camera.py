@@ -1,0 +1,53 @@
+"""The camera node: the camera intrinsics, given (--intrinsics) or the default (m3c.io.video.default_intrinsics)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from m3c.io.video import default_intrinsics
+from m3c.pipeline import InputError, Node, register_node
+
+# Focal lengths of real cameras in units of the image diagonal: 0.2 is a ~136 degree diagonal field of view
+# (beyond action-camera fisheye), 10 is ~6 degrees (a long telephoto). Outside this range --intrinsics is warned of.
+PLAUSIBLE_FOCAL = (0.2, 10.0)
+
+
+@register_node
+class CameraNode(Node):
+    """The camera intrinsics (fx, fy, cx, cy) in pixels: given in the config (--intrinsics), else
+    default_intrinsics(). Output camera: intrinsics (4,) float64, source ("given" or "default")."""
+
+    type_name = "camera"
+    level = "frame"
+    inputs = ("video",)
+    outputs = ("camera",)
+
+    @dataclass
+    class Config:
+        intrinsics: list[float] | None = None  # fx fy cx cy, pixels
+
+    def check(self, ctx) -> None:
+        k = self.config.intrinsics
+        if k is not None and (len(k) != 4 or not all(np.isfinite(k)) or k[0] <= 0 or k[1] <= 0):
+            raise InputError(f"intrinsics must be 4 numbers fx fy cx cy with fx, fy > 0 (pixels), got {k}")
+
+    def run(self, ctx, inputs):
+        video = inputs["video"]
+        self.check(ctx)
+        if self.config.intrinsics is None:
+            return {"camera": {"intrinsics": default_intrinsics(video["width"], video["height"]),
+                               "source": "default"}}
+        fx, fy, cx, cy = self.config.intrinsics
+        diagonal = float(np.hypot(video["width"], video["height"]))
+        low, high = PLAUSIBLE_FOCAL
+        for name, f in (("fx", fx), ("fy", fy)):
+            if not low * diagonal <= f <= high * diagonal:
+                ctx.log.warning("%s = %g px is %.3g times the image diagonal (%.0f px); focal lengths of real cameras "
+                                "lie within %g..%g times it (%.0f..%.0f px): check --intrinsics (pixels, not mm)",
+                                name, f, f / diagonal, diagonal, low, high, low * diagonal, high * diagonal)
+        if not (0 <= cx <= video["width"] and 0 <= cy <= video["height"]):
+            ctx.log.warning("principal point (%.1f, %.1f) lies outside the %d x %d image", cx, cy, video["width"],
+                            video["height"])
+        return {"camera": {"intrinsics": np.array([fx, fy, cx, cy], dtype=np.float64), "source": "given"}}

@@ -1,0 +1,64 @@
+"""The ground node: the ground planes and the gravity-aligned world frame (math: m3c.ground.world_frame)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import numpy as np
+
+from m3c.ground import GroundParams
+from m3c.ground.world_frame import estimate_ground
+from m3c.pipeline import Node, register_node
+
+
+@register_node
+class GroundNode(Node):
+    """The ground and the gravity-aligned world frame (thesis 4.1.3, "Ground Estimation"): m3c.ground.world_frame.
+    estimate_ground at the scale node's scale (planes: shared, SLAHMR's single floor, the default; or per_person,
+    the thesis's planes, each frame pooling the contacts of `window` frames around it).
+
+    Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), up_source
+    ("ground" or "camera"), plane (normal (3,), offset) the dominant plane in the world (y = 0 when found),
+    tracks: per track normal (n, 3), offset (n,) in the world, observed (n,), valid (n,).
+    Output scale: the scale node's, passed on (the ground is fitted at that scale).
+    """
+
+    type_name = "ground"
+    level = "smpl"
+    inputs = ("tracks", "cameras", "scale")
+    outputs = ("ground", "scale")
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        planes: Literal["shared", "per_person"] = "shared"  # one ground for all (SLAHMR), or the thesis's
+        contact_threshold: float = 0.5
+        window: int = 15  # frames each side whose contacts join a frame's (0 = per frame, as the thesis)
+        max_tilt: float = 10.0  # degrees: a person's plane tilted more from the dominant ground is not kept
+        eps: float = 0.15
+        min_samples: int = 10
+        robust: bool = True
+        inlier_threshold: float = 0.02
+        min_support: int = 20
+        max_iterations: int = 1000
+        confidence: float = 0.999
+        seed: int = 0
+        max_distance: float = 0.10
+        fill: Literal["hold", "linear"] = "hold"
+        level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
+
+    def params(self) -> GroundParams:
+        c = asdict(self.config)
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up"):
+            c.pop(key)
+        return GroundParams(**c)
+
+    def run(self, ctx, inputs):
+        scale = dict(inputs["scale"])
+        ground = estimate_ground(ctx.loaded("body_model"), inputs["tracks"]["tracks"],
+                                 np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64), scale["value"],
+                                 self.params(), planes=self.config.planes,
+                                 contact_threshold=self.config.contact_threshold, window=self.config.window,
+                                 max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log)
+        return {"ground": ground, "scale": scale}

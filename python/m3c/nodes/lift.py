@@ -1,0 +1,98 @@
+"""The lift node: every track in the world frame (math: m3c.motion.lift, m3c.motion.wham_lift)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+from m3c.ground.world_frame import metric_cameras
+from m3c.motion.lift import lift_tracks
+from m3c.pipeline import ComponentUnavailable, Node, register_node
+
+
+@register_node
+class LiftNode(Node):
+    """Every track in the world frame (thesis 4.1.4, world lift).
+
+    method camera: each frame's camera-local body moved by its camera (world_from_vo, VO pose at the estimated
+    scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its checkpoint;
+    see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint is found.
+
+    Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
+    body_pose, betas, contacts?, ground_normal?, ground_offset?), world_from_cam (T, 4, 4) for the optimizer
+    (world rotation, translation in VO units: camera centre = scale * translation), initial_scale, scale_sigma
+    (the scale estimator's, None when nothing measured it), scale_source, static, method.
+    """
+
+    type_name = "lift"
+    level = "track"
+    inputs = ("video", "camera", "tracks", "cameras", "scale", "ground")
+    outputs = ("world",)
+    settings = ("body_model", "models_dir")
+
+    @dataclass
+    class Config:
+        method: Literal["auto", "camera", "wham"] = "auto"
+        checkpoint: str | None = None  # WHAM checkpoint file; None = $M3C_MODELS/wham/...
+
+    def _wham_checkpoint(self, ctx):
+        from m3c.models.checkpoint import locate
+        from m3c.models.wham import WHAM_SOURCE
+
+        return locate(self.config.checkpoint, ctx.models_dir(), WHAM_SOURCE, self.config.method == "wham")
+
+    def key_config(self, ctx):
+        from m3c.models.checkpoint import CheckpointNotFoundError
+        from m3c.pipeline.cache import file_digest
+
+        config = asdict(self.config)
+        if self.config.method != "camera":
+            try:
+                path = self._wham_checkpoint(ctx)
+            except CheckpointNotFoundError:  # method wham without its file: check() reports it
+                path = None
+            config["checkpoint_digest"] = file_digest(path) if path is not None else None
+        return config
+
+    def check(self, ctx) -> None:
+        from m3c.models.checkpoint import CheckpointNotFoundError
+
+        if self.config.method == "wham":
+            try:
+                self._wham_checkpoint(ctx)
+            except CheckpointNotFoundError as err:
+                raise ComponentUnavailable(self.name, "WHAM's checkpoint", str(err)) from None
+
+    def load(self, ctx) -> None:
+        self._lifter = None
+        path = self._wham_checkpoint(ctx) if self.config.method != "camera" else None
+        if path is not None:
+            from m3c.models import load_wham
+
+            self._lifter = load_wham(path).to(ctx.device)
+            ctx.log.info("WHAM lift with %s on %s", path, ctx.device)
+
+    def unload(self) -> None:
+        self._lifter = None
+
+    def run(self, ctx, inputs):
+        model = ctx.loaded("body_model")
+        scale = float(inputs["scale"]["value"])
+        metric = inputs["ground"]["world_from_vo"] @ metric_cameras(inputs["cameras"]["world_from_cam"], scale)
+        optimizer_cameras = metric.copy()  # world_from_cam, metres at the initial scale -> VO units
+        optimizer_cameras[:, :3, 3] /= scale
+        lifter = getattr(self, "_lifter", None)
+        trajectory = None
+        if lifter is not None:
+            from m3c.motion.wham_lift import wham_trajectory
+
+            def wham(track, root, transl):
+                return wham_trajectory(lifter, model, track, metric, root, transl, inputs["video"],
+                                       inputs["camera"]["intrinsics"])
+            trajectory = wham
+        tracks = lift_tracks(model, inputs["tracks"]["tracks"], metric, inputs["ground"]["tracks"], trajectory)
+        return {"world": {"tracks": tracks, "world_from_cam": optimizer_cameras, "initial_scale": scale,
+                          "scale_sigma": inputs["scale"].get("sigma"),
+                          "scale_source": str(inputs["scale"].get("source", "")),
+                          "static": bool(inputs["cameras"]["static"]),
+                          "method": "wham" if lifter is not None else "camera"}}

@@ -1,0 +1,50 @@
+"""The scale node: metres per visual-odometry unit (math: m3c.motion.scale.estimate_camera_scale)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from m3c.motion.scale import estimate_camera_scale
+from m3c.pipeline import Node, PipelineError, register_node
+from m3c.vo.scale import ScaleEstimate
+
+
+@register_node
+class ScaleNode(Node):
+    """The metric size of one visual-odometry translation unit: M3C's one scale estimator (m3c.vo.scale, whose
+    docstring states the model), fusing every observation that carries scale with its uncertainty.
+    Output scale: value, sigma (standard deviation of log(value); None when nothing measured it), source
+    ("given", "static camera", "default", or the sources used, e.g. "planted feet+ground"), consistent,
+    observations (per source: value, sigma, frames, reason)."""
+
+    type_name = "scale"
+    level = "track"
+    inputs = ("tracks", "cameras", "depth", "camera")
+    optional_inputs = ("depth", "camera")
+    outputs = ("scale",)
+    settings = ("body_model",)
+
+    @dataclass
+    class Config:
+        value: float | None = None  # fixed metres per VO unit; None = estimate
+        contact_threshold: float = 0.5
+
+    def run(self, ctx, inputs):
+        cameras = inputs["cameras"]
+        if self.config.value is not None:
+            if not self.config.value > 0:
+                raise PipelineError(f"scale.value must be > 0, got {self.config.value}")
+            return {"scale": ScaleEstimate(float(self.config.value), 0.0, "given").to_dict()}
+        if cameras["static"] or cameras.get("rotation_only"):  # no translation: any scale gives the same world
+            return {"scale": ScaleEstimate(1.0, None, "static camera" if cameras["static"] else "rotation only")
+                    .to_dict()}
+        camera = inputs.get("camera")
+        estimate = estimate_camera_scale(ctx.loaded("body_model"), inputs["tracks"]["tracks"], cameras,
+                                         self.config.contact_threshold, inputs.get("depth"),
+                                         camera["intrinsics"] if camera is not None else None, ctx.log)
+        if estimate.sigma is None:
+            ctx.log.warning("nothing measured the camera's scale; starting from 1 m per VO unit")
+        else:
+            ctx.log.info("camera scale %.4g m per VO unit (+-%.1f%%) from %s", estimate.value,
+                         100 * estimate.sigma, estimate.source)
+        return {"scale": estimate.to_dict()}
