@@ -248,6 +248,32 @@ def test_camera_scale_from_planted_feet():
     assert static.sigma is None and static.source == "default"
 
 
+def test_camera_scale_from_a_metric_depth_map_reads_the_map_points():
+    """The depth-map observation scores the odometry's map points (not the people's contact points): map points on
+    the scene's ground, in VO units, and depth maps holding their true metric depth at their pixels give the
+    true scale exactly (each vote is metric depth / VO depth)."""
+    from m3c.camera import project, to_camera
+
+    model, scene, tracks = camera_local_scene(vo_scale=2.5)
+    vo = scene.cameras_vo.world_from_cam
+    centre = np.concatenate([t.transl for t in scene.truth]).mean(axis=0)
+    gx, gz = np.meshgrid(np.linspace(-4, 4, 17), np.linspace(-4, 4, 17))
+    ground = np.stack([gx.ravel() + centre[0], np.zeros(gx.size), gz.ravel() + centre[2]], axis=1)
+    points = ground / 2.5  # the map in VO units
+    width, height = scene.image_size
+    maps = np.zeros((len(vo), height, width))
+    for t in range(len(vo)):
+        x = to_camera(points, vo[t])
+        u, v = np.round(project(x, scene.cameras_vo.intrinsics)).astype(int).T
+        inside = (x[:, 2] > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        maps[t, v[inside], u[inside]] = 2.5 * x[inside, 2]
+    estimate = estimate_camera_scale(model, tracks, {"world_from_cam": vo, "points": points},
+                                     depth={"available": True, "metric": True, "depth": maps},
+                                     intrinsics=scene.cameras_vo.intrinsics)
+    depth = next(o for o in estimate.observations if o.source == "depth map")
+    assert depth.usable() and depth.value == pytest.approx(2.5, rel=1e-9)
+
+
 def test_ground_and_lift_without_the_runner():
     """m3c.ground.world_frame.estimate_ground and m3c.motion.lift.lift_tracks on camera-local people seen by VO
     cameras at the true scale: the world they give is the scene's up to a shift along its up and a turn about it."""

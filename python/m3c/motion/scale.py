@@ -43,8 +43,8 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
                                              f"{len(points)} map points"))
     else:
         per_frame = [[] for _ in range(len(vo))]
-        for track, points in zip(tracks, contact_vertices(model, tracks, contact_threshold)):
-            for i, p in enumerate(points):
+        for track, track_contacts in zip(tracks, contact_vertices(model, tracks, contact_threshold)):
+            for i, p in enumerate(track_contacts):
                 if len(p):
                     per_frame[track["first_frame"] + i].append(p)
         contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
