@@ -36,16 +36,17 @@ class GroundNode(Node):
         contact_threshold: float = 0.5
         window: int = 15  # frames each side whose contacts join a frame's (0 = per frame, as the thesis)
         max_tilt: float = 10.0  # degrees: a person's plane tilted more from the dominant ground is not kept
-        eps: float = 0.15
-        min_samples: int = 10
-        robust: bool = True
-        inlier_threshold: float = 0.02
-        min_support: int = 20
-        max_iterations: int = 1000
-        confidence: float = 0.999
-        seed: int = 0
-        max_distance: float = 0.10
-        fill: Literal["hold", "linear"] = "hold"
+        # The plane fits' settings (m3c.ground.GroundParams, whose defaults are the C++ core's).
+        eps: float = GroundParams.eps
+        min_samples: int = GroundParams.min_samples
+        robust: bool = GroundParams.robust
+        inlier_threshold: float = GroundParams.inlier_threshold
+        min_support: int = GroundParams.min_support
+        max_iterations: int = GroundParams.max_iterations
+        confidence: float = GroundParams.confidence
+        seed: int = GroundParams.seed
+        max_distance: float = GroundParams.max_distance
+        fill: Literal["hold", "linear"] = GroundParams.fill
         level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
 
     def params(self) -> GroundParams:
