@@ -1,4 +1,7 @@
 // m3c._core: the C++ core, one Bind function per area.
+#include <cstdlib>
+
+#include <glog/logging.h>
 #include <pybind11/pybind11.h>
 
 namespace py = pybind11;
@@ -15,6 +18,10 @@ void BindRender(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "M3C C++ core (Eigen, Ceres, OpenCV). Use the m3c package's public API rather than this module.";
+  // Ceres reports trial steps it recovers from (a Cholesky factorisation that fails, which its trust region then
+  // damps and retries) as glog warnings on stderr, which read like errors in a run's log; M3C reports what failed
+  // itself. Only glog errors show, unless the environment's GLOG_minloglevel asks for more (0 = everything).
+  if (std::getenv("GLOG_minloglevel") == nullptr) FLAGS_minloglevel = google::GLOG_ERROR;
   // Types before the functions whose signatures name them (the motion optimizer takes the networks), so the
   // docstrings and the .pyi stubs name Python types.
   m3c::bindings::BindBody(m);
