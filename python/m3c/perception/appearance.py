@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from m3c.perception.boxes import as_box
+from m3c.perception.boxes import as_box, pixel_region
 
 HUE_BINS, SAT_BINS, GREY_BINS = 16, 4, 8
 DESCRIPTOR_SIZE = 2 * (HUE_BINS * SAT_BINS + GREY_BINS)
@@ -47,10 +47,7 @@ def appearance_descriptor(image: np.ndarray, box, mask: np.ndarray | None = None
     """(DESCRIPTOR_SIZE,) descriptor of the person in `box` of an RGB image (H, W, 3), using only the pixels of
     `mask` ((h, w) bool inside the integer mask_box) when given, on a regular grid of about max_pixels
     samples (a histogram needs no more). None when no pixel is usable."""
-    b = as_box(box)
-    height, width = image.shape[:2]
-    x0, y0 = int(np.clip(np.floor(b[0]), 0, width)), int(np.clip(np.floor(b[1]), 0, height))
-    x1, y1 = int(np.clip(np.ceil(b[2]), 0, width)), int(np.clip(np.ceil(b[3]), 0, height))
+    x0, y0, x1, y1 = pixel_region(box, image.shape[:2])
     if x1 <= x0 or y1 <= y0:
         return None
     region = image[y0:y1, x0:x1]
