@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from m3c.perception import Person, crop, iou, iou_matrix, isolate, process_box
-from m3c.perception.boxes import WHITE, extract_patch, isolation_mask, pixel_region, process_boxes
+from m3c.perception.boxes import (WHITE, extract_patch, isolation_mask, mask_in_region, pixel_region,
+                                  process_boxes)
 from m3c.perception.mediapipe_pose import tight_box
 
 
@@ -161,6 +162,22 @@ def test_extract_patch_samples_the_square_in_the_pixel_convention():
     # Outside the frame is white.
     outside = extract_patch(frame, np.array([-40.0, -40.0, 0.0, 0.0]), 8)
     assert (outside == 255).all()
+
+
+def test_mask_in_region_against_brute_force(rng):
+    """A mask placed at a frame pixel, read over another index range: frame pixel by frame pixel."""
+    for _ in range(30):
+        mask = rng.uniform(size=rng.integers(1, 9, size=2)) > 0.5
+        origin = rng.integers(-5, 15, size=2)
+        x0, y0 = rng.integers(-5, 15, size=2)
+        region = (x0, y0, x0 + rng.integers(0, 12), y0 + rng.integers(0, 12))
+        got = mask_in_region(mask, origin, region)
+        expected = np.zeros((region[3] - region[1], region[2] - region[0]), bool)
+        for r in range(expected.shape[0]):
+            for c in range(expected.shape[1]):
+                i, j = region[0] + c - origin[0], region[1] + r - origin[1]  # the mask's pixel there
+                expected[r, c] = 0 <= j < mask.shape[0] and 0 <= i < mask.shape[1] and mask[j, i]
+        np.testing.assert_array_equal(got, expected)
 
 
 def test_person_mask_resampling():

@@ -1,8 +1,9 @@
 """Boxes in frame pixels, and the thesis's patch preparation (4.1.2, "Box Processing" and "Subject Isolation"):
-the one owner of the pixel convention, of box processing, of the pixels a box covers, of the whitening rule and of
-patch sampling. The perception estimators and the pipeline nodes (m3c.nodes.boxes, m3c.nodes.patches) call these.
+the one owner of the pixel convention, of box processing, of the pixels a box covers, of a mask read over pixels,
+of the whitening rule and of patch sampling. The perception estimators and the pipeline nodes (m3c.nodes.boxes,
+m3c.nodes.patches, m3c.nodes.records) call these.
 
-Pixel convention (M3C's everywhere, OpenCV's: the README's results.npz, m3c::Intrinsics, the renderer): pixel
+Pixel convention (M3C's everywhere, OpenCV's: the README's results.npz, m3c::Intrinsics, m3c.viz.raster): pixel
 (column i, row j) has its centre at (i, j) and covers [i - 0.5, i + 0.5) x [j - 0.5, j + 0.5); a W x H frame spans
 [-0.5, W - 0.5] x [-0.5, H - 0.5] (frame_box). A box (x0, y0, x1, y1) is float in these coordinates; a tight box
 runs over its pixels' outer edges. An integer box (patch_box, Person.mask_box, a tile) is a pixel index range
@@ -108,6 +109,20 @@ def pixel_region(box, frame_size: tuple[int, int]) -> tuple[int, int, int, int]:
     x0, x1 = (int(np.clip(v, 0, width)) for v in (np.floor(b[0]), np.ceil(b[2])))
     y0, y1 = (int(np.clip(v, 0, height)) for v in (np.floor(b[1]), np.ceil(b[3])))
     return x0, y0, max(x1, x0), max(y1, y0)
+
+
+def mask_in_region(mask: np.ndarray, origin, region) -> np.ndarray:
+    """A mask (h, w) bool whose pixel (0, 0) is frame pixel origin = (x, y), over the frame index range region
+    (x0, y0, x1, y1): (y1 - y0, x1 - x0) bool, False outside the mask."""
+    mask = np.asarray(mask, dtype=bool)
+    mx, my = (int(v) for v in origin)
+    x0, y0, x1, y1 = (int(v) for v in region)
+    out = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+    ax0, ay0 = max(x0, mx), max(y0, my)
+    ax1, ay1 = min(x1, mx + mask.shape[1]), min(y1, my + mask.shape[0])
+    if ax1 > ax0 and ay1 > ay0:
+        out[ay0 - y0:ay1 - y0, ax0 - x0:ax1 - x0] = mask[ay0 - my:ay1 - my, ax0 - mx:ax1 - mx]
+    return out
 
 
 def process_box(box, frame_size: tuple[int, int], padding: float = 5.0) -> np.ndarray:
