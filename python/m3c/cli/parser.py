@@ -46,6 +46,14 @@ def _add_motion_options(parser) -> None:
     parser.add_argument("--cache", help="cache folder for retargeted BVH (default ~/.cache/m3c/mocap)")
 
 
+def _add_report_options(parser, body_model: bool = True) -> None:
+    """The evaluation commands' shared options: the body model (where the command runs one) and the report."""
+    if body_model:
+        parser.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    parser.add_argument("--json", help="also write the figures to this JSON file")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="m3c", description="M3C: world-grounded human motion capture.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -190,9 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     bm.add_argument("--optimizer-config", help="YAML optimizer config (default: the built-in recipe)")
     bm.add_argument("--vposer", help="exported vposer.safetensors (python -m m3c.models.export) for the optimizer's "
                     "pose prior (default: none; the pose_prior terms are then reported unavailable)")
-    bm.add_argument("--body-model", help="body model file (default: the shipped open model)")
-    bm.add_argument("--json", help="also write the figures to this JSON file")
-    bm.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    _add_report_options(bm)
     bm.set_defaults(func=eval_commands.eval_benchmark)
 
     vb = ev.add_parser("video-benchmark", help="render mocap people into textured scenes filmed by known moving "
@@ -214,9 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
     vb.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the true intrinsics "
                     "(default: it runs uncalibrated, as on a user's video)")
     _add_config_options(vb)
-    vb.add_argument("--body-model", help="body model file (default: the shipped open model)")
-    vb.add_argument("--json", help="also write the figures to this JSON file")
-    vb.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    _add_report_options(vb)
     vb.set_defaults(func=eval_commands.eval_video_benchmark)
 
     mv = ev.add_parser("multiview", help="run M3C on each video of a calibrated multi-camera recording alone and "
@@ -228,9 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     mv.add_argument("--cameras", nargs="+", metavar="NAME", help="only these cameras (e.g. cam_01)")
     mv.add_argument("--known-intrinsics", action="store_true", help="give the pipeline the calibrated intrinsics")
     _add_config_options(mv)
-    mv.add_argument("--body-model", help="body model file (default: the shipped open model)")
-    mv.add_argument("--json", help="also write the figures to this JSON file")
-    mv.add_argument("--quiet", action="store_true")
+    _add_report_options(mv)
     mv.set_defaults(func=eval_commands.eval_multiview)
 
     pw = ev.add_parser("3dpw", help="evaluate prediction files on 3DPW (users bring the dataset and SMPL)")
@@ -244,7 +246,6 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--h36m-regressor", help="J_regressor_h36m.npy (17 x 6890): the 14 evaluation joints; "
                     "without it SMPL's 24 joints are used")
     pw.add_argument("--sequences", nargs="+", help="only these sequence names")
-    pw.add_argument("--json", help="also write the figures to this JSON file")
-    pw.add_argument("--quiet", action="store_true")
+    _add_report_options(pw, body_model=False)
     pw.set_defaults(func=eval_commands.eval_3dpw)
     return parser
