@@ -113,6 +113,8 @@ def test_run_vo_output_layout(short_sequence):
     np.testing.assert_allclose(rotations @ rotations.transpose(0, 2, 1), identity, atol=1e-9)
     np.testing.assert_allclose(result.intrinsics, default_intrinsics(160, 120))
     np.testing.assert_allclose(result.intrinsics, [200.0, 200.0, 80.0, 60.0])
+    with pytest.raises(ValueError, match="image size must be positive, got 0 x 120"):
+        default_intrinsics(0, 120)
     for key in ("attempted", "tracked", "inliers", "reprojection_rms_px", "keyframe", "interpolated", "refined"):
         assert result.quality[key].shape == (T,)
     assert result.quality["keyframe"][0]

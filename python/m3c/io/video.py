@@ -42,9 +42,8 @@ def default_intrinsics(width: int, height: int) -> np.ndarray:
     """(fx, fy, cx, cy) of a camera nobody calibrated: focal length sqrt(W^2 + H^2) pixels (a ~53 degree diagonal
     field of view, typical of phones, WHAM's choice and the synthetic scenes'), principal point at the centre. The
     rule lives in the C++ core (m3c::Intrinsics::Default, which the odometry applies when given no intrinsics);
-    the frames node, perception and the tools take it from here."""
-    if width <= 0 or height <= 0:
-        raise ValueError(f"image size must be positive, got {width} x {height}")
+    the frames node, perception and the tools take it from here. A size that is not positive is a ValueError
+    (raised by the core's binding)."""
     from m3c import _core  # here, not at the top: reading videos needs no C++ core
 
     return np.array(_core.default_intrinsics(int(width), int(height)), dtype=np.float64)
