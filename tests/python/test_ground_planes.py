@@ -353,3 +353,16 @@ def test_contact_vertices_match_the_skinned_feet_and_stay_bounded(synthetic_body
             np.testing.assert_allclose(points[i], vertices[i][keep], atol=1e-12)
     with pytest.raises(ValueError, match="max_points must be >= 1"):
         contact_vertices(model, tracks, 0.5, max_points=0)
+
+
+def test_contact_vertices_take_the_ground_contacts_where_given(synthetic_body_model):
+    """A track whose contacts read the images carries ground_contacts (feet on the ground by heights): those pick
+    the ground's points, not the planted-feet contacts."""
+    rng = np.random.default_rng(4)
+    track = _camera_track(rng, 12)
+    planted_only = dict(track, ground_contacts=np.zeros_like(track["contacts"]))
+    assert sum(len(p) for p in contact_vertices(synthetic_body_model, [planted_only], 0.5)[0]) == 0
+    swapped = dict(track, contacts=np.zeros_like(track["contacts"]), ground_contacts=track["contacts"])
+    for a, b in zip(contact_vertices(synthetic_body_model, [swapped], 0.5)[0],
+                    contact_vertices(synthetic_body_model, [track], 0.5)[0]):
+        np.testing.assert_array_equal(a, b)

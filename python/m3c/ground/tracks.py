@@ -54,7 +54,7 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
     """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
 
     tracks: camera-frame tracks (root_orient, body_pose, betas, transl, contacts (n, 4) over CONTACT_JOINT_NAMES,
-    visible (n,)). A foot vertex is in contact when the foot joint that moves it most has probability >
+    optionally ground_contacts (n, 4), which then decide, visible (n,)). A foot vertex is in contact when the foot joint that moves it most has probability >
     threshold in a visible frame. When all tracks together would place more than max_points points, every
     `step`-th foot vertex is kept (the same subset in every frame, spread over the soles; step the smallest
     that keeps the total within max_points), so the count stays bounded on a video of any length."""
@@ -63,7 +63,10 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
     foot_ids = foot_vertex_ids(model.data.weights)
     columns = [SMPL_JOINT_NAMES.index(name) for name in CONTACT_JOINT_NAMES]
     foot_joint = np.argmax(np.asarray(model.data.weights)[foot_ids][:, columns], axis=1)
-    masks = [(t["contacts"] > threshold) & t["visible"][:, None] if "contacts" in t else None for t in tracks]
+    # The points the ground is fitted to: feet on the ground (ground_contacts where the contacts read the images,
+    # whose looser height limit would spread the points upwards).
+    masks = [(t.get("ground_contacts", t.get("contacts")) > threshold) & t["visible"][:, None]
+             if "contacts" in t else None for t in tracks]
     per_joint = np.bincount(foot_joint, minlength=len(CONTACT_JOINT_NAMES))
     total = sum(int((m @ per_joint).sum()) for m in masks if m is not None)
     step = max(1, -(-total // max_points))

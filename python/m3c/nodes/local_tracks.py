@@ -115,6 +115,9 @@ class LocalTracksNode(Node):
         }
         if contacts is not None:
             track["contacts"] = np.clip(interpolate_linear(t, contacts["joint_contacts"][rows], span), 0, 1)
+            if "ground_contacts" in contacts:
+                track["ground_contacts"] = np.clip(interpolate_linear(t, contacts["ground_contacts"][rows], span),
+                                                   0, 1)
         return track
 
     def visualize(self, ctx, inputs, outputs, folder):

@@ -47,7 +47,7 @@ class PerceptionNode(Node):
     # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
     # 3: the tracker keeps recent poses and locations, gates on colour, matches tentative tracks last; track
     #    splits are merged; the detector searches smaller tiles every 15 frames
-    version = "3"
+    version = "4"  # 4: contacts read the feet's motion against the ground from the images
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
@@ -169,7 +169,7 @@ class PerceptionNode(Node):
     @staticmethod
     def _tables(result) -> dict:
         rows: dict[str, list] = {k: [] for k in ("frame", "box", "score", "keypoints", "pose", "betas", "transl",
-                                                 "track_id", "contacts", "mask")}
+                                                 "track_id", "contacts", "ground_contacts", "mask")}
         for track in result.tracks:
             valid = track.bodies.valid
             pose = track.bodies.pose
@@ -183,6 +183,8 @@ class PerceptionNode(Node):
                 rows["transl"].append(track.bodies.transl[i])
                 rows["track_id"].append(track.track_id)
                 rows["contacts"].append(track.contacts[i])
+                rows["ground_contacts"].append(track.contacts[i] if track.ground_contacts is None
+                                               else track.ground_contacts[i])
                 mask = track.masks[i] if track.masks is not None else None
                 if mask is None:
                     rows["mask"].append((np.zeros(0, np.uint8), 0, 0, 0, 0))
@@ -197,6 +199,9 @@ class PerceptionNode(Node):
             return np.asarray(rows[name], dtype=dtype).reshape((n,) + trailing)[order]
 
         num_betas = len(result.tracks[0].bodies.betas[0]) if result.tracks else 10
+        contacts = {"joint_contacts": column("contacts", np.float32, (4,))}
+        if any(t.ground_contacts is not None for t in result.tracks):
+            contacts["ground_contacts"] = column("ground_contacts", np.float32, (4,))
         return {
             "detections": {"frame": column("frame", np.int64, ()), "box": column("box", np.float32, (4,)),
                            "score": column("score", np.float32, ())},
@@ -205,5 +210,5 @@ class PerceptionNode(Node):
             "body": {"pose": column("pose", np.float64, (24, 3)), "betas": column("betas", np.float64, (num_betas,)),
                      "transl": column("transl", np.float64, (3,))},
             "tracking": {"track_id": column("track_id", np.int64, ())},
-            "contacts": {"joint_contacts": column("contacts", np.float32, (4,))},
+            "contacts": contacts,
         }

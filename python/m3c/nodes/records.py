@@ -16,7 +16,8 @@ at (i, j), so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]. Boxes are (x0, 
                 camera of the patch (HMR convention: a body point X projects to patch coordinates
                 s * (X_xy + (tx, ty)) in [-1, 1]), converted to the full image by m3c.perception.boxes.crop_to_full_camera (CLIFF)
     tracking    track_id (N,) int64, -1 for detections assigned to no track
-    contacts    joint_contacts (N, 4) probabilities that SMPL joints 7, 8, 10, 11 (ankles, feet) touch the scene
+    contacts    joint_contacts (N, 4) probabilities that SMPL joints 7, 8, 10, 11 (ankles, feet) are planted (still
+                on the ground); ground_contacts (N, 4), optional: on the ground by heights alone, for the ground fit
     cameras     world_from_cam (T, 4, 4) from visual odometry (translation up to scale), static (bool)
 """
 

@@ -79,13 +79,15 @@ class BodyEstimator(Estimator):
 class ContactEstimator(Estimator):
     """One track's SMPL joints (n, 24, 3) at frame_ids / fps -> contact probabilities (n, 4) of
     m3c.body.joint_names.CONTACT_JOINTS; up None = estimated; ground_static: the joints' frame does not move with the
-    ground (world, static camera); rest_heights: (4,) the joints' heights above the sole when standing."""
+    ground (world, static camera); rest_heights: (4,) the joints' heights above the sole when standing;
+    ground_speeds: (n, 4) m/s of the joints against the ground under them, NaN where unknown, or None."""
 
     task = "contacts"
 
     @abstractmethod
     def estimate(self, joints: np.ndarray, fps: float, up: np.ndarray | None, ground_static: bool,
-                 frame_ids: np.ndarray | None = None, rest_heights: np.ndarray | None = None) -> np.ndarray:
+                 frame_ids: np.ndarray | None = None, rest_heights: np.ndarray | None = None,
+                 ground_speeds: np.ndarray | None = None) -> np.ndarray:
         ...
 
 

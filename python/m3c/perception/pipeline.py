@@ -14,13 +14,16 @@ from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.io import atomic_path, save_npz_atomic
 from m3c.io.video import default_intrinsics, iter_frames, probe_video
 from m3c.perception.appearance import appearance_descriptor
 from m3c.perception.body import BodyFits, rough_location
 from m3c.perception.contacts import contact_rest_heights
+from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, ground_flow, ground_speeds
 from m3c.perception.boxes import iou_matrix
 from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
@@ -48,11 +51,14 @@ class PerceptionConfig:
     predicted boxes, enlarged by proposal_margin of their height on each side.
     restart_gap: a track's body fit starts cold after more than this many frames without it.
     merge: how track splits are merged after tracking (m3c.perception.track_merge).
+    ground_motion: how the feet's motion against the ground is read from the images for the contacts
+    (m3c.perception.ground_motion; enabled false: 3D foot speeds in a static camera, heights alone otherwise).
     duplicate_iou: two people whose boxes overlap more than this are one (the higher score stays)."""
 
     estimators: dict = field(default_factory=lambda: {t: EstimatorSpec(n) for t, n in DEFAULT_ESTIMATORS.items()})
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     merge: TrackMergeConfig = field(default_factory=TrackMergeConfig)
+    ground_motion: GroundMotionConfig = field(default_factory=GroundMotionConfig)
     intrinsics: tuple | None = None
     static_camera: bool = False
     detect_every: int = 5
@@ -86,12 +92,13 @@ class PerceptionConfig:
                 raise ValueError(f"{task}: give an estimator name or {{name: ..., options: {{...}}}}, got {spec!r}")
         tracker = TrackerConfig(**(data.pop("tracker", None) or {}))
         merge = TrackMergeConfig(**(data.pop("merge", None) or {}))
-        known = {f.name for f in fields(cls)} - {"estimators", "tracker", "merge"}
+        ground_motion = GroundMotionConfig(**(data.pop("ground_motion", None) or {}))
+        known = {f.name for f in fields(cls)} - {"estimators", "tracker", "merge", "ground_motion"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown perception setting(s): {', '.join(unknown)}; known: tasks {', '.join(TASKS)}, "
-                             f"tracker, merge, {', '.join(sorted(known))}")
-        return cls(estimators=estimators, tracker=tracker, merge=merge, **data)
+                             f"tracker, merge, ground_motion, {', '.join(sorted(known))}")
+        return cls(estimators=estimators, tracker=tracker, merge=merge, ground_motion=ground_motion, **data)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "PerceptionConfig":
@@ -104,8 +111,9 @@ class PerceptionConfig:
         out = {task: {"name": spec.name, "options": dict(spec.options)} for task, spec in self.estimators.items()}
         out["tracker"] = asdict(self.tracker)
         out["merge"] = asdict(self.merge)
+        out["ground_motion"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.ground_motion).items()}
         for f in fields(self):
-            if f.name not in ("estimators", "tracker", "merge"):
+            if f.name not in ("estimators", "tracker", "merge", "ground_motion"):
                 value = getattr(self, f.name)
                 out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
@@ -118,7 +126,10 @@ class PersonTrack:
     boxes (n, 4), scores (n,), keypoints (n, K, 3) u, v, confidence with K = 17 (COCO-17) or 21 (COCO-17 then
     types.FOOT_KEYPOINT_NAMES), keypoints3d (n, K, 4) metric root-relative x, y, z and confidence (confidence 0
     where the pose estimator gave none), bodies: the
-    camera-local fits, contacts (n, 4) for m3c.body.joint_names.CONTACT_JOINTS, gender, estimators: task -> name.
+    camera-local fits, contacts (n, 4) for m3c.body.joint_names.CONTACT_JOINTS (feet planted: still against the
+    ground), gender, estimators: task -> name; ground_contacts (n, 4) or None: feet on the ground by the heights
+    rule alone, for the ground fit, kept when the contacts also read the images (ground_motion), whose looser
+    height limit would let the ground's points spread upwards.
     """
 
     track_id: int
@@ -133,6 +144,7 @@ class PersonTrack:
     estimators: dict
     # per frame ((bits, h, w) of types.pack_mask, mask_box) or None; kept in memory only (not saved)
     masks: list | None = None
+    ground_contacts: np.ndarray | None = None
 
 
 @dataclass
@@ -175,6 +187,8 @@ class PerceptionResult:
                            p + "num_keypoints": b.num_keypoints, p + "warm_started": b.warm_started,
                            p + "fit_status": np.array(b.status), p + "contacts": t.contacts.astype(np.float32),
                            p + "gender": np.array(t.gender)})
+            if t.ground_contacts is not None:
+                arrays[p + "ground_contacts"] = t.ground_contacts.astype(np.float32)
         save_npz_atomic(path.with_suffix(".npz"), **arrays)
         with atomic_path(path.with_suffix(".json")) as tmp:
             tmp.write_text(json.dumps(self.summary(), indent=2))
@@ -223,12 +237,16 @@ def _proposal(box: np.ndarray, margin: float, size: tuple[int, int]) -> Person |
     return Person(b, 0.0, sources={"detector": "tracker"})
 
 
-def _frame_mask(people: list[Person], size: tuple[int, int]) -> np.ndarray:
-    height, width = size
-    mask = np.zeros((height, width), dtype=bool)
+def _people_mask(people: list[Person], size: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: True where any person's mask is."""
+    mask = np.zeros(size, dtype=bool)
     for p in people:
         if p.mask is not None:
             mask |= p.full_mask(size)
+    return mask
+
+
+def _pack_frame_mask(mask: np.ndarray) -> np.ndarray:
     small = mask[MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE, MASK_DOWNSAMPLE // 2::MASK_DOWNSAMPLE]
     return np.packbits(small, axis=1)
 
@@ -259,9 +277,13 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     names = {task: e.name for task, e in est.items()}
     tracker = Tracker(config.tracker)
     seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,
-               "contacts": 0.0}
+               "contacts": 0.0, "ground_motion": 0.0}
     records: dict[int, list[tuple[int, Person]]] = {}
     cues: dict[int, list[tuple[np.ndarray | None, np.ndarray | None]]] = {}  # per record: location, appearance
+    # The ground's image motion near each person's contact points, from a frame to the next: track -> frame -> (4, 2)
+    flows: dict[int, dict[int, np.ndarray]] = {}
+    motion = config.ground_motion
+    previous = None  # (gray frame, people mask, [(track id, contact pixels (4, 2), box height)]) of the last frame
     frame_masks, people_per_frame, depth_maps = [], [], []
     num_frames = 0
     try:
@@ -312,14 +334,31 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 records.setdefault(track_id, []).append((index, replace(person, mask=None, mask_box=None), result,
                                                          mask))
                 cues.setdefault(track_id, []).append((obs.location, obs.appearance))
-            seconds["body"] += time.perf_counter() - t5
+            t6 = time.perf_counter()
+            if motion.enabled:
+                gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+                people_mask = _people_mask(people, ctx.size)
+                if previous is not None and previous[2]:
+                    ids, pixels, heights = zip(*previous[2])
+                    flow = ground_flow(previous[0], gray, np.concatenate(pixels), np.repeat(heights, 4),
+                                       previous[1], motion).reshape(-1, 4, 2)
+                    for track_id, f in zip(ids, flow):
+                        flows.setdefault(track_id, {})[index - 1] = f
+                previous = (gray, people_mask, [
+                    (track_id, contact_pixels(p.keypoints[None], motion.min_confidence)[0], p.box[3] - p.box[1])
+                    for track_id, p in zip(track_ids, people)])
+                frame_mask = _pack_frame_mask(people_mask) if config.save_masks else None
+            elif config.save_masks:
+                frame_mask = _pack_frame_mask(_people_mask(people, ctx.size))
+            seconds["ground_motion"] += time.perf_counter() - t6
+            seconds["body"] += t6 - t5
             seconds["tracked_patches"] += t1 - t0
             seconds["detect"] += t2 - t1
             seconds["new_patches"] += t3 - t2
             seconds["depth"] += t4 - t3
             seconds["track"] += t5 - t4
             if config.save_masks:
-                frame_masks.append(_frame_mask(people, ctx.size))
+                frame_masks.append(frame_mask)
             people_per_frame.append(len(people))
             num_frames = index + 1
             if progress:
@@ -335,7 +374,11 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
         tracks = []
         for track_id, entries in sorted(joined.items()):
             entries = sorted(entries, key=lambda entry: entry[0])
-            tracks.append(_finish_track(track_id, entries, est, names, intrinsics, fps, config, seconds))
+            flow = {}
+            for source, target in merged.items():
+                if target == track_id:
+                    flow.update(flows.get(source, {}))
+            tracks.append(_finish_track(track_id, entries, est, names, intrinsics, fps, config, seconds, flow))
         if 0 < len(depth_maps) < num_frames:
             raise ValueError(f"the depth estimator {names['depth']!r} gave maps for {len(depth_maps)} of "
                              f"{num_frames} frames; it must give one for every frame or none")
@@ -364,7 +407,7 @@ def _posed(est: dict, ctx: FrameContext, people: list[Person]) -> list[Person]:
 
 
 def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsics: np.ndarray, fps: float,
-                  config: PerceptionConfig, seconds: dict) -> PersonTrack:
+                  config: PerceptionConfig, seconds: dict, flows: dict[int, np.ndarray]) -> PersonTrack:
     frame_ids = np.array([f for f, _, _, _ in entries], dtype=np.int64)
     people = [p for _, p, _, _ in entries]
     n = len(people)
@@ -386,13 +429,25 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
         bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids)
     t1 = time.perf_counter()
     contacts = np.zeros((n, 4))
+    ground_contacts = None
     valid = bodies.valid
     if valid.sum() >= 2:
         model = est["body"].model
         betas = np.median(bodies.betas[valid], axis=0)
         joints = model.joints(bodies.pose[valid], bodies.betas[valid], bodies.transl[valid])
-        contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid],
-                                                   contact_rest_heights(model, betas))
+        speeds = None
+        if config.ground_motion.enabled:
+            flow_next = np.array([flows.get(int(f), np.full((4, 2), np.nan)) for f in frame_ids[valid]])
+            speeds = ground_speeds(contact_pixels(keypoints[valid], config.ground_motion.min_confidence), flow_next,
+                                   frame_ids[valid], fps, joints[:, list(CONTACT_JOINTS), 2], float(intrinsics[0]),
+                                   config.ground_motion)
+        rest = contact_rest_heights(model, betas)
+        contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid], rest,
+                                                   ground_speeds=speeds)
+        if speeds is not None:
+            ground_contacts = np.zeros((n, 4))
+            ground_contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera,
+                                                              frame_ids[valid], rest)
     t2 = time.perf_counter()
     seconds["body"] += t1 - t0
     seconds["contacts"] += t2 - t1
@@ -405,7 +460,7 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
     masks = [mask for _, _, _, mask in entries] if config.save_masks else None
     return PersonTrack(track_id, frame_ids, np.stack([p.box for p in people]), np.array([p.score for p in people]),
                        keypoints, keypoints3d, bodies, contacts, est["gender"].estimate(track_id, people), estimators,
-                       masks)
+                       masks, ground_contacts)
 
 
 def load_result(path: str | Path) -> PerceptionResult:
@@ -430,7 +485,9 @@ def load_result(path: str | Path) -> PerceptionResult:
                                   arrays[p + "scores"], arrays[p + "keypoints"].astype(np.float64),
                                   arrays[p + "keypoints3d"].astype(np.float64), bodies,
                                   arrays[p + "contacts"].astype(np.float64), str(arrays[p + "gender"]),
-                                  dict(info["estimators"])))
+                                  dict(info["estimators"]),
+                                  ground_contacts=arrays[p + "ground_contacts"].astype(np.float64)
+                                  if p + "ground_contacts" in arrays else None))
     return PerceptionResult(summary["video"], float(arrays["fps"]), tuple(int(v) for v in arrays["image_size"]),
                             arrays["intrinsics"], int(arrays["num_frames"]), tracks, dict(summary["estimators"]),
                             dict(summary["seconds"]), arrays.get("frame_masks"), arrays.get("people_per_frame"),
