@@ -31,7 +31,7 @@ class PerceptionNode(Node):
 
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
     static_camera (contacts from foot speeds in the camera frame), and any other m3c.perception.PerceptionConfig
-    setting under `options` (tracker, detect_every, ...).
+    setting under `options` (tracker, detect_every, ground_motion, ...).
 
     The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
     checkpoints lie in the models folder (--checkpoints / settings.models_dir / $M3C_MODELS, at
