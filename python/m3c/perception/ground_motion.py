@@ -33,7 +33,7 @@ class GroundMotionConfig:
     per ring; min_points: fewer surviving samples give no estimate (NaN); max_round_trip: pixels a sample may miss
     its start by when tracked forward then back; window: Lucas-Kanade window (pixels) and levels: its pyramid;
     min_confidence: keypoints below it are missing; speed_window_seconds: half-width of the line fits of the foot
-    points' image velocities."""
+    points' image velocities; max_foreshortening: see ground_speeds."""
 
     enabled: bool = False  # opt-in: see README, "Contacts from the images"
     rings: tuple = (0.06, 0.1, 0.15)
@@ -44,13 +44,16 @@ class GroundMotionConfig:
     levels: int = 3
     min_confidence: float = 0.3
     speed_window_seconds: float = 0.05
+    max_foreshortening: float = 4.0
 
     def __post_init__(self):
         self.rings = tuple(float(r) for r in self.rings)
         if not self.rings or min(self.rings) <= 0 or self.points < 1 or self.min_points < 1:
             raise ValueError("ground_motion: rings must be positive, points and min_points >= 1")
-        if self.window < 3 or self.levels < 0 or self.max_round_trip <= 0 or self.speed_window_seconds <= 0:
-            raise ValueError("ground_motion: window >= 3, levels >= 0, max_round_trip and speed_window_seconds > 0")
+        if (self.window < 3 or self.levels < 0 or self.max_round_trip <= 0 or self.speed_window_seconds <= 0
+                or self.max_foreshortening < 1):
+            raise ValueError("ground_motion: window >= 3, levels >= 0, max_round_trip and speed_window_seconds > 0, "
+                             "max_foreshortening >= 1")
 
 
 def contact_pixels(keypoints: np.ndarray, min_confidence: float) -> np.ndarray:
@@ -116,18 +119,25 @@ def ground_flow(previous: np.ndarray, current: np.ndarray, points: np.ndarray, h
     return out
 
 
-def ground_speeds(pixels: np.ndarray, flow_next: np.ndarray, frame_ids: np.ndarray, fps: float, depths: np.ndarray,
-                  focal: float, config: GroundMotionConfig) -> np.ndarray:
+def ground_speeds(pixels: np.ndarray, flow_next: np.ndarray, frame_ids: np.ndarray, fps: float, points: np.ndarray,
+                  focal: float, config: GroundMotionConfig, up: np.ndarray | None = None) -> np.ndarray:
     """Speeds (n, P) in m/s of image points pixels (n, P, 2) against the ground under them, for a track seen in
     frames frame_ids (n,) at fps; flow_next (n, P, 2): the ground's image motion near each point from its frame
-    to the next (NaN where unknown); depths (n, P) metres; focal pixels. The ground's velocity at a frame is the
-    mean of its motion from the frame before and to the frame after; NaN where the point or the ground's motion
-    is unknown."""
+    to the next (NaN where unknown); points (n, P, 3): the points in the camera (metres); focal pixels. The
+    ground's velocity at a frame is the mean of its motion from the frame before and to the frame after; NaN where
+    the point or the ground's motion is unknown.
+
+    up None: the relative image speed at the point's depth (depth / focal), as if it moved across the view. up
+    (3,), the ground's normal in the camera: the relative image velocity taken back onto the ground plane through
+    the point, which undoes the foreshortening of motion along the viewing ray (a foot swinging away from a camera
+    behind the walker), by at most config.max_foreshortening (a grazing view would amplify keypoint jitter
+    without bound)."""
     pixels = np.asarray(pixels, dtype=np.float64)
+    points = np.asarray(points, dtype=np.float64)
     n, P = pixels.shape[:2]
     frame_ids = np.asarray(frame_ids)
-    if flow_next.shape != pixels.shape or depths.shape != (n, P) or frame_ids.shape != (n,):
-        raise ValueError(f"flow_next must be {pixels.shape}, depths ({n}, {P}) and frame_ids ({n},)")
+    if flow_next.shape != pixels.shape or points.shape != (n, P, 3) or frame_ids.shape != (n,):
+        raise ValueError(f"flow_next must be {pixels.shape}, points ({n}, {P}, 3) and frame_ids ({n},)")
     # The ground's motion into each frame: the flow stored at the frame before, when the track was seen there.
     flow_prev = np.full(pixels.shape, np.nan)
     follows = np.flatnonzero(np.diff(frame_ids) == 1)
@@ -144,6 +154,32 @@ def ground_speeds(pixels: np.ndarray, flow_next: np.ndarray, frame_ids: np.ndarr
         if seen.sum() >= 2:
             velocity[seen, p] = local_velocities(pixels[seen, p][:, None], times[seen],
                                                  config.speed_window_seconds)[:, 0]
-    relative = np.linalg.norm(velocity - ground, axis=-1)
-    return relative * np.asarray(depths, dtype=np.float64) / focal
+    relative = velocity - ground  # px/s
+    depth = points[..., 2]
+    if up is None:
+        return np.linalg.norm(relative, axis=-1) * depth / focal
+    return np.linalg.norm(_onto_ground(relative, points, np.asarray(up, dtype=np.float64), focal,
+                                       config.max_foreshortening), axis=-1)
 
+
+def _onto_ground(image_velocity: np.ndarray, points: np.ndarray, up: np.ndarray, focal: float,
+                 max_gain: float) -> np.ndarray:
+    """Velocities (..., 2) in metres per second on the plane through points (..., 3) with normal `up` whose
+    projections move at image_velocity (..., 2) px/s (a pinhole of focal length `focal`); directions the view
+    foreshortens more than max_gain times (relative to the least foreshortened) are amplified only max_gain times."""
+    up = up / np.linalg.norm(up)
+    ray = points / np.linalg.norm(points, axis=-1, keepdims=True)
+    across = np.cross(up, ray)
+    across /= np.maximum(np.linalg.norm(across, axis=-1, keepdims=True), 1e-12)
+    along = np.cross(across, up)  # on the ground, away from the camera
+    x, y, z = points[..., 0], points[..., 1], points[..., 2]
+    jac = np.zeros(points.shape[:-1] + (2, 3))  # d(pixel)/d(point) of the pinhole
+    jac[..., 0, 0] = jac[..., 1, 1] = focal / z
+    jac[..., 0, 2] = -focal * x / z ** 2
+    jac[..., 1, 2] = -focal * y / z ** 2
+    basis = np.stack([across, along], axis=-1)  # (..., 3, 2)
+    m = jac @ basis  # (..., 2, 2): image motion per metre along the ground
+    u, sigma, vt = np.linalg.svd(np.nan_to_num(m))
+    floor = sigma[..., :1] / max_gain
+    inverse = np.swapaxes(vt, -1, -2) @ (np.swapaxes(u, -1, -2) / np.maximum(sigma, floor)[..., :, None])
+    return np.einsum("...ij,...j->...i", inverse, image_velocity)

@@ -22,7 +22,7 @@ from m3c.io import atomic_path, save_npz_atomic
 from m3c.io.video import default_intrinsics, iter_frames, probe_video
 from m3c.perception.appearance import appearance_descriptor
 from m3c.perception.body import BodyFits, rough_location
-from m3c.perception.contacts import contact_rest_heights
+from m3c.perception.contacts import contact_rest_heights, estimate_up
 from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, ground_flow, ground_speeds
 from m3c.perception.boxes import iou_matrix
 from m3c.perception.interfaces import TASKS
@@ -439,8 +439,8 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
         if config.ground_motion.enabled:
             flow_next = np.array([flows.get(int(f), np.full((4, 2), np.nan)) for f in frame_ids[valid]])
             speeds = ground_speeds(contact_pixels(keypoints[valid], config.ground_motion.min_confidence), flow_next,
-                                   frame_ids[valid], fps, joints[:, list(CONTACT_JOINTS), 2], float(intrinsics[0]),
-                                   config.ground_motion)
+                                   frame_ids[valid], fps, joints[:, list(CONTACT_JOINTS)], float(intrinsics[0]),
+                                   config.ground_motion, up=estimate_up(joints))
         rest = contact_rest_heights(model, betas)
         contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid], rest,
                                                    ground_speeds=speeds)
