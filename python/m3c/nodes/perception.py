@@ -170,6 +170,7 @@ class PerceptionNode(Node):
     def _tables(result) -> dict:
         rows: dict[str, list] = {k: [] for k in ("frame", "box", "score", "keypoints", "pose", "betas", "transl",
                                                  "track_id", "contacts", "ground_contacts", "mask")}
+        with_ground = any(t.ground_contacts is not None for t in result.tracks)
         for track in result.tracks:
             valid = track.bodies.valid
             pose = track.bodies.pose
@@ -183,8 +184,9 @@ class PerceptionNode(Node):
                 rows["transl"].append(track.bodies.transl[i])
                 rows["track_id"].append(track.track_id)
                 rows["contacts"].append(track.contacts[i])
-                rows["ground_contacts"].append(track.contacts[i] if track.ground_contacts is None
-                                               else track.ground_contacts[i])
+                if with_ground:
+                    rows["ground_contacts"].append(track.contacts[i] if track.ground_contacts is None
+                                                   else track.ground_contacts[i])
                 mask = track.masks[i] if track.masks is not None else None
                 if mask is None:
                     rows["mask"].append((np.zeros(0, np.uint8), 0, 0, 0, 0))
@@ -200,7 +202,7 @@ class PerceptionNode(Node):
 
         num_betas = len(result.tracks[0].bodies.betas[0]) if result.tracks else 10
         contacts = {"joint_contacts": column("contacts", np.float32, (4,))}
-        if any(t.ground_contacts is not None for t in result.tracks):
+        if with_ground:
             contacts["ground_contacts"] = column("ground_contacts", np.float32, (4,))
         return {
             "detections": {"frame": column("frame", np.int64, ()), "box": column("box", np.float32, (4,)),

@@ -131,7 +131,6 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
         ground[t] = np.quantile(height[window].ravel(), config.ground_quantile)
     above = height - ground[:, None]
     prob = _sigmoid((config.height_threshold - above) / config.height_softness)
-    speed = np.full((n, P), np.nan)
     if ground_static and n >= 2:
         if root is None or config.root_window_seconds is None:
             velocity = local_velocities(points, times, config.speed_window_seconds)
@@ -142,17 +141,15 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
             velocity = (local_velocities(points - root[:, None], times, config.speed_window_seconds) +
                         local_velocities(root[:, None], times, config.root_window_seconds))
         speed = np.linalg.norm(velocity, axis=2)
+        prob = prob * _sigmoid((config.speed_threshold - speed) / config.speed_softness)
     if ground_speeds is not None:
         ground_speeds = np.asarray(ground_speeds, dtype=np.float64)
         if ground_speeds.shape != (n, P):
             raise ValueError(f"ground_speeds must have shape ({n}, {P}), got {ground_speeds.shape}")
         read = np.isfinite(ground_speeds)
-        prob = np.where(read, _sigmoid((config.ground_speed_height_threshold - above) / config.height_softness) *
-                        _sigmoid((config.ground_speed_threshold - np.where(read, ground_speeds, 0.0)) /
-                                 config.speed_softness), prob)
-        speed[read] = np.nan  # decided above
-    known = np.isfinite(speed)
-    prob[known] *= _sigmoid((config.speed_threshold - speed[known]) / config.speed_softness)
+        cue = (_sigmoid((config.ground_speed_height_threshold - above) / config.height_softness) *
+               _sigmoid((config.ground_speed_threshold - np.nan_to_num(ground_speeds)) / config.speed_softness))
+        prob = np.where(read, cue, prob)
     return prob
 
 

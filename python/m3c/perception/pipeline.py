@@ -335,9 +335,10 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                                                          mask))
                 cues.setdefault(track_id, []).append((obs.location, obs.appearance))
             t6 = time.perf_counter()
+            people_mask = _people_mask(people, ctx.size) if motion.enabled or config.save_masks else None
+            t7 = time.perf_counter()
             if motion.enabled:
                 gray = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-                people_mask = _people_mask(people, ctx.size)
                 if previous is not None and previous[2]:
                     ids, pixels, heights = zip(*previous[2])
                     flow = ground_flow(previous[0], gray, np.concatenate(pixels), np.repeat(heights, 4),
@@ -347,10 +348,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                 previous = (gray, people_mask, [
                     (track_id, contact_pixels(p.keypoints[None], motion.min_confidence)[0], p.box[3] - p.box[1])
                     for track_id, p in zip(track_ids, people)])
-                frame_mask = _pack_frame_mask(people_mask) if config.save_masks else None
-            elif config.save_masks:
-                frame_mask = _pack_frame_mask(_people_mask(people, ctx.size))
-            seconds["ground_motion"] += time.perf_counter() - t6
+            seconds["ground_motion"] += time.perf_counter() - t7
             seconds["body"] += t6 - t5
             seconds["tracked_patches"] += t1 - t0
             seconds["detect"] += t2 - t1
@@ -358,7 +356,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
             seconds["depth"] += t4 - t3
             seconds["track"] += t5 - t4
             if config.save_masks:
-                frame_masks.append(frame_mask)
+                frame_masks.append(_pack_frame_mask(people_mask))
             people_per_frame.append(len(people))
             num_frames = index + 1
             if progress:
@@ -368,17 +366,16 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
         confirmed = sorted(i for i in records if i in tracker.confirmed_ids())
         merged = merge_track_splits([_segment(i, records[i], cues[i]) for i in confirmed], fps, config.merge)
         joined: dict[int, list] = {}
+        joined_flows: dict[int, dict[int, np.ndarray]] = {}
         for track_id in confirmed:
             joined.setdefault(merged[track_id], []).extend(records[track_id])
+            joined_flows.setdefault(merged[track_id], {}).update(flows.get(track_id, {}))
         seconds["merge"] = time.perf_counter() - t0
         tracks = []
         for track_id, entries in sorted(joined.items()):
             entries = sorted(entries, key=lambda entry: entry[0])
-            flow = {}
-            for source, target in merged.items():
-                if target == track_id:
-                    flow.update(flows.get(source, {}))
-            tracks.append(_finish_track(track_id, entries, est, names, intrinsics, fps, config, seconds, flow))
+            tracks.append(_finish_track(track_id, entries, est, names, intrinsics, fps, config, seconds,
+                                        joined_flows[track_id]))
         if 0 < len(depth_maps) < num_frames:
             raise ValueError(f"the depth estimator {names['depth']!r} gave maps for {len(depth_maps)} of "
                              f"{num_frames} frames; it must give one for every frame or none")
