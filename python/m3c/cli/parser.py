@@ -37,6 +37,21 @@ def _add_config_options(parser) -> None:
                         help="change one setting, e.g. --set optimize.enabled=false (repeatable)")
 
 
+def _add_video_options(parser, many: bool) -> None:
+    """What `m3c run` and `m3c batch` take about the video(s): one video, or many sharing these settings."""
+    parser.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
+                        help="camera intrinsics in pixels, the same for every video" if many else
+                        "camera intrinsics in pixels (default: focal sqrt(W^2 + H^2), image centre)")
+    parser.add_argument("--static-camera", action="store_true",
+                        help=f"the camera{'s do' if many else ' does'} not move (no visual odometry)")
+    parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
+                        help="process frames START..STOP-1 (every STEP-th)" + (" of each video" if many else ""))
+    parser.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "
+                                                             "model)")
+    parser.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: "
+                                                             "$M3C_MODELS)")
+
+
 def _add_motion_options(parser) -> None:
     """The benchmarks' motion sources, read by _benchmark_clips."""
     parser.add_argument("--clips", nargs="+", metavar="NPZ", help="retargeted clips (m3c eval retarget) to use "
@@ -81,13 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("video", help="input video file (any format OpenCV/FFmpeg reads)")
     run.add_argument("--out", required=True, help="output folder (results.npz/json, overlay.mp4, world.mp4, cache/)")
     _add_config_options(run)
-    run.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
-                     help="camera intrinsics in pixels (default: focal sqrt(W^2 + H^2), image centre)")
-    run.add_argument("--static-camera", action="store_true", help="the camera does not move (no visual odometry)")
-    run.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
-                     help="process frames START..STOP-1 (every STEP-th)")
-    run.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open model)")
-    run.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: $M3C_MODELS)")
+    _add_video_options(run, many=False)
     run.add_argument("--until", nargs="+", metavar="NODE", help="run only these nodes and what they need")
     run.add_argument("--visualize", action="store_true", help="also write each node's pictures under OUT/viz/")
     run.add_argument("--no-progress", action="store_true", help="no progress lines")
@@ -111,15 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument("--memory-per-video", type=float, metavar="GB",
                        help="memory Ray reserves per video, GB (default: the most any node of the pipeline needs)")
     _add_config_options(batch)
-    batch.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
-                       help="camera intrinsics in pixels, the same for every video")
-    batch.add_argument("--static-camera", action="store_true", help="the cameras do not move (no visual odometry)")
-    batch.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
-                       help="process frames START..STOP-1 (every STEP-th) of each video")
-    batch.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "
-                                                            "model)")
-    batch.add_argument("--checkpoints", metavar="DIR", help="folder of learned-model checkpoints (default: "
-                                                            "$M3C_MODELS)")
+    _add_video_options(batch, many=True)
     batch.add_argument("--no-progress", action="store_true", help="no progress lines")
     batch.add_argument("-v", "--verbose", action="count", default=0)
     batch.add_argument("-q", "--quiet", action="count", default=0)
