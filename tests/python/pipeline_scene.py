@@ -18,8 +18,7 @@ from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.eval.scenes import make_scene
 from m3c.io.video import VideoWriter
 from m3c.nodes.load import save_outputs
-from m3c.nodes.patches import process_boxes
-from m3c.perception.boxes import full_to_crop_camera
+from m3c.perception.boxes import full_to_crop_camera, process_boxes
 from m3c.viz.scene import WorldView, overlay_frame
 
 PERCEPTION = ("detections", "keypoints", "body", "tracking", "contacts", "cameras")
@@ -74,7 +73,7 @@ def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0,
     table = {k: np.asarray(v) for k, v in rows.items()}
     order = np.lexsort((np.arange(len(table["frame"])), table["frame"]))
     table = {k: v[order] for k, v in table.items()}
-    square, _ = process_boxes(table["box"], W, H, 5.0)  # what the boxes node will compute
+    square, _ = process_boxes(table["box"], (H, W), 5.0)  # what the boxes node will compute
     outputs = {
         "detections": {"frame": table["frame"].astype(np.int64), "box": table["box"].astype(np.float32),
                        "score": table["score"].astype(np.float32)},

@@ -50,8 +50,8 @@ def test_landmarks_to_keypoints_and_tight_box():
     assert ((keypoints[:, 2] >= 0) & (keypoints[:, 2] <= 1)).all()
     kp = np.array([[10.0, 20.0, 0.9], [50.0, 80.0, 0.9], [500.0, 500.0, 0.1]])
     mask = np.zeros((10, 10), bool)
-    mask[2:4, 5:9] = True  # frame pixels x 105..109, y 102..104 with mask_box origin (100, 100)
-    np.testing.assert_array_equal(tight_box(kp, mask, [100, 100, 110, 110], (300, 200)), [10, 20, 109, 104])
+    mask[2:4, 5:9] = True  # frame pixels x 105..108, y 102..103 with mask_box origin (100, 100): their outer edges
+    np.testing.assert_array_equal(tight_box(kp, mask, [100, 100, 110, 110], (300, 200)), [10, 20, 108.5, 103.5])
     assert tight_box(kp[2:], None, None, (300, 200)) is None
     with pytest.raises(ValueError, match="33, 4"):
         landmarks_to_keypoints(np.zeros((17, 4)), None)

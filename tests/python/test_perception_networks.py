@@ -113,13 +113,13 @@ def test_estimators_on_two_people(models_dir, synthetic_body_model):
         assert (out.keypoints[:, :2] >= region.region[:2] - 1).all()
         assert (out.keypoints[:, :2] <= region.region[2:] + 1).all()
         assert ((out.keypoints[:, 2] >= 0) & (out.keypoints[:, 2] <= 1)).all()
-    # A tracker's wide proposal with the person's mask comes back as the mask's tight box.
+    # A tracker's wide proposal with the person's mask comes back as the mask's tight box (its pixels' outer edges).
     mask = np.zeros((240, 320), dtype=bool)
     mask[50:200, 60:100] = True
     wide = Person([30.0, 20.0, 140.0, 230.0], 0.0, mask=mask, mask_box=np.array([0, 0, 320, 240]))
     strict = create("pose2d", "vitpose", {"checkpoint": str(models_dir / "vitpose/vitpose-h.pth"),
                                           "min_confidence": 1.01})
-    np.testing.assert_array_equal(strict.estimate(ctx, [wide])[0].box, [60, 50, 100, 200])
+    np.testing.assert_array_equal(strict.estimate(ctx, [wide])[0].box, [59.5, 49.5, 99.5, 199.5])
     body = create("body", "hmr2", {"checkpoint": str(models_dir / "hmr2/checkpoints/epoch=35-step=1000000.ckpt")})
     assert body.reads_images
     observed = body.observe(ctx, found)

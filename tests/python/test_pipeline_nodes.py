@@ -1,6 +1,7 @@
-"""Node building blocks against hand-checked cases and independent computations: box processing, subject
-isolation, patch sampling, crop-to-full cameras (CLIFF), gap filling (linear, SO(3) slerp), local tracks,
-SMPL frame changes, the gravity-aligned world, the camera scale from planted feet."""
+"""Node building blocks against hand-checked cases and independent computations: mask records, the patches node,
+crop-to-full cameras (CLIFF), gap filling (linear, SO(3) slerp), local tracks, SMPL frame changes, the
+gravity-aligned world, the camera scale from planted feet. Box processing, isolation and patch sampling:
+test_perception_boxes.py."""
 
 import logging
 
@@ -9,7 +10,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from m3c.body.transform import rest_root_joint, transform_smpl
-from m3c.nodes.patches import box_region, extract_patch, isolation_mask, process_boxes
 from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
 from m3c.motion.interpolate import interpolate_linear, interpolate_rotations
 from m3c.nodes.local_tracks import LocalTracksNode
@@ -17,27 +17,6 @@ from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera
 from m3c.ground.world_frame import gravity_frame
 from m3c.motion.scale import estimate_camera_scale
 from m3c.pipeline import InputError
-
-
-@pytest.mark.parametrize("box, size, square, crop", [
-    # Pad 5 -> (35, 25, 55, 55), 20 x 30 -> square side 30 around (45, 40); inside the frame.
-    ((40, 30, 50, 50), (100, 80), (30, 25, 60, 55), (30, 25, 60, 55)),
-    # Near the left edge: side 50 around (5, 30) -> x from -20, shifted to the frame's edge -0.5.
-    ((0, 10, 10, 50), (100, 80), (-0.5, 5, 49.5, 55), (-0.5, 5, 49.5, 55)),
-    # Larger than the frame in both directions (side 109): centred on the frame, then cropped to it.
-    ((0, 0, 99, 79), (100, 80), (-5, -15, 104, 94), (-0.5, -0.5, 99.5, 79.5)),
-    # Just fits the height (side 30 = H): shifted up by half a pixel onto [-0.5, 29.5].
-    ((10, 5, 30, 25), (200, 30), (5, -0.5, 35, 29.5), (5, -0.5, 35, 29.5)),
-])
-def test_process_boxes_by_hand(box, size, square, crop):
-    got_square, got_crop = process_boxes(np.array([box], float), *size, padding=5.0)
-    np.testing.assert_allclose(got_square[0], square, atol=1e-12)
-    np.testing.assert_allclose(got_crop[0], crop, atol=1e-12)
-
-
-def test_process_boxes_rejects_inverted_boxes():
-    with pytest.raises(ValueError, match="x1 >= x0"):
-        process_boxes(np.array([[10, 10, 5, 20]]), 100, 100)
 
 
 def test_masks_round_trip_and_regions(rng):
@@ -52,40 +31,6 @@ def test_masks_round_trip_and_regions(rng):
     expected = np.zeros((14, 4), bool)
     expected[0:5, 1:4] = masks[0][0][2:7, 0:3]
     np.testing.assert_array_equal(region, expected)
-
-
-def test_isolation_whitens_others_except_the_focused_mask():
-    H, W = 30, 40
-    boxes = np.array([[5, 5, 20, 25], [15, 5, 35, 25]], float)  # focus 0, other 1; overlap x 15..20
-    focus_mask = np.zeros((21, 16), bool)  # over pixels x 5..20, y 5..25
-    focus_mask[:, :13] = True  # the focused person covers x 5..17
-    masks = encode_masks([(focus_mask, 5, 5), (np.ones((21, 21), bool), 15, 5)])
-    white = isolation_mask(H, W, 0, boxes, masks, np.array([0, 1]), whiten="boxes")
-    assert not white[10, 16]  # in the other's box but inside the focused person's mask: kept
-    assert white[10, 19]  # in both boxes, outside the focused mask: whitened
-    assert white[10, 30]  # only in the other's box
-    assert not white[10, 8] and not white[2, 30]  # the focused person; background outside every box
-    x0, y0, x1, y1 = box_region(boxes[1], W, H)
-    assert white.sum() == (x1 - x0) * (y1 - y0) - 3 * (y1 - y0)  # the other's box less the 3 kept columns
-    # Without masks the focused person's whole tight box is kept.
-    white = isolation_mask(H, W, 0, boxes, None, np.array([0, 1]))
-    assert not white[10, 19] and white[10, 21]
-
-
-def test_extract_patch_samples_the_square_linearly():
-    # A linear image samples exactly under bilinear interpolation.
-    ys, xs = np.mgrid[0:60, 0:80].astype(np.float32)
-    frame = np.repeat((xs + 100 * ys)[..., None], 3, axis=2)
-    square = np.array([10.0, 20.0, 42.0, 52.0])  # side 32 -> 16 px patch: 2 source pixels per patch pixel
-    patch = extract_patch(frame, square, 16)
-    i = np.arange(16)
-    # The square's edges are the patch's edges, so patch pixel i's centre is at x0 + (i + 0.5) * side / size.
-    x = square[0] + (i + 0.5) * 2
-    y = square[1] + (i + 0.5) * 2
-    np.testing.assert_allclose(patch[..., 0], x[None, :] + 100 * y[:, None], rtol=1e-5)
-    # Outside the frame is white.
-    outside = extract_patch(frame, np.array([-40.0, -40.0, 0.0, 0.0]), 8)
-    assert (outside[:3, :3] == 255).all()
 
 
 @pytest.mark.parametrize("intrinsics", [(1000.0, 1000.0, 480.0, 270.0), (900.0, 1100.0, 500.0, 260.0)])

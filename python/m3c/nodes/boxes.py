@@ -1,4 +1,4 @@
-"""The boxes node: square patch boxes per detection (m3c.nodes.patches.process_boxes)."""
+"""The boxes node: square patch boxes per detection (m3c.perception.boxes.process_boxes)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.patches import process_boxes
 from m3c.nodes.records import table_length
+from m3c.perception.boxes import process_boxes
 from m3c.pipeline import Node, register_node
 
 
@@ -33,7 +33,7 @@ class BoxesNode(Node):
     def run(self, ctx, inputs):
         video, detections = inputs["video"], inputs["detections"]
         table_length(detections, ("frame", "box"), "detections")
-        square, crop = process_boxes(detections["box"], video["width"], video["height"], self.config.padding)
+        square, crop = process_boxes(detections["box"], (video["height"], video["width"]), self.config.padding)
         return {"boxes": {"square": square.astype(np.float32), "crop": crop.astype(np.float32)}}
 
     def visualize(self, ctx, inputs, outputs, folder):

@@ -1,18 +1,5 @@
-"""Patch-level preparation (thesis 4.1.2): box processing and subject isolation.
-
-Box processing turns a tight person box into the square patch region the patch-level models read:
-  1. pad by `padding` pixels on every side (5 px in the thesis), so detection errors do not cut off limbs;
-  2. squarify around the box centre (side = the longer side);
-  3. shift the square inside the frame where it overflows (when it fits; a person larger than the frame keeps
-     the overflow on both sides, centred);
-  4. crop: the square clipped to the frame.
-Patches sample the square region itself, the part outside the frame filled with white, so a patch is never
-stretched: the thesis crops, then resizes the non-square crop, which distorts the aspect ratio (its Fig. 4.4).
-
-Subject isolation whitens, inside a patch, the pixels of the other people in the frame (their tight boxes, or
-their masks), except the pixels of the focused person's own mask (or tight box when there are no masks):
-white rather than black, which the thesis found the models handle better.
-"""
+"""The patches node: the thesis's isolated square patches (4.1.2), one per detection, from the boxes node's
+squares. Box processing, the whitening rule and the sampling are m3c.perception.boxes's."""
 
 from __future__ import annotations
 
@@ -22,74 +9,16 @@ from typing import Literal
 import numpy as np
 
 from m3c.nodes.frames import stream_frames
-from m3c.nodes.records import encode_images, mask_in_region, table_length
+from m3c.nodes.records import decode_mask, encode_images, mask_in_region, table_length
+from m3c.perception.boxes import WHITE, extract_patch, isolate
 from m3c.pipeline import Node, register_node
 
-WHITE = 255
 
-
-def process_boxes(boxes: np.ndarray, width: int, height: int, padding: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
-    """Tight boxes (N, 4) x0 y0 x1 y1 -> (square (N, 4), crop (N, 4)), see the module docstring."""
-    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
-    if (boxes[:, 2] < boxes[:, 0]).any() or (boxes[:, 3] < boxes[:, 1]).any():
-        raise ValueError("boxes must be x0 y0 x1 y1 with x1 >= x0 and y1 >= y0")
-    padded = boxes + np.array([-padding, -padding, padding, padding])
-    centre = (padded[:, :2] + padded[:, 2:]) / 2
-    side = np.maximum(padded[:, 2] - padded[:, 0], padded[:, 3] - padded[:, 1])
-    lo = centre - side[:, None] / 2
-    # The frame spans [-0.5, W - 0.5] x [-0.5, H - 0.5] (pixel centres at integers).
-    first = -0.5
-    size = np.array([width, height], dtype=np.float64)
-    fits = side[:, None] <= size
-    # Shift into the frame where the square fits; centre it on the frame where it does not.
-    shifted = np.where(fits, np.clip(lo, first, first + np.maximum(size - side[:, None], 0.0)),
-                       first + (size - side[:, None]) / 2)
-    square = np.concatenate([shifted, shifted + side[:, None]], axis=1)
-    crop = np.concatenate([np.maximum(square[:, :2], first), np.minimum(square[:, 2:], first + size)], axis=1)
-    return square, crop
-
-
-def box_region(box, width: int, height: int) -> tuple[int, int, int, int]:
-    """The pixels whose centres lie inside a box, as the index range [x0, x1) x [y0, y1), clipped to the image."""
-    x0, y0 = max(int(np.ceil(box[0])), 0), max(int(np.ceil(box[1])), 0)
-    x1, y1 = min(int(np.floor(box[2])) + 1, width), min(int(np.floor(box[3])) + 1, height)
-    return x0, y0, max(x1, x0), max(y1, y0)
-
-
-def isolation_mask(height: int, width: int, focus: int, tight_boxes: np.ndarray, masks: dict | None,
-                   rows: np.ndarray, whiten: str = "boxes") -> np.ndarray:
-    """Image-sized bool mask of the pixels to whiten for detection `focus`, given the detections `rows` of the
-    same frame (indices into tight_boxes / masks)."""
-    out = np.zeros((height, width), dtype=bool)
-    for other in rows:
-        if other == focus:
-            continue
-        region = box_region(tight_boxes[other], width, height)
-        x0, y0, x1, y1 = region
-        if whiten == "masks" and masks is not None:
-            out[y0:y1, x0:x1] |= mask_in_region(masks, int(other), region)
-        else:
-            out[y0:y1, x0:x1] = True
-    # Keep the focused person: its mask, or without masks its tight box.
-    region = box_region(tight_boxes[focus], width, height)
-    x0, y0, x1, y1 = region
-    if masks is not None:
-        out[y0:y1, x0:x1] &= ~mask_in_region(masks, int(focus), region)
-    else:
-        out[y0:y1, x0:x1] = False
-    return out
-
-
-def extract_patch(frame: np.ndarray, square: np.ndarray, size: int) -> np.ndarray:
-    """The square region (x0, y0, x1, y1; may extend past the frame) resampled to size x size; outside the frame
-    is white. The square's edges map to the patch's edges: patch coordinate = size / side * (x - x0) - 0.5."""
-    import cv2
-
-    x0, y0, x1, _ = (float(v) for v in square)
-    scale = size / (x1 - x0)
-    M = np.array([[scale, 0.0, -scale * x0 - 0.5], [0.0, scale, -scale * y0 - 0.5]])
-    return cv2.warpAffine(frame, M, (size, size), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                          borderValue=(WHITE, WHITE, WHITE))
+def _frame_mask(masks: dict | None, n: int, video: dict) -> np.ndarray | None:
+    """Detection n's mask over the whole frame, or None when there are no masks or its mask is empty."""
+    if masks is None or decode_mask(masks, n)[0].size == 0:
+        return None
+    return mask_in_region(masks, n, (0, 0, video["width"], video["height"]))
 
 
 @register_node
@@ -102,6 +31,8 @@ class PatchesNode(Node):
     inputs = ("video", "detections", "boxes", "masks")
     optional_inputs = ("masks",)
     outputs = ("patches",)
+    # 2: the whitening rule of m3c.perception.boxes (a person without a mask keeps its tight box)
+    version = "2"
 
     @dataclass
     class Config:
@@ -119,10 +50,11 @@ class PatchesNode(Node):
             for i, frame in stream_frames(ctx, video):
                 rows = rows_of.get(i, ())
                 for focus in rows:
-                    white = isolation_mask(video["height"], video["width"], int(focus), detections["box"], masks,
-                                           rows, self.config.whiten)
-                    isolated = frame.copy()
-                    isolated[white] = WHITE
+                    others = [int(r) for r in rows if r != focus]
+                    own = _frame_mask(masks, int(focus), video)
+                    theirs = [_frame_mask(masks, r, video) for r in others] if self.config.whiten == "masks" else None
+                    isolated = isolate(frame, (0, 0, video["width"], video["height"]), detections["box"][focus],
+                                       detections["box"][others], own, theirs)
                     patches[focus] = extract_patch(isolated, boxes["square"][focus], self.config.size)
                 bar.update()
         missing = [k for k, p in enumerate(patches) if p is None]

@@ -47,7 +47,9 @@ class PerceptionNode(Node):
     # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
     # 3: the tracker keeps recent poses and locations, gates on colour, matches tentative tracks last; track
     #    splits are merged; the detector searches smaller tiles every 15 frames
-    version = "4"  # 4: contacts read the feet's motion against the ground from the images
+    # 4: contacts read the feet's motion against the ground from the images
+    # 5: boxes and keypoints in M3C's pixel convention (m3c.perception.boxes): MediaPipe's shifted by -0.5 px
+    version = "5"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

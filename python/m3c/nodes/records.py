@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.perception.boxes import mask_in_region as place_mask
 from m3c.perception.types import pack_mask
 from m3c.pipeline import PipelineError
 
@@ -73,13 +74,7 @@ def decode_mask(masks: dict, n: int) -> tuple[np.ndarray, int, int]:
 def mask_in_region(masks: dict, n: int, region: tuple[int, int, int, int]) -> np.ndarray:
     """Detection n's mask over the image region (x0, y0, x1, y1) (bool, zero outside the stored mask)."""
     mask, mx, my = decode_mask(masks, n)
-    x0, y0, x1, y1 = region
-    out = np.zeros((y1 - y0, x1 - x0), dtype=bool)
-    ax0, ay0 = max(x0, mx), max(y0, my)
-    ax1, ay1 = min(x1, mx + mask.shape[1]), min(y1, my + mask.shape[0])
-    if ax1 > ax0 and ay1 > ay0:
-        out[ay0 - y0:ay1 - y0, ax0 - x0:ax1 - x0] = mask[ay0 - my:ay1 - my, ax0 - mx:ax1 - mx]
-    return out
+    return place_mask(mask, (mx, my), region)
 
 
 

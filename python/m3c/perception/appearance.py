@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from m3c.perception.boxes import as_box
+from m3c.perception.boxes import as_box, mask_in_region, pixel_region
 
 HUE_BINS, SAT_BINS, GREY_BINS = 16, 4, 8
 DESCRIPTOR_SIZE = 2 * (HUE_BINS * SAT_BINS + GREY_BINS)
@@ -47,20 +47,14 @@ def appearance_descriptor(image: np.ndarray, box, mask: np.ndarray | None = None
     """(DESCRIPTOR_SIZE,) descriptor of the person in `box` of an RGB image (H, W, 3), using only the pixels of
     `mask` ((h, w) bool inside the integer mask_box) when given, on a regular grid of about max_pixels
     samples (a histogram needs no more). None when no pixel is usable."""
-    b = as_box(box)
-    height, width = image.shape[:2]
-    x0, y0 = int(np.clip(np.floor(b[0]), 0, width)), int(np.clip(np.floor(b[1]), 0, height))
-    x1, y1 = int(np.clip(np.ceil(b[2]), 0, width)), int(np.clip(np.ceil(b[3]), 0, height))
+    x0, y0, x1, y1 = pixel_region(box, image.shape[:2])
     if x1 <= x0 or y1 <= y0:
         return None
     region = image[y0:y1, x0:x1]
-    keep = np.ones(region.shape[:2], dtype=bool)
-    if mask is not None:
-        mb = as_box(mask_box).astype(int)
-        keep[:] = False
-        ix0, iy0, ix1, iy1 = max(x0, mb[0]), max(y0, mb[1]), min(x1, mb[2]), min(y1, mb[3])
-        if ix1 > ix0 and iy1 > iy0:
-            keep[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] = mask[iy0 - mb[1]:iy1 - mb[1], ix0 - mb[0]:ix1 - mb[0]]
+    if mask is None:
+        keep = np.ones(region.shape[:2], dtype=bool)
+    else:
+        keep = mask_in_region(mask, as_box(mask_box)[:2], (x0, y0, x1, y1))
     step = max(1, int(np.sqrt(region.shape[0] * region.shape[1] / max_pixels)))
     region, keep = region[::step, ::step], keep[::step, ::step]
     if keep.sum() < 8:

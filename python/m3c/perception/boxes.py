@@ -1,6 +1,25 @@
-"""Patch-level box processing and subject isolation (thesis 4.1.2, "Box Processing" and "Subject Isolation").
+"""Boxes in frame pixels, and the thesis's patch preparation (4.1.2, "Box Processing" and "Subject Isolation"):
+the one owner of the pixel convention, of box processing, of the pixels a box covers, of a mask read over pixels,
+of the whitening rule and of patch sampling. The perception estimators and the pipeline nodes (m3c.nodes.boxes,
+m3c.nodes.patches, m3c.nodes.records) call these.
 
-Boxes are (x0, y0, x1, y1) in pixels, x1/y1 exclusive, float. A frame is (H, W, 3) uint8.
+Pixel convention (M3C's everywhere, OpenCV's: the README's results.npz, m3c::Intrinsics, m3c.viz.raster): pixel
+(column i, row j) has its centre at (i, j) and covers [i - 0.5, i + 0.5) x [j - 0.5, j + 0.5); a W x H frame spans
+[-0.5, W - 0.5] x [-0.5, H - 0.5] (frame_box). A box (x0, y0, x1, y1) is float in these coordinates; a tight box
+runs over its pixels' outer edges. An integer box (patch_box, Person.mask_box, a tile) is a pixel index range
+[x0, x1) x [y0, y1), as in frame[y0:y1, x0:x1]; pixel_region gives the one a box covers. Sources whose positions
+count from the image's left edge convert where they enter: MediaPipe's landmarks (fractions of the image size,
+mediapipe_pose.MediaPipeEngine.run), a mask's extent (mediapipe_pose.tight_box), OpenCV's HOG rectangles (hog.py).
+
+Box processing (process_boxes): pad the tight box by `padding` pixels on every side (5 px in the thesis, so a
+detection error does not cut off a limb), make it square around its centre (side = the longer side), shift the
+square inside the frame where it overflows (when it fits; a square larger than the frame is centred on it), and
+crop it to the frame. A patch samples the square itself, the part outside the frame white, so it is never
+stretched (the thesis crops, then resizes the non-square crop, its Fig. 4.4).
+
+Subject isolation (isolation_mask): inside a patch the other people's pixels are whitened (their tight boxes, or
+only their masks inside their boxes where given), except the focused person's own mask (its tight box when it has
+no mask): white rather than black, which the thesis found the models handle better.
 """
 
 from __future__ import annotations
@@ -47,72 +66,134 @@ def iou_matrix(boxes_a: np.ndarray, boxes_b: np.ndarray) -> np.ndarray:
     return np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
 
-def process_box(box, frame_size: tuple[int, int], padding: float = 5.0) -> np.ndarray:
-    """The thesis's four steps: pad the tight box by `padding` pixels, make it square around its centre, shift it
-    inside the frame, and crop what still spills over (a box larger than the frame then loses its squareness).
-
-    frame_size: (height, width). Returns integer-valued (x0, y0, x1, y1) inside [0, W] x [0, H].
-    """
+def frame_box(frame_size: tuple[int, int]) -> np.ndarray:
+    """The frame's extent (-0.5, -0.5, W - 0.5, H - 0.5) (the module's pixel convention). frame_size: (height,
+    width)."""
     height, width = frame_size
     if height <= 0 or width <= 0:
         raise ValueError(f"frame_size must be positive (height, width), got {frame_size}")
-    b = as_box(box)
-    x0, y0, x1, y1 = b[0] - padding, b[1] - padding, b[2] + padding, b[3] + padding
-    side = max(x1 - x0, y1 - y0)
-    cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    x0, x1 = cx - side / 2, cx + side / 2
-    y0, y1 = cy - side / 2, cy + side / 2
-    # Shift inside the frame; a box larger than the frame starts at its edge and is cropped below.
-    dx = -x0 if x0 < 0 else (width - x1 if x1 > width else 0.0)
-    dy = -y0 if y0 < 0 else (height - y1 if y1 > height else 0.0)
-    x0, x1, y0, y1 = x0 + dx, x1 + dx, y0 + dy, y1 + dy
-    out = np.array([np.floor(x0), np.floor(y0), np.ceil(x1), np.ceil(y1)])
-    out[[0, 2]] = np.clip(out[[0, 2]], 0, width)
-    out[[1, 3]] = np.clip(out[[1, 3]], 0, height)
+    return np.array([-0.5, -0.5, width - 0.5, height - 0.5])
+
+
+def clip_boxes(boxes, frame_size: tuple[int, int]) -> np.ndarray:
+    """Boxes (..., 4) cut to the frame (frame_box)."""
+    frame = frame_box(frame_size)
+    return np.clip(np.asarray(boxes, dtype=np.float64), frame[[0, 1, 0, 1]], frame[[2, 3, 2, 3]])
+
+
+def process_boxes(boxes, frame_size: tuple[int, int], padding: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+    """Tight boxes (N, 4) -> (square (N, 4), crop (N, 4)) float: the padded square shifted into the frame (it may
+    extend past the frame only when it is larger), and that square cut to the frame. frame_size: (height, width)."""
+    frame = frame_box(frame_size)
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+    if not np.isfinite(boxes).all() or (boxes[:, 2] < boxes[:, 0]).any() or (boxes[:, 3] < boxes[:, 1]).any():
+        raise ValueError("boxes must be finite x0 y0 x1 y1 with x1 >= x0 and y1 >= y0")
+    if not (np.isfinite(padding) and padding >= 0):
+        raise ValueError(f"padding must be a finite number of pixels >= 0, got {padding}")
+    padded = boxes + np.array([-padding, -padding, padding, padding])
+    centre = (padded[:, :2] + padded[:, 2:]) / 2
+    side = np.maximum(padded[:, 2] - padded[:, 0], padded[:, 3] - padded[:, 1])[:, None]
+    first, size = frame[:2], frame[2:] - frame[:2]
+    # Shift into the frame where the square fits; centre it on the frame where it does not.
+    lo = np.where(side <= size, np.clip(centre - side / 2, first, first + np.maximum(size - side, 0.0)),
+                  first + (size - side) / 2)
+    square = np.concatenate([lo, lo + side], axis=1)
+    return square, clip_boxes(square, frame_size)
+
+
+def pixel_region(box, frame_size: tuple[int, int]) -> tuple[int, int, int, int]:
+    """The pixels a box covers, even in part, inside the frame: the index range [x0, x1) x [y0, y1) (x1 = x0 or
+    y1 = y0 when none). Pixel i covers [i - 0.5, i + 0.5), so the range is floor(x0 + 0.5) .. ceil(x1 + 0.5)."""
+    height, width = frame_size
+    b = as_box(box) + 0.5
+    x0, x1 = (int(np.clip(v, 0, width)) for v in (np.floor(b[0]), np.ceil(b[2])))
+    y0, y1 = (int(np.clip(v, 0, height)) for v in (np.floor(b[1]), np.ceil(b[3])))
+    return x0, y0, max(x1, x0), max(y1, y0)
+
+
+def mask_in_region(mask: np.ndarray, origin, region) -> np.ndarray:
+    """A mask (h, w) bool whose pixel (0, 0) is frame pixel origin = (x, y), over the frame index range region
+    (x0, y0, x1, y1): (y1 - y0, x1 - x0) bool, False outside the mask."""
+    mask = np.asarray(mask, dtype=bool)
+    mx, my = (int(v) for v in origin)
+    x0, y0, x1, y1 = (int(v) for v in region)
+    out = np.zeros((y1 - y0, x1 - x0), dtype=bool)
+    ax0, ay0 = max(x0, mx), max(y0, my)
+    ax1, ay1 = min(x1, mx + mask.shape[1]), min(y1, my + mask.shape[0])
+    if ax1 > ax0 and ay1 > ay0:
+        out[ay0 - y0:ay1 - y0, ax0 - x0:ax1 - x0] = mask[ay0 - my:ay1 - my, ax0 - mx:ax1 - mx]
     return out
 
 
+def process_box(box, frame_size: tuple[int, int], padding: float = 5.0) -> np.ndarray:
+    """The patch of one tight box: the pixels of its processed square's crop (process_boxes, pixel_region), as an
+    integer-valued index range (x0, y0, x1, y1) inside [0, W] x [0, H]. frame_size: (height, width)."""
+    _, cropped = process_boxes(as_box(box), frame_size, padding)
+    return np.array(pixel_region(cropped[0], frame_size), dtype=np.float64)
+
+
 def crop(frame: np.ndarray, box) -> np.ndarray:
-    """A copy of the frame's pixels inside an integer box (as returned by process_box)."""
+    """A copy of the frame's pixels in an index range (as returned by process_box)."""
     x0, y0, x1, y1 = (int(v) for v in as_box(box))
     return np.ascontiguousarray(frame[y0:y1, x0:x1])
 
 
-def isolate(patch: np.ndarray, patch_box, other_boxes, focus_mask: np.ndarray | None = None,
-            other_masks: list | None = None) -> np.ndarray:
-    """Whitens, inside a patch, the pixels of the other people (thesis: "whitening out pixels that belong to other
-    nearby tight bounding boxes ... except those within the focused human's segmentation mask").
+def isolation_mask(region, focus_box, other_boxes, focus_mask: np.ndarray | None = None,
+                   other_masks: list | None = None) -> np.ndarray:
+    """(h, w) bool: the pixels of a frame index range `region` (x0, y0, x1, y1), e.g. a patch or the whole frame, that
+    subject isolation whitens for the focused person (see the module docstring).
 
-    patch: (h, w, 3) cut from the frame at patch_box (integer box). other_boxes: (N, 4) tight boxes of the other
-    people, frame pixels. focus_mask: (h, w) bool mask of the focused person in patch pixels, or None.
-    other_masks: per other person, an (h, w) bool mask in patch pixels or None; where given, only the mask
-    (not the whole box) is whitened, so a neighbour's box that covers background keeps it.
-    Returns a whitened copy.
+    focus_box: the focused person's tight box; focus_mask: its (h, w) mask in region pixels, or None (then its
+    tight box is kept). other_boxes: (N, 4) the other people's tight boxes; other_masks: per other person an
+    (h, w) mask in region pixels or None (None, or a None entry: its whole box is whitened).
     """
-    out = np.array(patch, copy=True)
-    h, w = out.shape[:2]
-    px0, py0 = int(as_box(patch_box)[0]), int(as_box(patch_box)[1])
-    keep = np.zeros((h, w), dtype=bool) if focus_mask is None else np.asarray(focus_mask, dtype=bool)
-    if keep.shape != (h, w):
-        raise ValueError(f"focus_mask must have the patch's shape {(h, w)}, got {keep.shape}")
+    rx0, ry0, rx1, ry1 = (int(v) for v in as_box(region))
+    h, w = ry1 - ry0, rx1 - rx0
     others = np.asarray(other_boxes, dtype=np.float64).reshape(-1, 4)
+    if other_masks is not None and len(other_masks) != len(others):
+        raise ValueError(f"other_masks must hold one entry per other box ({len(others)}), got {len(other_masks)}")
+
+    def covered(box) -> np.ndarray:
+        x0, y0, x1, y1 = pixel_region(np.asarray(box, dtype=np.float64) - [rx0, ry0, rx0, ry0], (h, w))
+        out = np.zeros((h, w), dtype=bool)
+        out[y0:y1, x0:x1] = True
+        return out
+
+    def in_region(mask, what) -> np.ndarray:
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (h, w):
+            raise ValueError(f"{what} must have the region's shape {(h, w)}, got {mask.shape}")
+        return mask
+
+    white = np.zeros((h, w), dtype=bool)
     for i, box in enumerate(others):
-        x0 = int(np.clip(np.floor(box[0]) - px0, 0, w))
-        x1 = int(np.clip(np.ceil(box[2]) - px0, 0, w))
-        y0 = int(np.clip(np.floor(box[1]) - py0, 0, h))
-        y1 = int(np.clip(np.ceil(box[3]) - py0, 0, h))
-        if x1 <= x0 or y1 <= y0:
-            continue
-        region = np.zeros((h, w), dtype=bool)
-        region[y0:y1, x0:x1] = True
         mask = None if other_masks is None else other_masks[i]
-        if mask is not None:
-            mask = np.asarray(mask, dtype=bool)
-            if mask.shape != (h, w):
-                raise ValueError(f"other_masks[{i}] must have the patch's shape {(h, w)}, got {mask.shape}")
-            region &= mask
-        out[region & ~keep] = WHITE
+        white |= covered(box) if mask is None else covered(box) & in_region(mask, f"other_masks[{i}]")
+    keep = covered(focus_box) if focus_mask is None else in_region(focus_mask, "focus_mask")
+    return white & ~keep
+
+
+def isolate(patch: np.ndarray, patch_box, focus_box, other_boxes, focus_mask: np.ndarray | None = None,
+            other_masks: list | None = None) -> np.ndarray:
+    """A copy of the patch (h, w, 3), cut from the frame at the index range patch_box, with isolation_mask's pixels
+    white. Boxes in frame pixels, masks in patch pixels (isolation_mask)."""
+    out = np.array(patch, copy=True)
+    out[isolation_mask(patch_box, focus_box, other_boxes, focus_mask, other_masks)] = WHITE
     return out
+
+
+def extract_patch(frame: np.ndarray, square, size: int) -> np.ndarray:
+    """The square (x0, y0, x1, y1; may extend past the frame) resampled bilinearly to size x size pixels, outside
+    the frame white. The square's edges are the patch's edges: patch point p = size / side * (x - x0) - 0.5."""
+    import cv2
+
+    x0, y0, x1, _ = (float(v) for v in as_box(square))
+    if not x1 > x0 or size < 1:
+        raise ValueError(f"the square must have a positive side and size >= 1, got {square} and {size}")
+    scale = size / (x1 - x0)
+    M = np.array([[scale, 0.0, -scale * x0 - 0.5], [0.0, scale, -scale * y0 - 0.5]])
+    return cv2.warpAffine(frame, M, (int(size), int(size)), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                          borderValue=(WHITE, WHITE, WHITE))
 
 
 def crop_to_full_camera(crop_cam: np.ndarray, square: np.ndarray, intrinsics) -> np.ndarray:
@@ -153,9 +234,10 @@ def full_to_crop_camera(transl: np.ndarray, square: np.ndarray, intrinsics) -> n
 
 @dataclass(frozen=True)
 class NetworkInput:
-    """A person's network input: image (h, w, 3) uint8 RGB, and where it lies in the frame: input pixel (i, j)
-    is frame pixel origin + scale * (i, j) (pixel centres at integers). region: (x0, y0, x1, y1) the frame area
-    the input covers (pixel corners), centred on the patch, with the input's aspect ratio."""
+    """A person's network input: image (h, w, 3) uint8 RGB, and where it lies in the frame (the module's pixel
+    convention): input pixel (i, j)'s centre is at frame point origin + scale * (i, j). region: (x0, y0, x1, y1)
+    the frame area the input covers (its pixels' outer edges), centred on the patch, with the input's aspect
+    ratio."""
 
     image: np.ndarray
     origin: np.ndarray
@@ -184,7 +266,7 @@ def network_input(frame: np.ndarray, box, others=(), focus_mask_in=None, size: t
         raise ValueError(f"the box {as_box(box)} leaves no pixels of the {frame.shape[1]} x {frame.shape[0]} frame")
     others = np.asarray(others, dtype=np.float64).reshape(-1, 4)
     if len(others):
-        patch = isolate(patch, patch_box, others, None if focus_mask_in is None else focus_mask_in(patch_box))
+        patch = isolate(patch, patch_box, box, others, None if focus_mask_in is None else focus_mask_in(patch_box))
     ph, pw = patch.shape[:2]
     # One scale for x and y (nothing stretched): the region is the patch widened to the input's aspect ratio.
     scale = np.full(2, max(pw / width, ph / height))

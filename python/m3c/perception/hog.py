@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from m3c.perception._cv import import_cv2
-from m3c.perception.boxes import iou
+from m3c.perception.boxes import clip_boxes, iou
 from m3c.perception.interfaces import Detector
 from m3c.perception.registry import register
 from m3c.perception.types import FrameContext, Person
@@ -47,8 +47,10 @@ class HogDetector(Detector):
         keep = cv2.dnn.NMSBoxes(rects.tolist(), scores.tolist(), self.min_score, self.nms_iou)
         people = []
         for i in np.asarray(keep, dtype=int).reshape(-1):
-            x, y, w, h = rects[i] / factor
-            box = np.clip([x, y, x + w, y + h], 0, [width, height, width, height])
+            # The rectangle's pixels [x, x + w) of the resized image: edges x - 0.5 and x + w - 0.5 there, and
+            # (edge + 0.5) / factor - 0.5 in the frame (m3c.perception.boxes's pixel convention).
+            x, y, w, h = rects[i]
+            box = clip_boxes(np.array([x, y, x + w, y + h]) / factor - 0.5, ctx.size)
             if any(iou(box, k.box) > 0.5 for k in known or []):
                 continue
             people.append(Person(box, float(scores[i]), sources={"detector": NAME}))

@@ -21,7 +21,7 @@ import warnings
 import numpy as np
 
 from m3c.perception._cv import import_cv2
-from m3c.perception.boxes import crop, iou, isolate, process_box
+from m3c.perception.boxes import clip_boxes, crop, iou, isolate, pixel_region, process_box
 from m3c.perception.interfaces import Detector, PoseEstimator2D, Segmenter
 from m3c.perception.registry import register
 from m3c.perception.types import FrameContext, Person
@@ -73,24 +73,20 @@ def landmarks_to_keypoints(landmarks: np.ndarray, world: np.ndarray | None) -> t
 
 def tight_box(keypoints: np.ndarray, mask: np.ndarray | None, mask_box, frame_size: tuple[int, int],
               min_confidence: float = 0.5) -> np.ndarray | None:
-    """The person's tight box: the bounding box of the segmentation and of the confident keypoints, inside the
-    frame. None when there is neither."""
-    height, width = frame_size
+    """The person's tight box: the bounding box of the segmentation (its pixels' outer edges) and of the confident
+    keypoints, inside the frame. None when there is neither."""
     xs, ys = [], []
     if mask is not None and mask.any():
         rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-        xs += [mask_box[0] + cols[0], mask_box[0] + cols[-1] + 1]
-        ys += [mask_box[1] + rows[0], mask_box[1] + rows[-1] + 1]
+        xs += [mask_box[0] + cols[0] - 0.5, mask_box[0] + cols[-1] + 0.5]
+        ys += [mask_box[1] + rows[0] - 0.5, mask_box[1] + rows[-1] + 0.5]
     good = keypoints[:, 2] >= min_confidence
     if good.any():
         xs += [keypoints[good, 0].min(), keypoints[good, 0].max()]
         ys += [keypoints[good, 1].min(), keypoints[good, 1].max()]
     if not xs:
         return None
-    box = np.array([min(xs), min(ys), max(xs), max(ys)], dtype=np.float64)
-    box[[0, 2]] = np.clip(box[[0, 2]], 0, width)
-    box[[1, 3]] = np.clip(box[[1, 3]], 0, height)
-    return box
+    return clip_boxes([min(xs), min(ys), max(xs), max(ys)], frame_size)
 
 
 class MediaPipeEngine:
@@ -122,8 +118,10 @@ class MediaPipeEngine:
             return None
         h, w = image.shape[:2]
         lm = np.array([[p.x, p.y, p.z, p.visibility] for p in result.pose_landmarks.landmark], dtype=np.float64)
-        lm[:, 0] = lm[:, 0] * w + origin[0]
-        lm[:, 1] = lm[:, 1] * h + origin[1]
+        # MediaPipe's x, y are fractions of the image's width and height, from its left and top edges: the frame's
+        # pixel convention (m3c.perception.boxes) puts those edges at -0.5 (patch pixel 0 is frame pixel origin).
+        lm[:, 0] = lm[:, 0] * w + origin[0] - 0.5
+        lm[:, 1] = lm[:, 1] * h + origin[1] - 0.5
         world = None
         if result.pose_world_landmarks is not None:
             world = np.array([[p.x, p.y, p.z] for p in result.pose_world_landmarks.landmark], dtype=np.float64)
@@ -176,7 +174,7 @@ def _patch_person(ctx: FrameContext, engine: MediaPipeEngine, person: Person, ot
     if key not in ctx.cache:
         patch = crop(ctx.image, patch_box)
         if len(others):
-            patch = isolate(patch, patch_box, other_boxes, person.mask_in(patch_box))
+            patch = isolate(patch, patch_box, person.box, other_boxes, person.mask_in(patch_box))
         run = engine.run(patch, origin=(patch_box[0], patch_box[1])) if patch.size else None
         found = None
         if run is not None:
@@ -251,7 +249,7 @@ class MediaPipeDetector(Detector):
         cv2 = import_cv2()
         region = person.full_mask(frame_size)
         if region.sum() < 0.1 * (person.box[2] - person.box[0]) * (person.box[3] - person.box[1]):
-            x0, y0, x1, y1 = (int(v) for v in np.round(person.box))
+            x0, y0, x1, y1 = pixel_region(person.box, frame_size)
             region[y0:y1, x0:x1] = True
         radius = max(1, int(round(self.whiten_dilation * (person.box[3] - person.box[1]))))
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))

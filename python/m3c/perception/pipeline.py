@@ -24,7 +24,7 @@ from m3c.perception.appearance import appearance_descriptor
 from m3c.perception.body import BodyFits, rough_location
 from m3c.perception.contacts import contact_rest_heights, estimate_up
 from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, ground_flow, ground_speeds
-from m3c.perception.boxes import iou_matrix
+from m3c.perception.boxes import clip_boxes
 from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
 from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
@@ -229,9 +229,8 @@ def _dedupe(people: list[Person], max_iou: float) -> list[Person]:
 
 
 def _proposal(box: np.ndarray, margin: float, size: tuple[int, int]) -> Person | None:
-    height, width = size
     grow = margin * (box[3] - box[1])
-    b = np.clip(box + np.array([-grow, -grow, grow, grow]), 0, [width, height, width, height])
+    b = clip_boxes(box + np.array([-grow, -grow, grow, grow]), size)
     if b[2] - b[0] < 8 or b[3] - b[1] < 8:
         return None
     return Person(b, 0.0, sources={"detector": "tracker"})

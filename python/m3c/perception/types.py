@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from m3c.perception.boxes import as_box
+from m3c.perception.boxes import as_box, mask_in_region
 
 # Keypoint rows: COCO-17 (m3c.body.joint_names.COCO17_NAMES), optionally followed by these foot points (body
 # model vertices of the same names), which fix the feet's orientation for the body fit and the contacts.
@@ -68,13 +68,7 @@ class Person:
         """The mask resampled to another integer box (zeros outside the own mask box), or None."""
         if self.mask is None:
             return None
-        x0, y0, x1, y1 = (int(v) for v in as_box(box))
-        out = np.zeros((y1 - y0, x1 - x0), dtype=bool)
-        mx0, my0, mx1, my1 = (int(v) for v in self.mask_box)
-        ix0, iy0, ix1, iy1 = max(x0, mx0), max(y0, my0), min(x1, mx1), min(y1, my1)
-        if ix1 > ix0 and iy1 > iy0:
-            out[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] = self.mask[iy0 - my0:iy1 - my0, ix0 - mx0:ix1 - mx0]
-        return out
+        return mask_in_region(self.mask, self.mask_box[:2], as_box(box))
 
     def full_mask(self, frame_size: tuple[int, int]) -> np.ndarray:
         """(H, W) bool mask over the whole frame (all False without a mask)."""
