@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from m3c.perception.appearance import DESCRIPTOR_SIZE, bhattacharyya_distance
-from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits, split_cost
+from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits, piece_cost, split_cost
 
 FPS = 30.0
 
@@ -104,3 +104,40 @@ def test_unknown_cues_never_merge_and_bad_input_is_named(rng):
         merge_track_splits([a, b], 0.0)
     with pytest.raises(ValueError, match="max_gap_s"):
         TrackMergeConfig(max_gap_s=0)
+
+
+def test_a_piece_inside_a_gap_joins_the_track_around_it(rng):
+    # The player (bins 0..3) is lost for frames 100-105; frames 101-103 are a half-detected piece of her whose box
+    # gives a depth 50% too far (and a height off), on her line of sight.
+    player = segment(1, [*range(100), *range(106, 200)], (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    frames = np.arange(101, 104)
+    truth = np.array([1.0, 0.8, 9.0]) + frames[:, None] * np.array([0.01, 0, 0])
+    piece = TrackSegment(7, frames, truth * 1.5, np.stack([descriptor(rng, 0) for _ in frames]))
+    man = segment(0, range(200), (-3.0, 0.8, 10.0), (0, 0, 0), 20, rng)
+    assert split_cost(player, piece, FPS, TrackMergeConfig()) is None  # the split rule cannot take it
+    assert merge_track_splits([player, piece, man], FPS) == {1: 1, 7: 1, 0: 0}
+    assert merge_track_splits([player, piece, man], FPS, TrackMergeConfig(max_piece_s=0)) == {1: 1, 7: 7, 0: 0}
+    # The cost by hand: appearance plus the worse end's distance across the line of sight at the player's depth.
+    config = TrackMergeConfig()
+    mean_a, mean_b = player.appearances.mean(axis=0), piece.appearances.mean(axis=0)
+    appearance = bhattacharyya_distance(mean_a / mean_a.sum(), mean_b / mean_b.sum()) / config.max_appearance
+    before, after = np.median(player.locations[90:100], axis=0), np.median(player.locations[100:110], axis=0)
+    first, last = piece.locations[1], piece.locations[1]  # medians of 3 rows
+    across = max(np.linalg.norm(first[:2] * before[2] / first[2] - before[:2]) / (0.75 + 3.0 * 2 / FPS),
+                 np.linalg.norm(last[:2] * after[2] / last[2] - after[:2]) / (0.75 + 3.0 * 3 / FPS))
+    assert piece_cost(player, piece, FPS, config) == pytest.approx(appearance + across, rel=1e-9)
+
+
+def test_pieces_of_someone_else_or_outside_a_gap_stay_apart(rng):
+    player = segment(1, [*range(100), *range(106, 200)], (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    other_clothes = segment(7, range(101, 104), (2.0, 0.8, 9.0), (0.01, 0, 0), 24, rng)
+    elsewhere = segment(8, range(101, 104), (-2.5, 0.8, 9.0), (0, 0, 0), 0, rng)  # same kit, 3.5 m to the left
+    overlapping = segment(9, range(98, 104), (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)  # the player seen twice
+    long_piece = segment(10, range(101, 104), (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    for piece in (other_clothes, elsewhere, overlapping):
+        assert merge_track_splits([player, piece], FPS)[piece.track_id] == piece.track_id
+    assert merge_track_splits([player, long_piece], FPS, TrackMergeConfig(max_piece_s=0.05))[10] == 10
+    # Two pieces of the same gap at the same frames: only one can be the player.
+    twin = segment(11, range(101, 104), (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    merged = merge_track_splits([player, long_piece, twin], FPS)
+    assert sorted(merged[i] for i in (10, 11)) in ([1, 10], [1, 11])

@@ -9,6 +9,12 @@ of the first part's last ones. Parts without a known location or descriptor are 
 qualify, each part gets at most one successor and one predecessor, chosen by the Hungarian method
 (scipy.optimize.linear_sum_assignment) on the sum of the normalised appearance and location distances; chains of
 successors become one track that keeps its first part's id.
+
+A short part that lies inside a gap of another track (the other track seen just before and just after it) is a
+piece of that person when its colour agrees and its bearing does: a piece (a crouching or half-detected person)
+gets a depth from its box that is no guide, so its locations are moved along their lines of sight to the other
+track's depths at the gap's two ends and compared across the line of sight only (max_distance + max_speed * time
+from that end). It joins the track it fits best (cost: appearance plus the worse of the two ends).
 """
 
 from __future__ import annotations
@@ -32,12 +38,13 @@ class TrackMergeConfig:
     depth_fraction: float = 0.3    # along the line of sight, as a fraction of the depth, plus the same allowance
     max_speed: float = 3.0         # m/s a person may have moved during the gap
     ends: int = 10                 # locations at each part's end whose median is compared
+    max_piece_s: float = 1.0       # longest part absorbed into another track's gap (a 0 turns the rule off)
 
     def __post_init__(self):
         if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction) <= 0:
             raise ValueError("max_gap_s, max_appearance, max_distance and depth_fraction must be > 0")
-        if self.max_speed < 0 or self.ends < 1:
-            raise ValueError("max_speed must be >= 0 and ends >= 1")
+        if self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0:
+            raise ValueError("max_speed and max_piece_s must be >= 0 and ends >= 1")
 
 
 @dataclass
@@ -90,6 +97,58 @@ def split_cost(before: TrackSegment, after: TrackSegment, fps: float, config: Tr
     return float(appearance + max(across, along))
 
 
+def piece_cost(host: TrackSegment, piece: TrackSegment, fps: float, config: TrackMergeConfig) -> float | None:
+    """The cost of absorbing `piece` into a gap of `host` (normalised appearance plus the worse end's distance
+    across the line of sight, each <= 1 when it qualifies), or None (see the module docstring)."""
+    k = int(np.searchsorted(host.frames, piece.frames[0]))
+    if not 0 < k < len(host.frames) or host.frames[k] <= piece.frames[-1]:
+        return None  # not inside one gap of the host
+    if (piece.frames[-1] - piece.frames[0] + 1) / fps > config.max_piece_s:
+        return None
+    if (host.frames[k] - host.frames[k - 1]) / fps > config.max_gap_s:
+        return None
+    a, b = host.mean_appearance(), piece.mean_appearance()
+    before = TrackSegment(host.track_id, host.frames[:k], host.locations[:k], host.appearances[:k])
+    after = TrackSegment(host.track_id, host.frames[k:], host.locations[k:], host.appearances[k:])
+    ends = [(before.end_location(False, config.ends), piece.end_location(True, config.ends),
+             piece.frames[0] - host.frames[k - 1]),
+            (after.end_location(True, config.ends), piece.end_location(False, config.ends),
+             host.frames[k] - piece.frames[-1])]
+    if a is None or b is None or any(h is None or p is None or h[2] <= 0 or p[2] <= 0 for h, p, _ in ends):
+        return None
+    appearance = bhattacharyya_distance(a, b) / config.max_appearance
+    across = max(np.linalg.norm(p[:2] * (h[2] / p[2]) - h[:2]) / (config.max_distance + config.max_speed * n / fps)
+                 for h, p, n in ends)
+    if appearance > 1.0 or across > 1.0:
+        return None
+    return float(appearance + across)
+
+
+def _joined(parts: list[TrackSegment]) -> TrackSegment:
+    """One segment of parts that do not overlap in time (a chain of splits)."""
+    order = np.argsort([p.frames[0] for p in parts])
+    return TrackSegment(parts[order[0]].track_id, np.concatenate([parts[i].frames for i in order]),
+                        np.concatenate([parts[i].locations for i in order]),
+                        np.concatenate([parts[i].appearances for i in order]))
+
+
+def absorb_pieces(segments: list[TrackSegment], fps: float, config: TrackMergeConfig) -> dict[int, int]:
+    """piece id -> id of the track whose gap it fills (shortest pieces first; a part already absorbed hosts no
+    other; pieces that overlap in time never fill the same host)."""
+    hosted: dict[int, int] = {}
+    filled: dict[int, set] = {}
+    for piece in sorted(segments, key=lambda s: len(s.frames)):
+        costs = [(c, host.track_id) for host in segments
+                 if host is not piece and host.track_id not in hosted
+                 and not filled.get(host.track_id, set()) & set(piece.frames.tolist())
+                 and (c := piece_cost(host, piece, fps, config)) is not None]
+        if costs:
+            host_id = min(costs)[1]
+            hosted[piece.track_id] = host_id
+            filled.setdefault(host_id, set()).update(piece.frames.tolist())
+    return hosted
+
+
 def merge_track_splits(segments: list[TrackSegment], fps: float,
                        config: TrackMergeConfig | None = None) -> dict[int, int]:
     """track id -> id of the track it joins (its chain's first part; itself when not merged) for every segment."""
@@ -121,4 +180,10 @@ def merge_track_splits(segments: list[TrackSegment], fps: float,
         while k in successor:
             k = successor[k]
             merged[ids[k]] = ids[head]
+    if config.max_piece_s > 0:
+        chains = [_joined([s for s in segments if merged[s.track_id] == head]) for head in sorted(set(merged.values()))]
+        hosted = absorb_pieces(chains, fps, config)
+        for i in ids:
+            while merged[i] in hosted:
+                merged[i] = hosted[merged[i]]
     return merged
