@@ -6,7 +6,7 @@ import pytest
 
 from m3c.vo import (fuse, map_ground_plane, relative_ate, run_vo, scale_from_camera_height, scale_from_depth,
                     scale_from_planted_feet, umeyama_sim3)
-from m3c.vo.scale import DEPTH_WEIGHT, PERSON_SIZE_SIGMA, ScaleObservation
+from m3c.vo.scale import DEPTH_WEIGHT, FEET_MODEL_SIGMA, PERSON_SIZE_SIGMA, ScaleObservation
 from m3c.vo.synthetic import ROOM_MAX, forward_trajectory, look_rotation, render_sequence
 
 GROUND_Y = 1.5  # metric world: OpenCV-like, y down, ground plane y = GROUND_Y, cameras near y = 0
@@ -117,14 +117,37 @@ def test_scale_from_camera_height_recovers_the_scale():
     contacts = _contacts_in_cameras(poses_m, rng)
     for t in range(0, 60, 2):
         contacts[t] = np.zeros((0, 3))  # frames without a planted foot are skipped
-    obs = scale_from_camera_height(contacts, poses_vo, plane[:2])
+    obs = scale_from_camera_height([contacts], poses_vo, plane[:2])
     assert obs.value == pytest.approx(true_scale, rel=0.01), obs
     assert obs.frames == 30 and obs.person_size
     assert 0 < obs.sigma < 0.02  # 1 cm of sole noise at 1.5 m, over 30 frames
-    few = scale_from_camera_height(contacts[:8] + [np.zeros((0, 3))] * 52, poses_vo, plane[:2])
-    assert few.value is None and "fewer than" in few.reason
+    few = scale_from_camera_height([contacts[:8] + [np.zeros((0, 3))] * 52], poses_vo, plane[:2])
+    assert few.value is None and "no person with 10 frames" in few.reason
     with pytest.raises(ValueError, match="frames"):
-        scale_from_camera_height(contacts[:10], poses_vo, plane[:2])
+        scale_from_camera_height([contacts[:10]], poses_vo, plane[:2])
+
+
+def test_camera_height_weighs_each_person_once():
+    """Each person's estimate carries that person's size error however many frames it has: two people, one seen
+    in contact in 50 frames and 10% too large (its soles 10% too far below the camera), one in 12 frames and
+    true, give their estimates' geometric mean, with an uncertainty from their scatter."""
+    rng = np.random.default_rng(5)
+    poses_m = _metric_cameras(60)
+    true_scale = 0.4
+    points_vo, poses_vo = _to_vo(np.concatenate([_ground_points(rng, 300), _clutter(rng, 300)]), poses_m, true_scale)
+    plane = map_ground_plane(points_vo, poses_vo, _vo_up())
+    empty = np.zeros((0, 3))
+    big = [1.1 * c if t < 50 else empty for t, c in enumerate(_contacts_in_cameras(poses_m, rng, noise=0.0))]
+    true = [c if t >= 48 else empty for t, c in enumerate(_contacts_in_cameras(poses_m, rng, noise=0.0))]
+    obs = scale_from_camera_height([big, true], poses_vo, plane[:2])
+    assert obs.detail["people"] == 2 and obs.frames == 62
+    big_value, true_value = obs.detail["per_person"]
+    assert big_value == pytest.approx(1.1 * true_scale, rel=2e-3) and true_value == pytest.approx(true_scale, rel=2e-3)
+    assert obs.value == pytest.approx(np.sqrt(big_value * true_value), rel=1e-12)
+    assert obs.sigma == pytest.approx(np.std(np.log([big_value, true_value]), ddof=1) / np.sqrt(2), rel=1e-9)
+    # A person with too few frames is left out; a pooled median would have followed the larger person.
+    alone = scale_from_camera_height([big, true[:55] + [empty] * 5], poses_vo, plane[:2])
+    assert alone.detail["people"] == 1 and alone.value == pytest.approx(big_value, rel=1e-12)
 
 
 def _planted_feet_scene(true_scale, depth_error, rng, T=60):
@@ -153,7 +176,8 @@ def test_scale_from_planted_feet_recovers_the_scale():
     joints, planted, frames, vo = _planted_feet_scene(1.7, 0.0, rng)
     obs = scale_from_planted_feet(joints, planted, frames, vo)
     assert obs.value == pytest.approx(1.7, rel=0.01), obs
-    assert obs.sigma < 0.02 and obs.detail["runs"] == 2 * 4 * 6
+    assert obs.detail["bootstrap_sigma"] < 0.02 and obs.detail["runs"] == 2 * 4 * 6
+    assert obs.sigma == pytest.approx(np.hypot(obs.detail["bootstrap_sigma"], FEET_MODEL_SIGMA), rel=1e-12)
     # A static camera measures nothing.
     static = scale_from_planted_feet(joints, planted, frames, np.tile(np.eye(4), (60, 1, 1)))
     assert static.value is None and "does not move" in static.reason
@@ -172,7 +196,7 @@ def test_planted_feet_trust_the_image_plane_over_depth():
             obs = scale_from_planted_feet(joints, planted, frames, vo, depth_weight=weight)
             errors[weight].append(abs(np.log(obs.value / 1.7)))
             if weight == DEPTH_WEIGHT:
-                assert errors[weight][-1] < 3 * obs.sigma + 0.01
+                assert errors[weight][-1] < 3 * obs.detail["bootstrap_sigma"] + 0.01
     assert np.mean(errors[DEPTH_WEIGHT]) < 0.5 * np.mean(errors[1.0])
 
 
@@ -240,7 +264,7 @@ def test_scale_of_the_patch_vo_map_of_a_room():
         ahead = pose[:3, 3] + pose[:3, 2] * rng.uniform(1.5, 3.0, (4, 1))
         ahead[:, 1] = ROOM_MAX[1]
         contacts.append((ahead - pose[:3, 3]) @ pose[:3, :3])
-    obs = scale_from_camera_height(contacts, result.world_from_cam, plane[:2])
+    obs = scale_from_camera_height([contacts], result.world_from_cam, plane[:2])
     assert obs.value == pytest.approx(true_scale, rel=0.02), obs
 
 

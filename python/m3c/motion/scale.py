@@ -42,12 +42,11 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
         observations.append(ScaleObservation("ground", reason="no ground plane among the odometry's "
                                              f"{len(points)} map points"))
     else:
-        per_frame = [[] for _ in range(len(vo))]
+        contacts = []
         for track, track_contacts in zip(tracks, contact_vertices(model, tracks, contact_threshold)):
-            for i, p in enumerate(track_contacts):
-                if len(p):
-                    per_frame[track["first_frame"] + i].append(p)
-        contacts = [np.concatenate(p) if p else np.zeros((0, 3)) for p in per_frame]
+            per_frame = [np.zeros((0, 3))] * len(vo)
+            per_frame[track["first_frame"]:track["first_frame"] + len(track_contacts)] = track_contacts
+            contacts.append(per_frame)
         ground = scale_from_camera_height(contacts, vo, plane[:2])
         ground.detail["map_points"] = int(plane[2].sum())
         observations.append(ground)

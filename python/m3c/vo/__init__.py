@@ -9,7 +9,7 @@ and optional depth maps (initialise patch inverse depth).
     result.world_from_cam                                 # (T, 4, 4), world = first camera
     result.points                                         # (M, 3) the final map, VO units
     plane = map_ground_plane(result.points, result.world_from_cam, up)    # the ground among the map points
-    scale = scale_from_camera_height(contacts_in_camera, result.world_from_cam, plane[:2])  # metres per VO unit
+    scale = scale_from_camera_height([contacts_in_camera], result.world_from_cam, plane[:2])  # m per VO unit
     focal = estimate_focal(frames, masks)                 # the focal length of a camera that turns (m3c.vo.focal)
 """
 
