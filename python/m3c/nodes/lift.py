@@ -15,8 +15,9 @@ class LiftNode(Node):
     """Every track in the world frame (thesis 4.1.4, world lift).
 
     method camera: each frame's camera-local body moved by its camera (the ground node's cameras in the world, at
-    the estimated scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its checkpoint;
-    see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint is found.
+    the estimated scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its
+    checkpoint; see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint
+    is found.
 
     Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
     body_pose, betas, contacts?, ground_normal?, ground_offset?), cameras (the ground node's WorldCameras fields:

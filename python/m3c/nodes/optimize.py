@@ -65,9 +65,8 @@ class OptimizeNode(Node):
     """Output result: tracks (the lift's tracks with optimised transl, root_orient, body_pose, betas), cameras
     (m3c.camera.WorldCameras fields: the lift's cameras at the optimised scale and offset, per frame when optimised
     in windows), camera_scale, camera_offset (3,) (the figures results report: frame-weighted means over windows),
-    stages (per stage:
-    name, status, message, iterations, objective_before, objective_after, terms {term: [before, after]}),
-    stopped_early, optimized (False when disabled)."""
+    stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
+    after]}), stopped_early, optimized (False when disabled)."""
 
     version = "2"  # 2: cameras (WorldCameras) replace the metric world_from_cam
     type_name = "optimize"
