@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from m3c.camera import WorldCameras
 from m3c.io.manifest import seal
 from m3c.io.npz import write_npz
 from m3c.nodes.results import build_results
@@ -60,11 +61,12 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
              "height": HEIGHT, "name": "synthetic.mp4", "start": 0, "stop": 2 * num_frames, "step": 2,
              "times": np.arange(num_frames) / FPS}
     # The world lift: a little off the final motion (newer result schemas also store its pose, shape, cameras).
-    world = {"method": "test", "world_from_cam": world_from_cam, "initial_scale": 1.0,
+    cameras = WorldCameras(world_from_cam[:, :3, :3], world_from_cam[:, :3, 3], 1.0).as_dict()
+    world = {"method": "test", "cameras": cameras,
              "tracks": [{"track_id": t["track_id"], "root_orient": t["root_orient"] + 0.01,
                          "transl": t["transl"] + 0.05, "body_pose": t["body_pose"] + 0.02, "betas": t["betas"]}
                         for t in tracks]}
-    result = {"tracks": tracks, "world_from_cam": world_from_cam, "camera_scale": 1.0,
+    result = {"tracks": tracks, "cameras": cameras, "camera_scale": 1.0,
               "camera_offset": np.zeros(3), "optimized": True, "stopped_early": False, "stages": []}
     arrays, summary = build_results(model, video, {"intrinsics": INTRINSICS, "source": "test"},
                                     {"static": False, "source": "test"}, {"source": "test"},

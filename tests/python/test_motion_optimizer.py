@@ -51,7 +51,7 @@ def test_recovers_world_motion_and_camera_scale(model, scene, start, result):
     assert after < 0.25  # metres
     assert result.camera_scale == cameras.initial_scale  # the recipe frees the scale nowhere
     # The optimised cameras are the true ones (up to the estimated scale).
-    cams = result.world_from_cam(cameras)
+    cams = result.world_cameras(cameras).world_from_cam()
     assert np.abs(cams[:, :3, 3] - scene.cameras_true.world_from_cam[:, :3, 3]).max() < 0.05 * 6.0
 
 

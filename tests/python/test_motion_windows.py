@@ -94,9 +94,9 @@ def test_windowed_solution_is_as_good_as_one_problem(model, scene, start, soluti
     # Every window keeps the estimated scale; the cameras are the true ones up to it.
     for w in windowed.windows:
         assert w["camera_scale"] == cameras.initial_scale, w
-    cams = windowed.world_from_cam(cameras)
+    cams = windowed.world_cameras(cameras).world_from_cam()
     true_centres = scene.cameras_true.world_from_cam[:, :3, 3]
-    whole_error = np.abs(whole.world_from_cam(cameras)[:, :3, 3] - true_centres).max()
+    whole_error = np.abs(whole.world_cameras(cameras).world_from_cam()[:, :3, 3] - true_centres).max()
     assert np.abs(cams[:, :3, 3] - true_centres).max() < max(2 * whole_error, 0.1)
     np.testing.assert_array_equal(cams[:, :3, :3], scene.cameras_vo.world_from_cam[:, :3, :3])
     # Stages are reported once each, with every window's iterations.

@@ -223,7 +223,7 @@ def test_ground_and_lift_without_the_runner():
     """m3c.ground.world_frame.estimate_ground and m3c.motion.lift.lift_tracks on camera-local people seen by VO
     cameras at the true scale: the world they give is the scene's up to a shift along its up and a turn about it."""
     from m3c.ground import GroundParams
-    from m3c.ground.world_frame import estimate_ground, metric_cameras
+    from m3c.ground.world_frame import estimate_ground
     from m3c.motion.lift import lift_tracks
 
     model, scene, tracks = camera_local_scene(vo_scale=2.5)
@@ -232,7 +232,7 @@ def test_ground_and_lift_without_the_runner():
     assert ground["up_source"] == "ground" and ground["contact_points"] > 1000
     R = ground["world_from_vo"][:3, :3]
     assert np.degrees(np.arccos(np.clip((R @ [0.0, 1.0, 0.0])[1], -1, 1))) < 0.5  # the scene's up is y
-    lifted = lift_tracks(model, tracks, ground["world_from_vo"] @ metric_cameras(vo, 2.5), ground["tracks"])
+    lifted = lift_tracks(model, tracks, ground["cameras"].world_from_cam(), ground["tracks"])
     heights = []
     for track, truth in zip(lifted, scene.truth):
         pose = np.concatenate([track["root_orient"][:, None], track["body_pose"]], axis=1)

@@ -433,7 +433,7 @@ def run_sequence(model: BodyModel, seq: BenchmarkSequence, optimizer: OptimizerC
     # optimizer from there.
     lifted, cameras = rescaled(local, seq.cameras_vo, estimate_scale(model, local, seq.cameras_vo))
     result = optimize(model, lifted, cameras, optimizer or OptimizerConfig.default(), pose_prior=pose_prior)
-    cams = result.world_from_cam(cameras)
+    cams = result.world_cameras(cameras).world_from_cam()
     opt_eval = _eval_tracks(model, result.tracks, cams)
     report.results["Global Opt"] = evaluate_sequence(gt, opt_eval, seq.fps, name=seq.name)
     report.seconds["Global Opt"] = time.perf_counter() - start

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from m3c.body.transform import spine_directions
+from m3c.camera import WorldCameras
 from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, fit_plane, level_with_body_up
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
 
@@ -33,13 +34,6 @@ def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray
         directions.append(np.einsum("nij,nj->ni", rotations, spine))
     mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
     return mean / max(np.linalg.norm(mean), 1e-12)
-
-
-def metric_cameras(world_from_cam: np.ndarray, scale: float) -> np.ndarray:
-    """(T, 4, 4) cameras with their translations multiplied by `scale` (VO units -> metres)."""
-    out = np.array(world_from_cam, dtype=np.float64, copy=True)
-    out[:, :3, 3] *= scale
-    return out
 
 
 def gravity_frame(up: np.ndarray, first_camera: np.ndarray, height: float | None) -> np.ndarray:
@@ -101,14 +95,15 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
     fits, association and filling over time, each frame pooling the contacts of `window` frames around it; planes
     tilted more than max_tilt degrees from the ground are replaced by it).
 
-    Returns {world_from_vo (4, 4) (metric VO frame -> world), up_source ("ground" or "camera"), plane (normal (3,),
+    Returns {world_from_vo (4, 4) (metric VO frame -> world), cameras (m3c.camera.WorldCameras: the cameras in
+    the world at `scale`), up_source ("ground" or "camera"), plane (normal (3,),
     offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track normal (n, 3),
     offset (n,) in the world, observed (n,), valid (n,)}.
     """
     tracks = list(tracks)
     in_camera = contact_vertices(model, tracks, contact_threshold)
     up = body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
-    cameras = metric_cameras(vo_cameras, scale)
+    cameras = WorldCameras.from_vo(vo_cameras, scale).world_from_cam()  # the VO frame in metres
     dominant, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log)
     up_vo = cameras[0, :3, :3] @ CAMERA_UP
     per_person = planes == "per_person" or dominant is None
@@ -157,6 +152,7 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
                        "observed": np.array([len(p) > 0 for p in points], dtype=bool),
                        "valid": np.ones(track["num_frames"], bool)}
                       for track, points in zip(tracks, raw)]
-    return {"world_from_vo": world_from_vo, "up_source": "ground" if dominant else "camera",
+    return {"world_from_vo": world_from_vo, "cameras": WorldCameras.from_vo(vo_cameras, scale, world_from_vo),
+            "up_source": "ground" if dominant else "camera",
             "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
             "contact_points": int(len(pooled)), "tracks": out_tracks}

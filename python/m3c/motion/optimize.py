@@ -9,6 +9,7 @@ import numpy as np
 from m3c import _core
 from m3c.body import BodyModel
 from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.camera import WorldCameras
 from m3c.motion.config import OptimizerConfig
 from m3c.nn import HumorPrior, VPoser
 
@@ -42,11 +43,13 @@ class Track:
 
 @dataclass
 class Cameras:
-    """world_from_cam: T x 4 x 4 (VO, translation up to scale); intrinsics: T x 4 or 4 (fx, fy, cx, cy).
-    initial_scale: the metric size of one VO unit to start from (m3c.vo.scale's estimate; refined by stages that
-    free the scale, unless static); scale_sigma: its uncertainty, the standard deviation of log(initial_scale)
-    (the "scale_prior" term; None: no prior). times: (T,) each frame's time in seconds when the frame rate varies
-    (the smoothness and contact stencils are then finite differences at these times); None: equally spaced."""
+    """The optimizer's cameras. world_from_cam: T x 4 x 4 (world axes, translation in VO units: the camera centre is
+    scale * translation + offset, the scale and offset being the optimizer's unknowns); intrinsics: T x 4 or 4 (fx,
+    fy, cx, cy). initial_scale: the metric size of one VO unit to start from (m3c.vo.scale's estimate; refined by
+    stages that free the scale, unless static); scale_sigma: its uncertainty, the standard deviation of
+    log(initial_scale) (the "scale_prior" term; None: no prior). times: (T,) each frame's time in seconds when the
+    frame rate varies (the smoothness and contact stencils are then finite differences at these times); None:
+    equally spaced."""
 
     world_from_cam: np.ndarray
     intrinsics: np.ndarray
@@ -54,6 +57,15 @@ class Cameras:
     initial_scale: float = 1.0
     scale_sigma: float | None = None
     times: np.ndarray | None = None
+
+    @classmethod
+    def from_world(cls, cameras: WorldCameras, intrinsics: np.ndarray, **kwargs) -> Cameras:
+        """The optimizer's cameras starting at the pipeline's `cameras` (one scale, no offset: the optimizer's
+        offset starts at 0); kwargs: static, scale_sigma, times."""
+        if np.ndim(cameras.scale) or np.any(cameras.offset):
+            raise ValueError("the optimizer starts from cameras with one scale and no offset (the lift's), got "
+                             f"scale of shape {np.shape(cameras.scale)} and offset {np.asarray(cameras.offset)[:3]}")
+        return cls(cameras.world_from_cam_vo(), intrinsics, initial_scale=float(cameras.scale), **kwargs)
 
 
 @dataclass
@@ -82,11 +94,9 @@ class WorldResult:
     # weights); None otherwise. body_pose[:, :21] is their decoding.
     latent_poses: list = field(default_factory=list)
 
-    def world_from_cam(self, cameras: Cameras) -> np.ndarray:
-        """The cameras in the optimised world: VO translations times the recovered scale, plus the offset."""
-        out = np.array(cameras.world_from_cam, dtype=np.float64, copy=True)
-        out[:, :3, 3] = self.camera_scale * out[:, :3, 3] + self.camera_offset
-        return out
+    def world_cameras(self, cameras: Cameras) -> WorldCameras:
+        """The optimised cameras: the input `cameras` at the recovered scale and offset."""
+        return WorldCameras.from_vo(cameras.world_from_cam, self.camera_scale, offset=self.camera_offset)
 
 
 def _matrix(value, rows: int, cols: int, name: str) -> np.ndarray:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from m3c.camera import WorldCameras
 from m3c.motion.config import OptimizerConfig
 from m3c.motion.interpolate import slerp
 from m3c.motion.optimize import Cameras, StageResult, Track, WorldResult, optimize
@@ -80,19 +81,26 @@ def _piece(track: Track, start: int, stop: int) -> Track | None:
                  cut(track.ground_normal), cut(track.ground_offset), cut(track.contacts))
 
 
+def blended_scale_and_offset(weights: np.ndarray, scales, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame, the scale (T,) and offset (T, 3) of the windows' cameras blended with `weights` (windows, T): the
+    blend sum_w a_wt (s_w c_t + o_w) of the windows' metric camera centres is the centre c_t (VO units) at scale
+    sum_w a_wt s_w and offset sum_w a_wt o_w."""
+    return weights.T @ np.asarray(scales, dtype=np.float64), weights.T @ np.asarray(offsets, dtype=np.float64)
+
+
 @dataclass
 class WindowedResult(WorldResult):
     """A WorldResult over windows: camera_scale and camera_offset are the frame-weighted means of the windows'
-    values (results report one figure); each frame's camera is `camera_centres`, the blend of the windows' metric
-    cameras, and `windows` lists each window's frames, scale and offset."""
+    values (results report one figure); each frame's camera is the blend of the windows' metric cameras, at
+    frame_scale (T,) and frame_offset (T, 3) (blended_scale_and_offset), and `windows` lists each window's frames,
+    scale and offset."""
 
-    camera_centres: np.ndarray | None = None  # (T, 3) world camera centres
+    frame_scale: np.ndarray | None = None  # (T,) metres per VO unit
+    frame_offset: np.ndarray | None = None  # (T, 3) metres
     windows: list | None = None
 
-    def world_from_cam(self, cameras: Cameras) -> np.ndarray:
-        out = np.array(cameras.world_from_cam, dtype=np.float64, copy=True)
-        out[:, :3, 3] = self.camera_centres
-        return out
+    def world_cameras(self, cameras: Cameras) -> WorldCameras:
+        return WorldCameras.from_vo(cameras.world_from_cam, self.frame_scale, offset=self.frame_offset)
 
 
 def optimize_in_windows(model, tracks: list[Track], cameras: Cameras, config: OptimizerConfig | None = None,
@@ -140,17 +148,15 @@ def optimize_in_windows(model, tracks: list[Track], cameras: Cameras, config: Op
         latents.append({p: lat for p, lat in zip(owners, result.latent_poses) if lat is not None})
 
     # Cameras: each window's metric cameras, blended.
-    centres = np.zeros((T, 3))
-    for (start, stop), result, w in zip(ranges, results, weights):
-        window_centres = result.world_from_cam(Cameras(world_from_cam[start:stop], intrinsics[start:stop]))[:, :3, 3]
-        centres[start:stop] += w[start:stop, None] * window_centres
+    frame_scale, frame_offset = blended_scale_and_offset(weights, [r.camera_scale for r in results],
+                                                         [r.camera_offset for r in results])
     out_tracks = [_blend_track(track, p, ranges, weights, solved) for p, track in enumerate(tracks)]
     out_latents = [_blend_latent(track, p, ranges, weights, latents) for p, track in enumerate(tracks)]
     frames_weight = weights.sum(axis=1)
     scale = float(np.average([r.camera_scale for r in results], weights=frames_weight))
     offset = np.average([np.asarray(r.camera_offset) for r in results], axis=0, weights=frames_weight)
     return WindowedResult(out_tracks, scale, offset, _merge_stages(results),
-                          any(r.stopped_early for r in results), out_latents, centres,
+                          any(r.stopped_early for r in results), out_latents, frame_scale, frame_offset,
                           [{"frames": [start, stop], "camera_scale": float(r.camera_scale),
                             "camera_offset": [float(v) for v in r.camera_offset]}
                            for (start, stop), r in zip(ranges, results)])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from m3c.camera import WorldCameras
 from m3c.ground.tracks import track_poses
 from m3c.pipeline import ComponentUnavailable, FileRef, Node, register_node
 
@@ -34,6 +35,7 @@ class CameraPlotNode(Node):
         people = [(int(t["track_id"]), model.joints(track_poses(t), np.asarray(t["betas"]), np.asarray(t["transl"]))[:, 0])
                   for t in result["tracks"]]
         scale = f"{result['camera_scale']:.3f} m per odometry unit"
-        camera_trajectory_plot(ctx.work_path("camera_trajectory.png"), np.asarray(result["world_from_cam"]),
-                               float(video["fps"]), people, f"{video['name']}: camera trajectory ({scale})")
+        cameras = WorldCameras(**result["cameras"]).world_from_cam()
+        camera_trajectory_plot(ctx.work_path("camera_trajectory.png"), cameras, float(video["fps"]), people,
+                               f"{video['name']}: camera trajectory ({scale})")
         return {"plot": FileRef("camera_trajectory.png")}

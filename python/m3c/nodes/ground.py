@@ -18,12 +18,14 @@ class GroundNode(Node):
     estimate_ground at the scale node's scale (planes: shared, SLAHMR's single floor, the default; or per_person,
     the thesis's planes, each frame pooling the contacts of `window` frames around it).
 
-    Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), up_source
+    Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), cameras (the fields of
+    m3c.camera.WorldCameras: the VO cameras in the world at the estimated scale, offset 0), up_source
     ("ground" or "camera"), plane (normal (3,), offset) the dominant plane in the world (y = 0 when found),
     tracks: per track normal (n, 3), offset (n,) in the world, observed (n,), valid (n,).
     Output scale: the scale node's, passed on (the ground is fitted at that scale).
     """
 
+    version = "2"  # 2: the cameras in the world (WorldCameras)
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale")
@@ -62,4 +64,5 @@ class GroundNode(Node):
                                  self.params(), planes=self.config.planes,
                                  contact_threshold=self.config.contact_threshold, window=self.config.window,
                                  max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log)
+        ground["cameras"] = ground["cameras"].as_dict()
         return {"ground": ground, "scale": scale}

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
-from m3c.ground.world_frame import metric_cameras
+from m3c.camera import WorldCameras
 from m3c.motion.lift import lift_tracks
 from m3c.pipeline import ComponentUnavailable, Node, register_node
 
@@ -14,16 +14,18 @@ from m3c.pipeline import ComponentUnavailable, Node, register_node
 class LiftNode(Node):
     """Every track in the world frame (thesis 4.1.4, world lift).
 
-    method camera: each frame's camera-local body moved by its camera (world_from_vo, VO pose at the estimated
-    scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its checkpoint;
-    see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint is found.
+    method camera: each frame's camera-local body moved by its camera (the ground node's cameras in the world, at
+    the estimated scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its
+    checkpoint; see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint
+    is found.
 
     Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
-    body_pose, betas, contacts?, ground_normal?, ground_offset?), world_from_cam (T, 4, 4) for the optimizer
-    (world rotation, translation in VO units: camera centre = scale * translation), initial_scale, scale_sigma
-    (the scale estimator's, None when nothing measured it), scale_source, static, method.
+    body_pose, betas, contacts?, ground_normal?, ground_offset?), cameras (the ground node's WorldCameras fields:
+    the cameras the tracks were lifted with; their scale is the optimizer's initial scale), scale_sigma (the scale
+    estimator's, None when nothing measured it), scale_source, static, method.
     """
 
+    version = "2"  # 2: cameras (WorldCameras) replace world_from_cam in VO units and initial_scale
     type_name = "lift"
     level = "track"
     inputs = ("video", "camera", "tracks", "cameras", "scale", "ground")
@@ -77,10 +79,8 @@ class LiftNode(Node):
 
     def run(self, ctx, inputs):
         model = ctx.loaded("body_model")
-        scale = float(inputs["scale"]["value"])
-        metric = inputs["ground"]["world_from_vo"] @ metric_cameras(inputs["cameras"]["world_from_cam"], scale)
-        optimizer_cameras = metric.copy()  # world_from_cam, metres at the initial scale -> VO units
-        optimizer_cameras[:, :3, 3] /= scale
+        cameras = WorldCameras(**inputs["ground"]["cameras"])
+        metric = cameras.world_from_cam()
         lifter = getattr(self, "_lifter", None)
         trajectory = None
         if lifter is not None:
@@ -91,7 +91,7 @@ class LiftNode(Node):
                                        inputs["camera"]["intrinsics"])
             trajectory = wham
         tracks = lift_tracks(model, inputs["tracks"]["tracks"], metric, inputs["ground"]["tracks"], trajectory)
-        return {"world": {"tracks": tracks, "world_from_cam": optimizer_cameras, "initial_scale": scale,
+        return {"world": {"tracks": tracks, "cameras": cameras.as_dict(),
                           "scale_sigma": inputs["scale"].get("sigma"),
                           "scale_source": str(inputs["scale"].get("source", "")),
                           "static": bool(inputs["cameras"]["static"]),

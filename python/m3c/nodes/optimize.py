@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import yaml
 
+from m3c.camera import WorldCameras
 from m3c.motion import Cameras, OptimizerConfig, Track
 from m3c.motion.windows import check_windows, optimize_in_windows
-from m3c.ground.world_frame import metric_cameras
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
 
@@ -62,11 +62,13 @@ def unusable_reason(model, track: Track, metric_world_from_cam: np.ndarray, conf
 
 @register_node
 class OptimizeNode(Node):
-    """Output result: tracks (the lift's tracks with optimised transl, root_orient, body_pose, betas),
-    world_from_cam (T, 4, 4) metric cameras in the world, camera_scale, camera_offset (3,), stages (per stage:
-    name, status, message, iterations, objective_before, objective_after, terms {term: [before, after]}),
-    stopped_early, optimized (False when disabled)."""
+    """Output result: tracks (the lift's tracks with optimised transl, root_orient, body_pose, betas), cameras
+    (m3c.camera.WorldCameras fields: the lift's cameras at the optimised scale and offset, per frame when optimised
+    in windows), camera_scale, camera_offset (3,) (the figures results report: frame-weighted means over windows),
+    stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
+    after]}), stopped_early, optimized (False when disabled)."""
 
+    version = "2"  # 2: cameras (WorldCameras) replace the metric world_from_cam
     type_name = "optimize"
     level = "track"
     inputs = ("video", "camera", "world")
@@ -124,25 +126,23 @@ class OptimizeNode(Node):
 
     def run(self, ctx, inputs):
         world = inputs["world"]
-        world_from_cam = np.asarray(world["world_from_cam"], dtype=np.float64)
+        lifted = WorldCameras(**world["cameras"])
         video = inputs["video"]
-        cameras = Cameras(world_from_cam, np.asarray(inputs["camera"]["intrinsics"], dtype=np.float64),
-                          static=bool(world["static"]), initial_scale=float(world["initial_scale"]),
-                          scale_sigma=world.get("scale_sigma"),
-                          times=np.asarray(video["times"]) if video.get("variable_rate") else None)
+        cameras = Cameras.from_world(lifted, np.asarray(inputs["camera"]["intrinsics"], dtype=np.float64),
+                                     static=bool(world["static"]), scale_sigma=world.get("scale_sigma"),
+                                     times=np.asarray(video["times"]) if video.get("variable_rate") else None)
         tracks = world["tracks"]
         if not self.config.enabled or not tracks:
             if tracks:
                 ctx.log.warning("optimization disabled: results are the world lift")
-            metric = metric_cameras(world_from_cam, cameras.initial_scale)
-            return {"result": {"tracks": tracks, "world_from_cam": metric, "camera_scale": cameras.initial_scale,
+            return {"result": {"tracks": tracks, "cameras": lifted.as_dict(), "camera_scale": cameras.initial_scale,
                                "camera_offset": np.zeros(3), "stages": [],
                                "stopped_early": False, "optimized": False}}
         config = optimizer_config(self.config.optimizer)
         if self.config.scale == "fixed":
             for stage in config.stages:
                 stage.free = [v for v in stage.free if v != "scale"]
-        metric = metric_cameras(world_from_cam, cameras.initial_scale)
+        metric = lifted.world_from_cam()
         motion_tracks, usable = [], []
         for track in tracks:
             motion = to_motion_track(track, metric)
@@ -163,9 +163,9 @@ class OptimizeNode(Node):
         result = optimize_in_windows(ctx.loaded("body_model"), motion_tracks, cameras, config, self.config.window,
                                      self.config.window_overlap, ctx.log, motion_prior=motion_prior,
                                      pose_prior=pose_prior, fps=float(inputs["video"]["fps"]))
-        final_cams = result.world_from_cam(cameras)
-        lift = _ground_lift(motion_tracks, final_cams)
-        final_cams[:, :3, 3] += lift
+        optimised = result.world_cameras(cameras)
+        lift = _ground_lift(motion_tracks, optimised.world_from_cam())
+        final = replace(optimised, offset=optimised.offset + lift)  # the ground back at y = 0
         out_tracks = []
         for track, optimized in zip(tracks, result.tracks):
             out = dict(track)
@@ -184,7 +184,7 @@ class OptimizeNode(Node):
                            "terms": {k: [float(v[0]), float(v[1])] for k, v in stage.terms.items()}})
         if result.stopped_early:
             ctx.log.warning("optimization stopped early (a stage failed); results are from the last good step")
-        return {"result": {"tracks": out_tracks, "world_from_cam": final_cams,
+        return {"result": {"tracks": out_tracks, "cameras": final.as_dict(),
                            "camera_scale": float(result.camera_scale), "camera_offset": result.camera_offset + lift,
                            "stages": stages, "stopped_early": bool(result.stopped_early), "optimized": True,
                            "windows": getattr(result, "windows", None) or []}}

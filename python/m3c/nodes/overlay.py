@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from m3c.camera import WorldCameras
 from m3c.io.video import VideoWriter
 from m3c.nodes.frames import stream_frames
 from m3c.pipeline import FileRef, Node, register_node
@@ -33,7 +34,7 @@ class OverlayNode(Node):
         model = ctx.loaded("body_model")
         bodies = BodyFrames(model, result["tracks"])
         intrinsics = np.asarray(inputs["camera"]["intrinsics"])
-        world_from_cam = np.asarray(result["world_from_cam"])
+        world_from_cam = WorldCameras(**result["cameras"]).world_from_cam()
         with VideoWriter(ctx.work_path("overlay.mp4"), video["fps"], (video["width"], video["height"])) as writer, \
                 ctx.progress("rendering overlay", video["num_frames"]) as bar:
             for i, frame in stream_frames(ctx, video):

@@ -8,10 +8,9 @@ import numpy as np
 
 import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
-from m3c.camera import project, to_camera
+from m3c.camera import WorldCameras, project, to_camera
 from m3c.eval.plausibility import results_plausibility
 from m3c.ground.tracks import track_frames, track_poses
-from m3c.ground.world_frame import metric_cameras
 from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
 from m3c.pipeline import FileRef, Node, register_node
@@ -27,7 +26,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     P, B = len(tracks), model.num_betas
     J = model.num_joints
     nan = np.float32(np.nan)
-    world_from_cam = np.asarray(result["world_from_cam"], dtype=np.float64)
+    world_from_cam = WorldCameras(**result["cameras"]).world_from_cam()
     intrinsics = np.tile(np.asarray(camera["intrinsics"], dtype=np.float64), (T, 1))
     arrays = {
         "frame_ids": np.asarray(video["frame_ids"], dtype=np.int64),
@@ -44,7 +43,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         "visible": np.zeros((P, T), bool),
         "betas": np.full((P, B), nan),
         "lift_betas": np.full((P, B), nan),
-        "lift_world_from_cam": metric_cameras(world["world_from_cam"], world["initial_scale"]).astype(np.float32),
+        "lift_world_from_cam": WorldCameras(**world["cameras"]).world_from_cam().astype(np.float32),
     }
     for name, shape in (("world_root_orient", (3,)), ("world_transl", (3,)), ("body_pose", (J - 1, 3)),
                         ("world_joints", (J, 3)), ("cam_root_orient", (3,)), ("cam_transl", (3,)),

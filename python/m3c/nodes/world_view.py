@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.camera import WorldCameras
 from m3c.ground.tracks import track_poses
 from m3c.io.video import VideoWriter
 from m3c.pipeline import FileRef, Node, register_node
@@ -35,7 +36,7 @@ class WorldViewNode(Node):
 
         video, result = inputs["video"], inputs["result"]
         model = ctx.loaded("body_model")
-        world_from_cam = np.asarray(result["world_from_cam"])
+        world_from_cam = WorldCameras(**result["cameras"]).world_from_cam()
         roots = [np.asarray(t["transl"]) for t in result["tracks"]]
         people = np.concatenate(roots) if roots else np.zeros((0, 3))
         if inputs["ground"]["up_source"] == "ground":
