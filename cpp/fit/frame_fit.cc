@@ -375,8 +375,11 @@ std::vector<FrameFitResult> BodyFitter::FitSequence(const std::vector<FrameObser
     }
     results.push_back(Fit(observations[i], previous, prediction));
     if (results.back().status == "ok") {
-      // A cold fit starts the motion afresh: the jump from the last frame is no velocity to extrapolate.
-      before_last = results.back().warm_started ? last : -1;
+      // A velocity is only read between two warm fits: a cold fit starts the motion afresh (the jump from the
+      // last frame is no velocity), and its depth, from the keypoints alone, is off by up to metres, which the
+      // next warm fit corrects; that correction extrapolated at the translation prior's weight fed a depth
+      // oscillation of metres per frame (the body's size following it) on the video benchmark.
+      before_last = results.back().warm_started && last >= 0 && results[last].warm_started ? last : -1;
       last = static_cast<int>(i);
     }
   }

@@ -49,6 +49,7 @@ class PerceptionNode(Node):
     #    splits are merged; the detector searches smaller tiles every 15 frames
     # 4: contacts read the feet's motion against the ground from the images
     # 5: boxes and keypoints in M3C's pixel convention (m3c.perception.boxes): MediaPipe's shifted by -0.5 px
+    #    and the body fit reads no velocity across a cold fit (cpp/fit)
     version = "5"
 
     def _network_checkpoints(self, ctx) -> dict:
