@@ -289,3 +289,30 @@ nodes:
     assert np.abs(at(60, 40) - [255, 255, 255]).max() < 40  # B's pixels outside A's mask: white
     assert np.abs(at(10, 20) - [90, 90, 90]).max() < 40  # background outside B's box: kept
     assert (out / "viz" / "patches" / "patches.jpg").is_file()
+
+
+def test_perception_picture_draws_the_boxes_it_hands_over(tmp_path):
+    import cv2
+
+    from m3c.io.video import VideoWriter
+    from m3c.nodes.perception import PerceptionNode
+
+    with VideoWriter(tmp_path / "v.mp4", 10.0, (120, 80)) as writer:
+        for _ in range(3):
+            writer.write(np.full((80, 120, 3), 90, np.uint8))
+
+    class Context:
+        def source(self, name):
+            return str(tmp_path / "v.mp4")
+
+    video = {"frame_ids": np.arange(3), "start": 0, "stop": 3, "step": 1}
+    box = np.array([[30, 20, 50, 60], [30, 20, 50, 60], [70, 10, 100, 40]], np.float32)
+    detections = {"frame": np.array([0, 1, 1]), "box": box,
+                  "square": process_boxes(box, (80, 120), 5.0)[0].astype(np.float32)}
+    paths = PerceptionNode("perception").visualize(Context(), {"video": video}, {"detections": detections}, tmp_path)
+    assert [p.name for p in paths] == ["boxes_frame00001.jpg"]  # the frame with the most people
+    picture = cv2.imread(str(paths[0])).astype(int)
+    assert np.abs(picture[40, 30] - [0, 200, 0]).max() < 60  # the first person's tight box, green
+    x0 = int(round(float(detections["square"][1, 0])))
+    assert np.abs(picture[40, x0] - [0, 0, 255]).max() < 60  # its square box, red
+    assert np.abs(picture[5, 5] - [90, 90, 90]).max() < 20  # nothing drawn elsewhere
