@@ -26,8 +26,8 @@ class FocalNode(Node):
     this camera).
 
     Output camera: intrinsics (4,), source ("given", "default" or "estimated"), focal_estimate (the search's
-    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output tracks: perception's tracks ({"tracks": [...]},
-    m3c.perception.handover).
+    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output tracks: perception's tracks
+    ({"tracks": [...]}, m3c.perception.handover), re-expressed.
     Config: enabled (false: pass the camera node's intrinsics through), search: m3c.vo.focal.FocalSearchConfig
     settings."""
 
