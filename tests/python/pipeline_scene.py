@@ -2,9 +2,9 @@
 what the perception and odometry nodes would output (saved for `load` nodes), with the scene's errors.
 
 The camera-local bodies are the true ones seen from each true camera with depth, orientation, pose and shape
-errors; their cameras are given as patch (crop) cameras, so the local-tracks node converts them (CLIFF). Detections
-are dropped where the scene dropped keypoints (gaps to interpolate). Odometry is the scene's: true rotations,
-translations divided by the unknown scale.
+errors; their cameras are given as patch (crop) cameras, so the local-tracks node converts them (CLIFF). A track
+leaves out the frames where the scene dropped keypoints (gaps to interpolate). Odometry is the scene's: true
+rotations, translations divided by the unknown scale.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ from m3c.nodes.load import save_outputs
 from m3c.perception.boxes import full_to_crop_camera, process_boxes
 from m3c.viz.scene import WorldView, overlay_frame
 
-PERCEPTION = ("detections", "keypoints", "body", "tracking", "contacts", "cameras")
-
 
 def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0, depth_bias: float = 1.05):
-    """Writes folder/video.mp4 and one saved-outputs folder per perception node; returns the scene."""
+    """Writes folder/video.mp4, folder/perception (perception's tracks, m3c.perception.handover) and
+    folder/cameras (the odometry's output), saved outputs for `load` nodes; returns the scene."""
     scene = make_scene(model, num_people=2, num_frames=num_frames, seed=seed)
     rng = np.random.default_rng(seed + 100)
     W, H = scene.image_size
@@ -47,14 +46,14 @@ def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0,
                       for p, t in enumerate(scene.truth)]
             writer.write(overlay_frame(background, bodies, model.faces, truth_cams[i], K, alpha=1.0))
 
-    rows = {name: [] for name in ("frame", "box", "score", "keypoints", "pose", "betas", "transl", "track_id",
-                                  "contacts")}
+    tracks = []
     for p, (truth, init) in enumerate(zip(scene.truth, scene.init)):
         j0 = rest_root_joint(model, truth.betas)
         cam_from_world = np.linalg.inv(truth_cams)
         root_cam, transl_cam = transform_smpl(cam_from_world, truth.root_orient, truth.transl, j0)
         pose = np.concatenate([truth.root_orient[:, None], truth.body_pose], axis=1)
         vertices = model.forward(pose, truth.betas, truth.transl).vertices
+        rows = {name: [] for name in ("frame", "box", "keypoints", "pose", "transl", "contacts")}
         for i in range(num_frames):
             if not (init.keypoints[i, :, 2] > 0).any():
                 continue  # the scene dropped this detection
@@ -62,53 +61,42 @@ def write_scene_inputs(model, folder: Path, num_frames: int = 30, seed: int = 0,
             uv = np.stack([K[0] * cam[:, 0] / cam[:, 2] + K[2], K[1] * cam[:, 1] / cam[:, 2] + K[3]], axis=1)
             rows["frame"].append(i)
             rows["box"].append([*uv.min(axis=0), *uv.max(axis=0)])
-            rows["score"].append(0.9)
             rows["keypoints"].append(init.keypoints[i])
             noisy_root = Rotation.from_rotvec(0.05 * rng.normal(size=3)) * Rotation.from_rotvec(root_cam[i])
             rows["pose"].append(np.concatenate([noisy_root.as_rotvec()[None], init.body_pose[i]]))
-            rows["betas"].append(init.betas)
             rows["transl"].append(transl_cam[i] * depth_bias * (1 + 0.02 * rng.normal()))
-            rows["track_id"].append(p)
             rows["contacts"].append(truth.contacts[i])
-    table = {k: np.asarray(v) for k, v in rows.items()}
-    order = np.lexsort((np.arange(len(table["frame"])), table["frame"]))
-    table = {k: v[order] for k, v in table.items()}
-    square, _ = process_boxes(table["box"], (H, W), 5.0)  # what the boxes node will compute
-    outputs = {
-        "detections": {"frame": table["frame"].astype(np.int64), "box": table["box"].astype(np.float32),
-                       "score": table["score"].astype(np.float32)},
-        "keypoints": {"keypoints": table["keypoints"].astype(np.float32)},
-        "body": {"pose": table["pose"], "betas": table["betas"],
-                 "crop_cam": full_to_crop_camera(table["transl"], square.astype(np.float32), K)},
-        "tracking": {"track_id": table["track_id"].astype(np.int64)},
-        "contacts": {"joint_contacts": table["contacts"].astype(np.float32)},
-        "cameras": {"world_from_cam": scene.cameras_vo.world_from_cam, "static": False, "source": "synthetic"},
-    }
-    for name, value in outputs.items():
-        save_outputs(folder / name, {name: value})
+        n = len(rows["frame"])
+        box = np.asarray(rows["box"], dtype=np.float32)
+        square = process_boxes(box, (H, W), 5.0)[0].astype(np.float32)  # as perception hands them over
+        tracks.append({"track_id": p, "frame": np.asarray(rows["frame"], dtype=np.int64), "box": box,
+                       "square": square, "score": np.full(n, 0.9, np.float32),
+                       "keypoints": np.asarray(rows["keypoints"], dtype=np.float32),
+                       "pose": np.asarray(rows["pose"]), "betas": np.tile(init.betas, (n, 1)),
+                       "crop_cam": full_to_crop_camera(np.asarray(rows["transl"]), square, K),
+                       "contacts": np.asarray(rows["contacts"], dtype=np.float32)})
+    save_outputs(folder / "perception", {"tracks": {"tracks": tracks}})
+    save_outputs(folder / "cameras", {"cameras": {"world_from_cam": scene.cameras_vo.world_from_cam, "static": False,
+                                                  "source": "synthetic"}})
     return scene
 
 
 def scene_pipeline_yaml(folder: Path, intrinsics) -> str:
     """The default pipeline with the perception and odometry nodes replaced by `load` nodes."""
-    load = "\n".join(f"  {name}:\n    type: load\n    config: {{path: {folder / name}, outputs: [{name}]}}"
-                     for name in PERCEPTION if name != "cameras")
     return f"""
 nodes:
   frames: {{}}
   camera:
     inputs: {{video: frames.video}}
     config: {{intrinsics: [{', '.join(str(float(v)) for v in intrinsics)}]}}
-{load}
+  perception:
+    type: load
+    config: {{path: {folder / 'perception'}, outputs: [tracks]}}
   vo:
     type: load
     config: {{path: {folder / 'cameras'}, outputs: [cameras]}}
-  boxes:
-    inputs: {{video: frames.video, detections: detections.detections}}
   local_tracks:
-    inputs: {{video: frames.video, camera: camera.camera, detections: detections.detections, boxes: boxes.boxes,
-             keypoints: keypoints.keypoints, body: body.body, tracking: tracking.tracking,
-             contacts: contacts.contacts}}
+    inputs: {{video: frames.video, camera: camera.camera, tracks: perception.tracks}}
   scale:
     inputs: {{tracks: local_tracks.tracks, cameras: vo.cameras}}
   ground:

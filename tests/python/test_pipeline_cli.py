@@ -113,16 +113,10 @@ def test_missing_body_model_file(small_video, tmp_path, capsys):
 
 
 def test_video_with_no_people_given_as_perception_outputs(small_video, tmp_path, capsys):
-    empty = {"frame": np.zeros(0, np.int64), "box": np.zeros((0, 4), np.float32), "score": np.zeros(0, np.float32)}
     folder = tmp_path / "perception"
-    save_outputs(folder, {"detections": empty, "keypoints": {"keypoints": np.zeros((0, 17, 3), np.float32)},
-                          "body": {"pose": np.zeros((0, 24, 3)), "betas": np.zeros((0, 10)),
-                                   "transl": np.zeros((0, 3))},
-                          "tracking": {"track_id": np.zeros(0, np.int64)}})
+    save_outputs(folder, {"tracks": {"tracks": []}})
     config = PipelineConfig.default().to_mapping()
-    config["nodes"]["perception"] = {"type": "load", "config": {
-        "path": str(folder), "outputs": ["detections", "keypoints", "body", "tracking"]}}
-    del config["nodes"]["local_tracks"]["inputs"]["contacts"]
+    config["nodes"]["perception"] = {"type": "load", "config": {"path": str(folder), "outputs": ["tracks"]}}
     for node in ("focal", "vo"):  # the nodes that hide people's masks from the odometry
         del config["nodes"][node]["inputs"]["masks"], config["nodes"][node]["inputs"]["detections"]
     path = tmp_path / "no_people.yaml"

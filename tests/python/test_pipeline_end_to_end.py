@@ -67,7 +67,7 @@ def test_result_files_follow_the_schema(scene_run):
     # Camera-frame parameters are the world ones seen from each camera.
     assert summary["lift"]["method"] == "camera" and summary["optimization"]["optimized"]
     assert summary["body_model"]["name"] == model.data.name
-    assert summary["backends"]["detections"]["type"] == "load"
+    assert summary["backends"]["perception"]["type"] == "load"
     assert [t["id"] for t in summary["tracks"]] == [0, 1]
 
 
@@ -143,8 +143,7 @@ def test_rerun_is_cached_and_identical(scene_run, capsys):
     changed = PipelineConfig.from_yaml(config_path).with_overrides({"optimize.enabled": False})
     report = run_pipeline(changed, out, {"video": folder / "video.mp4"}, targets=["results"], show_progress=False)
     assert set(report.ran()) == {"optimize", "results"}
-    assert set(report.status()) == set(report.ran()) | {"frames", "camera", "detections", "keypoints", "body",
-                                                         "tracking", "contacts", "vo", "boxes", "local_tracks",
+    assert set(report.status()) == set(report.ran()) | {"frames", "camera", "perception", "vo", "local_tracks",
                                                          "scale", "ground", "lift"}
     assert not json.loads((out / "results.json").read_text())["optimization"]["optimized"]
     assert main(["info", str(out)]) == 0

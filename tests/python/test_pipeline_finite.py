@@ -116,16 +116,34 @@ def scene_inputs(tmp_path_factory):
 
 
 def test_nan_in_a_detection_table_stops_the_run_at_that_node(scene_inputs):
-    folder, yaml = scene_inputs
-    body, track_ids = _saved(folder / "body"), _saved(folder / "tracking")["tracking"]["track_id"]
-    rows = np.flatnonzero(track_ids == 1)[[3, 4]]
-    body["body"]["crop_cam"][rows] = np.nan
-    save_outputs(folder / "body_nan", body)
-    config = PipelineConfig.from_yaml(yaml.replace(str(folder / "body"), str(folder / "body_nan")))
-    expected = rf"node 'body' \(load\) produced NaN/inf: body\.crop_cam is not finite in rows {rows[0]}, {rows[1]}"
-    with pytest.raises(PipelineError, match=expected):
+    folder, _ = scene_inputs
+    box = np.tile([10.0, 5.0, 30.0, 45.0], (4, 1)).astype(np.float32)
+    box[[1, 2], 0] = np.nan
+    save_outputs(folder / "detections_nan", {"detections": {"frame": np.arange(4), "box": box, "square": box,
+                                                            "score": np.ones(4, np.float32)}})
+    config = PipelineConfig.from_yaml(f"""
+nodes:
+  perception: {{type: load, config: {{path: {folder / 'detections_nan'}, outputs: [detections]}}}}
+""")
+    with pytest.raises(PipelineError, match=r"node 'perception' \(load\) produced NaN/inf: "
+                                            r"detections\.box is not finite in rows 1-2"):
         run_pipeline(config, folder / "out_detections", sources={"video": folder / "video.mp4"},
-                     targets=["local_tracks"], show_progress=False)
+                     show_progress=False)
+
+
+def test_nan_in_a_perception_track_drops_that_track_at_that_node(scene_inputs, caplog):
+    folder, yaml = scene_inputs
+    saved = _saved(folder / "perception")
+    saved["tracks"]["tracks"][1]["crop_cam"][[3, 4]] = np.nan
+    save_outputs(folder / "perception_nan", saved)
+    config = PipelineConfig.from_yaml(yaml.replace(str(folder / "perception"), str(folder / "perception_nan")))
+    with caplog.at_level(logging.WARNING):
+        report = run_pipeline(config, folder / "out_perception", sources={"video": folder / "video.mp4"},
+                              targets=["local_tracks"], show_progress=False)
+    assert "node 'perception' (load): track 1 dropped: crop_cam is not finite in rows 3-4" in caplog.text
+    key = {r.name: r.key for r in report.records}["local_tracks"]
+    tracks = Cache(folder / "out_perception" / "cache").load("local_tracks", key)["tracks"]["tracks"]
+    assert [t["track_id"] for t in tracks] == [0]
 
 
 def test_degenerate_track_is_dropped_and_the_run_finishes(scene_inputs, caplog):

@@ -13,10 +13,10 @@ from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.nodes.records import decode_mask, encode_masks, mask_in_region
 from m3c.motion.interpolate import interpolate_linear, interpolate_rotations
 from m3c.nodes.local_tracks import LocalTracksNode
-from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera
+from m3c.perception.boxes import crop_to_full_camera, full_to_crop_camera, process_boxes
 from m3c.ground.world_frame import gravity_frame
 from m3c.motion.scale import estimate_camera_scale
-from m3c.pipeline import InputError
+from m3c.pipeline import InputError, PipelineError
 
 
 def test_masks_round_trip_and_regions(rng):
@@ -79,28 +79,23 @@ class FakeContext:
 
 
 def test_local_tracks_gather_fill_and_drop(rng):
-    # Track 5 seen in frames 0, 1, 3 (twice in frame 1: the better score, row 1, wins over the outlier row 2);
-    # track 9 only in frame 2.
-    frame = np.array([0, 1, 1, 3, 2])
-    track_id = np.array([5, 5, 5, 5, 9])
-    score = np.array([0.9, 0.95, 0.8, 0.9, 0.9], np.float32)
+    # Perception's tracks: 5 seen in frames 0, 1, 3 (detection rows 0, 1, 3), 9 only in frame 2 (row 2).
+    frame = np.array([0, 1, 3])
     n = len(frame)
-    keypoints = rng.uniform(10, 100, size=(n, 17, 3)).astype(np.float32)
+    keypoints = rng.uniform(10, 100, size=(n, 21, 3)).astype(np.float32)  # COCO-17 and the foot points
     keypoints[..., 2] = 0.8
     pose = rng.normal(scale=0.3, size=(n, 24, 3))
     betas = rng.normal(size=(n, 10))
-    transl = np.array([[0.0, 0, 4], [1.0, 0, 4], [9.0, 9, 9], [3.0, 0, 4], [0.0, 0, 5]])
-    square = np.tile([100.0, 100.0, 300.0, 300.0], (n, 1))
+    transl = np.array([[0.0, 0, 4], [1.0, 0, 4], [3.0, 0, 4]])
+    square = np.tile([100.0, 100.0, 300.0, 300.0], (n, 1)).astype(np.float32)
     intrinsics = np.array([1000.0, 1000.0, 480.0, 270.0])
-    inputs = {
-        "video": {"num_frames": 4}, "camera": {"intrinsics": intrinsics},
-        "detections": {"frame": frame, "score": score, "box": square},
-        "boxes": {"square": square.astype(np.float32)},
-        "keypoints": {"keypoints": keypoints},
-        "body": {"pose": pose, "betas": betas, "crop_cam": full_to_crop_camera(transl, square, intrinsics)},
-        "tracking": {"track_id": track_id},
-        "contacts": {"joint_contacts": rng.uniform(size=(n, 4)).astype(np.float32)},
-    }
+    five = {"track_id": 5, "frame": frame, "detection": np.array([0, 1, 3]), "square": square,
+            "keypoints": keypoints, "pose": pose, "betas": betas,
+            "crop_cam": full_to_crop_camera(transl, square, intrinsics),
+            "contacts": rng.uniform(size=(n, 4)).astype(np.float32)}
+    nine = {"track_id": 9, "frame": np.array([2]), "detection": np.array([2]), "square": square[:1],
+            "keypoints": keypoints[:1], "pose": pose[:1], "betas": betas[:1], "transl": np.array([[0.0, 0, 5]])}
+    inputs = {"video": {"num_frames": 4}, "camera": {"intrinsics": intrinsics}, "tracks": {"tracks": [nine, five]}}
     node = LocalTracksNode("local_tracks", LocalTracksNode.Config(min_visible_frames=2, gap_confidence=0.5))
     out = node.run(FakeContext(), inputs)["tracks"]
     assert [t["track_id"] for t in out["tracks"]] == [5]  # track 9 (one frame) dropped
@@ -109,19 +104,25 @@ def test_local_tracks_gather_fill_and_drop(rng):
     np.testing.assert_array_equal(track["visible"], [True, True, False, True])
     np.testing.assert_array_equal(track["detection"], [0, 1, -1, 3])
     np.testing.assert_allclose(track["transl"], [[0, 0, 4], [1, 0, 4], [2, 0, 4], [3, 0, 4]], atol=1e-9)
-    gap = (keypoints[1] + keypoints[3]) / 2
+    assert track["keypoints"].shape == (4, 17, 3)  # the optimizer's COCO-17
+    gap = (keypoints[1, :17] + keypoints[2, :17]) / 2
     np.testing.assert_allclose(track["keypoints"][2, :, :2], gap[:, :2], rtol=1e-6)
     np.testing.assert_allclose(track["keypoints"][2, :, 2], 0.5 * gap[:, 2], rtol=1e-6)
-    np.testing.assert_array_equal(track["keypoints"][1], keypoints[1])
+    np.testing.assert_array_equal(track["keypoints"][1], keypoints[1, :17])
+    np.testing.assert_allclose(track["contacts"][2], (five["contacts"][1] + five["contacts"][2]) / 2, rtol=1e-6)
     # Rotations in the gap: the geodesic midpoint of frames 1 and 3.
     for j in range(24):
-        a, b = Rotation.from_rotvec(pose[1, j]), Rotation.from_rotvec(pose[3, j])
+        a, b = Rotation.from_rotvec(pose[1, j]), Rotation.from_rotvec(pose[2, j])
         mid = a * Rotation.from_rotvec((a.inv() * b).as_rotvec() / 2)
         got = Rotation.from_rotvec(track["root_orient"][2] if j == 0 else track["body_pose"][2, j - 1])
         assert (got.inv() * mid).magnitude() < 1e-9
-    np.testing.assert_allclose(track["betas"], betas[[0, 1, 3]].mean(axis=0))
-    with pytest.raises(InputError, match="no person was found"):
+    np.testing.assert_allclose(track["betas"], betas.mean(axis=0))
+    with pytest.raises(InputError, match="no person was found.*id 5 in 3 frames, id 9 in 1 frame"):
         LocalTracksNode("local_tracks", LocalTracksNode.Config(min_visible_frames=10)).run(FakeContext(), inputs)
+    # A track that lists a frame twice is refused, named.
+    twice = dict(five, frame=np.array([0, 1, 1]))
+    with pytest.raises(PipelineError, match="track 5: its frames must increase"):
+        node.run(FakeContext(), dict(inputs, tracks={"tracks": [twice]}))
 
 
 def test_transform_smpl_moves_the_mesh_rigidly(synthetic_body_model, rng):
@@ -260,8 +261,11 @@ def test_patches_node_isolates_the_focused_person(tmp_path):
         for _ in range(3):
             writer.write(frame)
     boxes = np.array([[20, 20, 50, 70], [40, 15, 90, 75]] * 3, np.float32)
+    square = process_boxes(boxes, (80, 120), 5.0)[0].astype(np.float32)  # as perception hands them over
+    np.testing.assert_allclose(square[0], [5, 15, 65, 75])  # A padded to 15..55 x 15..75, squared to 60
     save_outputs(tmp_path / "detections", {"detections": {
-        "frame": np.repeat(np.arange(3), 2), "box": boxes, "score": np.tile([0.9, 0.8], 3).astype(np.float32)}})
+        "frame": np.repeat(np.arange(3), 2), "box": boxes, "square": square,
+        "score": np.tile([0.9, 0.8], 3).astype(np.float32)}})
     masks = encode_masks([(np.ones((51, 31), bool), 20, 20), (np.ones((61, 51), bool), 40, 15)] * 3)
     save_outputs(tmp_path / "masks", {"masks": masks})
     config = PipelineConfig.from_yaml(f"""
@@ -270,16 +274,13 @@ nodes:
   frames: {{}}
   detections: {{type: load, config: {{path: {tmp_path / 'detections'}, outputs: [detections]}}}}
   masks: {{type: load, config: {{path: {tmp_path / 'masks'}, outputs: [masks]}}}}
-  boxes: {{inputs: {{video: frames.video, detections: detections.detections}}}}
   patches:
-    inputs: {{video: frames.video, detections: detections.detections, boxes: boxes.boxes, masks: masks.masks}}
+    inputs: {{video: frames.video, detections: detections.detections, masks: masks.masks}}
     config: {{size: 60, jpeg_quality: 100}}
 """)
     out = tmp_path / "out"
     report = run_pipeline(config, out, {"video": tmp_path / "v.mp4"}, show_progress=False)
     key = dict((r.name, r.key) for r in report.records)
-    square = Cache(out / "cache").load("boxes", key["boxes"])["boxes"]["square"]
-    np.testing.assert_allclose(square[0], [5, 15, 65, 75])  # A padded to 15..55 x 15..75, squared to 60
     patch = decode_image(Cache(out / "cache").load("patches", key["patches"])["patches"], 0).astype(int)
     # One source pixel per patch pixel here: patch (i, j) shows frame (5 + i, 15 + j).
     def at(x, y):
@@ -288,4 +289,30 @@ nodes:
     assert np.abs(at(60, 40) - [255, 255, 255]).max() < 40  # B's pixels outside A's mask: white
     assert np.abs(at(10, 20) - [90, 90, 90]).max() < 40  # background outside B's box: kept
     assert (out / "viz" / "patches" / "patches.jpg").is_file()
-    assert list((out / "viz" / "boxes").glob("boxes_frame*.jpg"))
+
+
+def test_perception_picture_draws_the_boxes_it_hands_over(tmp_path):
+    import cv2
+
+    from m3c.io.video import VideoWriter
+    from m3c.nodes.perception import PerceptionNode
+
+    with VideoWriter(tmp_path / "v.mp4", 10.0, (120, 80)) as writer:
+        for _ in range(3):
+            writer.write(np.full((80, 120, 3), 90, np.uint8))
+
+    class Context:
+        def source(self, name):
+            return str(tmp_path / "v.mp4")
+
+    video = {"frame_ids": np.arange(3), "start": 0, "stop": 3, "step": 1}
+    box = np.array([[30, 20, 50, 60], [30, 20, 50, 60], [70, 10, 100, 40]], np.float32)
+    detections = {"frame": np.array([0, 1, 1]), "box": box,
+                  "square": process_boxes(box, (80, 120), 5.0)[0].astype(np.float32)}
+    paths = PerceptionNode("perception").visualize(Context(), {"video": video}, {"detections": detections}, tmp_path)
+    assert [p.name for p in paths] == ["boxes_frame00001.jpg"]  # the frame with the most people
+    picture = cv2.imread(str(paths[0])).astype(int)
+    assert np.abs(picture[40, 30] - [0, 200, 0]).max() < 60  # the first person's tight box, green
+    x0 = int(round(float(detections["square"][1, 0])))
+    assert np.abs(picture[40, x0] - [0, 0, 255]).max() < 60  # its square box, red
+    assert np.abs(picture[5, 5] - [90, 90, 90]).max() < 20  # nothing drawn elsewhere

@@ -80,7 +80,7 @@ def test_out_on_a_read_only_file_system(small_video, tmp_path, capsys, monkeypat
     ("optimize.optimizer={num_threads: -3}", "num_threads must be an integer >= 1, got -3"),
     ("optimize.optimizer={robust_sigma: -1}", "robust_sigma must be a finite number > 0"),
     ("optimize.optimizer={latent_pose: 3}", "latent_pose must be true or false"),
-    ("boxes.padding=-1000", "padding must be a finite number of pixels >= 0"),
+    ("perception.padding=-1000", "padding must be a finite number of pixels >= 0"),
     ("vo.options={num_threads: 0}", "num_threads must be an integer >= 1"),
 ])
 def test_bad_settings_are_refused_before_anything_runs(small_video, tmp_path, capsys, setting, message):
@@ -124,17 +124,13 @@ def test_person_seen_in_two_frames_is_named(small_video, tmp_path, capsys):
     # The perception outputs of a video in which one person is seen in frames 1 and 2 only.
     rows = 2
     folder = tmp_path / "perception"
-    save_outputs(folder, {
-        "detections": {"frame": np.array([1, 2]), "box": np.tile([10.0, 5.0, 30.0, 45.0], (rows, 1)).astype(np.float32),
-                       "score": np.ones(rows, np.float32)},
-        "keypoints": {"keypoints": np.ones((rows, 17, 3), np.float32)},
-        "body": {"pose": np.zeros((rows, 24, 3)), "betas": np.zeros((rows, 10)),
-                 "transl": np.tile([0, 0, 4.0], (rows, 1))},
-        "tracking": {"track_id": np.array([7, 7])}})
+    box = np.tile([10.0, 5.0, 30.0, 45.0], (rows, 1)).astype(np.float32)
+    save_outputs(folder, {"tracks": {"tracks": [{
+        "track_id": 7, "frame": np.array([1, 2]), "box": box, "square": box, "score": np.ones(rows, np.float32),
+        "keypoints": np.ones((rows, 17, 3), np.float32), "pose": np.zeros((rows, 24, 3)),
+        "betas": np.zeros((rows, 10)), "transl": np.tile([0, 0, 4.0], (rows, 1))}]}})
     config = PipelineConfig.default().to_mapping()
-    config["nodes"]["perception"] = {"type": "load", "config": {
-        "path": str(folder), "outputs": ["detections", "keypoints", "body", "tracking"]}}
-    del config["nodes"]["local_tracks"]["inputs"]["contacts"]
+    config["nodes"]["perception"] = {"type": "load", "config": {"path": str(folder), "outputs": ["tracks"]}}
     for node in ("focal", "vo"):  # the nodes that hide people's masks from the odometry
         del config["nodes"][node]["inputs"]["masks"], config["nodes"][node]["inputs"]["detections"]
     path = tmp_path / "two_frames.yaml"

@@ -109,7 +109,10 @@ def _node_inputs(source, rng, n=5):
                       "stop": 30, "step": 1},
             "camera": {"intrinsics": np.array([DIAGONAL, DIAGONAL, W / 2, H / 2]), "source": source},
             "masks": None, "detections": None,
-            "body": {"pose": np.zeros((n, 24, 3)), "betas": np.zeros((n, 10)), "transl": transl}}
+            "tracks": {"tracks": [{"track_id": 3, "frame": np.arange(n - 2), "pose": np.zeros((n - 2, 24, 3)),
+                                   "transl": transl[:n - 2]},
+                                  {"track_id": 4, "frame": np.arange(2), "pose": np.zeros((2, 24, 3)),
+                                   "transl": transl[n - 2:]}]}}
 
 
 def test_focal_node_estimates_and_moves_the_bodies(tmp_path, rng):
@@ -119,7 +122,7 @@ def test_focal_node_estimates_and_moves_the_bodies(tmp_path, rng):
             writer.write(np.repeat(gray[..., None], 3, axis=2))
     inputs = _node_inputs("default", rng)
     out = FocalNode("focal", FocalNode.Config(search=FAST)).run(_Context(path), inputs)
-    camera, body = out["camera"], out["body"]
+    camera, tracks = out["camera"], out["tracks"]["tracks"]
     assert camera["source"] == "estimated" and camera["focal_estimate"]["informative"]
     new = camera["intrinsics"]
     assert new[0] == pytest.approx(0.7 * DIAGONAL, rel=0.06) and new[0] == new[1]
@@ -130,9 +133,10 @@ def test_focal_node_estimates_and_moves_the_bodies(tmp_path, rng):
     def pixels(k, x):
         return np.column_stack([k[0] * x[:, 0] / x[:, 2] + k[2], k[1] * x[:, 1] / x[:, 2] + k[3]])
 
-    np.testing.assert_allclose(pixels(new, body["transl"]), pixels(old, inputs["body"]["transl"]), atol=1e-9)
-    np.testing.assert_allclose(body["transl"][:, 2] / inputs["body"]["transl"][:, 2], new[0] / old[0])
-    assert body["pose"] is inputs["body"]["pose"]
+    for track, given in zip(tracks, inputs["tracks"]["tracks"], strict=True):
+        np.testing.assert_allclose(pixels(new, track["transl"]), pixels(old, given["transl"]), atol=1e-9)
+        np.testing.assert_allclose(track["transl"][:, 2] / given["transl"][:, 2], new[0] / old[0])
+        assert track["pose"] is given["pose"] and track["track_id"] == given["track_id"]
 
 
 def test_focal_node_keeps_given_intrinsics_and_can_be_switched_off(rng):
@@ -141,7 +145,7 @@ def test_focal_node_keeps_given_intrinsics_and_can_be_switched_off(rng):
         out = FocalNode("focal", config).run(None, inputs)  # reads no frames
         assert out["camera"]["source"] == source and out["camera"]["focal_estimate"] is None
         np.testing.assert_array_equal(out["camera"]["intrinsics"], inputs["camera"]["intrinsics"])
-        assert out["body"] is inputs["body"]
+        assert out["tracks"] is inputs["tracks"]
 
 
 def test_textureless_video_is_uninformative_not_an_error():

@@ -1,7 +1,7 @@
 """The built-in node types of the M3C pipeline, in the thesis's order.
 
 frame level   frames, camera, depth
-patch level   perception (detections, masks, keypoints, bodies, tracking, contacts), boxes, patches, focal, vo
+patch level   perception (tracks, and per frame detections and masks), patches, focal, vo
 SMPL level    ground
 track level   local_tracks, scale, lift, optimize
 outputs       results, overlay, world_view, camera_plot
@@ -19,7 +19,7 @@ from pathlib import Path
 def register_builtin_nodes() -> None:
     """Registers the built-in node types with m3c.pipeline (importing their modules runs their @register_node) and
     the loader of the body-model setting they read. Idempotent."""
-    from m3c.nodes import (boxes, camera, camera_plot, depth, focal, frames, ground, lift, load,  # noqa: F401
+    from m3c.nodes import (camera, camera_plot, depth, focal, frames, ground, lift, load,  # noqa: F401
                            local_tracks, optimize, overlay, patches, perception, results, scale, vo, world_view)
     from m3c.pipeline.node import register_setting_loader
 

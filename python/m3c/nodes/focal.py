@@ -21,19 +21,23 @@ class FocalNode(Node):
 
     It runs after perception because the odometry needs the people's masks, and perception fitted the bodies at
     the camera node's focal: a body's camera-local depth scales with the focal (its root keeps its pixel when x, y
-    stay and z is multiplied by f_new / f_old), so the body output is the perception's with transl re-expressed
-    at the estimated focal (a weak-perspective crop_cam needs nothing: local_tracks converts it with this camera).
+    stay and z is multiplied by f_new / f_old), so the tracks output is perception's tracks with each transl
+    re-expressed at the estimated focal (a weak-perspective crop_cam needs nothing: local_tracks converts it with
+    this camera).
 
     Output camera: intrinsics (4,), source ("given", "default" or "estimated"), focal_estimate (the search's
-    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output body: the body table.
+    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output tracks: perception's tracks
+    ({"tracks": [...]}, m3c.perception.handover), re-expressed.
     Config: enabled (false: pass the camera node's intrinsics through), search: m3c.vo.focal.FocalSearchConfig
     settings."""
 
     type_name = "focal"
     level = "patch"
-    inputs = ("video", "camera", "masks", "detections", "body")
-    optional_inputs = ("masks", "detections", "body")
-    outputs = ("camera", "body")
+    inputs = ("video", "camera", "masks", "detections", "tracks")
+    optional_inputs = ("masks", "detections", "tracks")
+    outputs = ("camera", "tracks")
+    # 2: re-expresses perception's tracks (it re-expressed the per-detection body table)
+    version = "2"
 
     @dataclass
     class Config:
@@ -55,10 +59,10 @@ class FocalNode(Node):
     def run(self, ctx, inputs):
         from m3c.vo.focal import estimate_focal_windows, focal_windows, reduce_frame
 
-        camera, body = dict(inputs["camera"]), inputs["body"]
+        camera, tracks = dict(inputs["camera"]), inputs["tracks"]
         camera["focal_estimate"] = None
         if camera.get("source") != "default" or not self.config.enabled:
-            return {"camera": camera, "body": body}
+            return {"camera": camera, "tracks": tracks}
         video, masks, detections = inputs["video"], inputs["masks"], inputs["detections"]
         if (masks is None) != (detections is None):
             raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
@@ -86,13 +90,21 @@ class FocalNode(Node):
                      estimate.message)
         camera["focal_estimate"] = estimate.summary()
         if not estimate.informative:
-            return {"camera": camera, "body": body}
+            return {"camera": camera, "tracks": tracks}
         old = np.asarray(camera["intrinsics"], dtype=np.float64)
         camera["intrinsics"] = np.array([estimate.focal, estimate.focal, old[2], old[3]])
         camera["source"] = "estimated"
-        if body is not None and "transl" in body:
-            body = dict(body)
-            transl = np.array(body["transl"], dtype=np.float64)
-            transl[:, 2] *= estimate.focal / float(np.mean(old[:2]))  # the depth that keeps each root's pixel
-            body["transl"] = transl
-        return {"camera": camera, "body": body}
+        if tracks is not None:
+            factor = estimate.focal / float(np.mean(old[:2]))
+            tracks = dict(tracks, tracks=[refocused(track, factor) for track in tracks["tracks"]])
+        return {"camera": camera, "tracks": tracks}
+
+
+def refocused(track: dict, factor: float) -> dict:
+    """A perception track seen by a camera whose focal length is `factor` times the one it was fitted at: its
+    depths times factor, which keeps every root's pixel (a crop_cam track needs no change)."""
+    if "transl" not in track:
+        return track
+    transl = np.array(track["transl"], dtype=np.float64)
+    transl[:, 2] *= factor
+    return dict(track, transl=transl)

@@ -1,5 +1,5 @@
-"""The patches node: the thesis's isolated square patches (4.1.2), one per detection, from the boxes node's
-squares. Box processing, the whitening rule and the sampling are m3c.perception.boxes's."""
+"""The patches node: the thesis's isolated square patches (4.1.2), one per detection, around the square boxes
+perception handed over (detections["square"]). Box processing, the whitening rule and the sampling are m3c.perception.boxes's."""
 
 from __future__ import annotations
 
@@ -28,11 +28,12 @@ class PatchesNode(Node):
 
     type_name = "patches"
     level = "patch"
-    inputs = ("video", "detections", "boxes", "masks")
+    inputs = ("video", "detections", "masks")
     optional_inputs = ("masks",)
     outputs = ("patches",)
     # 2: the whitening rule of m3c.perception.boxes (a person without a mask keeps its tight box)
-    version = "2"
+    # 3: the square boxes from the detections table (the boxes node is gone)
+    version = "3"
 
     @dataclass
     class Config:
@@ -41,8 +42,8 @@ class PatchesNode(Node):
         jpeg_quality: int = 95
 
     def run(self, ctx, inputs):
-        video, detections, boxes, masks = inputs["video"], inputs["detections"], inputs["boxes"], inputs["masks"]
-        n = table_length(detections, ("frame", "box"), "detections")
+        video, detections, masks = inputs["video"], inputs["detections"], inputs["masks"]
+        n = table_length(detections, ("frame", "box", "square"), "detections")
         frames = detections["frame"]
         patches: list[np.ndarray | None] = [None] * n
         rows_of = {f: np.flatnonzero(frames == f) for f in np.unique(frames)}
@@ -55,7 +56,7 @@ class PatchesNode(Node):
                     theirs = [_frame_mask(masks, r, video) for r in others] if self.config.whiten == "masks" else None
                     isolated = isolate(frame, (0, 0, video["width"], video["height"]), detections["box"][focus],
                                        detections["box"][others], own, theirs)
-                    patches[focus] = extract_patch(isolated, boxes["square"][focus], self.config.size)
+                    patches[focus] = extract_patch(isolated, detections["square"][focus], self.config.size)
                 bar.update()
         missing = [k for k, p in enumerate(patches) if p is None]
         if missing:

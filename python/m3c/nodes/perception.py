@@ -6,6 +6,7 @@ m3c.perception's registry (m3c.perception.registry.register), chosen by `percept
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,11 +27,14 @@ class PerceptionNode(Node):
 
     One node rather than one per task because the tasks feed each other within a frame: the tracker's
     predictions are the detector's proposals, and each person's patch is isolated from everyone found in the
-    frame. Outputs are the per-detection tables of m3c.nodes.records, one row per tracked person per frame
-    (people of unconfirmed tracks and frames whose body fit failed are left out).
+    frame. Outputs (m3c.perception.handover): tracks, each person's track whole (frames, tight and square boxes,
+    scores, keypoints with the foot points, camera-local bodies, contacts), and the same people frame by frame:
+    detections (frame, box, square, score) and masks, the per-detection tables of m3c.nodes.records, one row per
+    tracked person per frame (people of unconfirmed tracks and frames whose body fit failed are left out).
 
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
-    static_camera (contacts from foot speeds in the camera frame), and any other m3c.perception.PerceptionConfig
+    static_camera (contacts from foot speeds in the camera frame), padding (pixels around a tight box before it
+    is squared, for the square boxes handed over; the thesis's 5), and any other m3c.perception.PerceptionConfig
     setting under `options` (tracker, detect_every, ground_motion, ...).
 
     The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
@@ -42,7 +46,7 @@ class PerceptionNode(Node):
     type_name = "perception"
     level = "patch"
     inputs = ("video", "camera")
-    outputs = ("detections", "masks", "keypoints", "body", "tracking", "contacts")
+    outputs = ("detections", "masks", "tracks")
     settings = ("body_model", "models_dir")
     # 2: the body fit retries a drifting warm start cold without its velocity prediction (cpp/fit)
     # 3: the tracker keeps recent poses and locations, gates on colour, matches tentative tracks last; track
@@ -50,7 +54,8 @@ class PerceptionNode(Node):
     # 4: contacts read the feet's motion against the ground from the images
     # 5: boxes and keypoints in M3C's pixel convention (m3c.perception.boxes): MediaPipe's shifted by -0.5 px
     #    and the body fit reads no velocity across a cold fit (cpp/fit)
-    version = "5"
+    # 6: the tracks handed over whole (m3c.perception.handover), with the square boxes (padding) and foot keypoints
+    version = "6"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
@@ -97,7 +102,12 @@ class PerceptionNode(Node):
     class Config:
         estimators: dict[str, Any] = field(default_factory=dict)
         static_camera: bool = False
+        padding: float = 5.0  # pixels around a tight box before it is squared (the handed-over square boxes)
         options: dict[str, Any] = field(default_factory=dict)
+
+        def __post_init__(self):
+            if not (math.isfinite(self.padding) and self.padding >= 0):
+                raise ValueError(f"padding must be a finite number of pixels >= 0, got {self.padding}")
 
     def _perception_config(self, intrinsics=None, body_model: str | None = None):
         from m3c.perception import PerceptionConfig
@@ -144,6 +154,7 @@ class PerceptionNode(Node):
         import cv2
 
         from m3c.perception import run_perception_frames
+        from m3c.perception.handover import hand_over
 
         video = inputs["video"]
         self._resolve_networks(ctx)
@@ -167,53 +178,24 @@ class PerceptionNode(Node):
             raise InputError(f"people were seen in only {seen} of {T} frame(s), too few for a person track (the "
                              f"tracker confirms a person after {config.tracker.min_hits} detections); M3C needs a "
                              "person visible over several frames")
-        return self._tables(result)
+        tracks, detections, masks = hand_over(result, self.config.padding)
+        return {"detections": detections, "masks": encode_packed_masks(masks), "tracks": {"tracks": tracks}}
 
-    @staticmethod
-    def _tables(result) -> dict:
-        rows: dict[str, list] = {k: [] for k in ("frame", "box", "score", "keypoints", "pose", "betas", "transl",
-                                                 "track_id", "contacts", "ground_contacts", "mask")}
-        with_ground = any(t.ground_contacts is not None for t in result.tracks)
-        for track in result.tracks:
-            valid = track.bodies.valid
-            pose = track.bodies.pose
-            for i in np.flatnonzero(valid):
-                rows["frame"].append(track.frame_ids[i])
-                rows["box"].append(track.boxes[i])
-                rows["score"].append(track.scores[i])
-                rows["keypoints"].append(track.keypoints[i, :17])
-                rows["pose"].append(pose[i])
-                rows["betas"].append(track.bodies.betas[i])
-                rows["transl"].append(track.bodies.transl[i])
-                rows["track_id"].append(track.track_id)
-                rows["contacts"].append(track.contacts[i])
-                if with_ground:
-                    rows["ground_contacts"].append(track.contacts[i] if track.ground_contacts is None
-                                                   else track.ground_contacts[i])
-                mask = track.masks[i] if track.masks is not None else None
-                if mask is None:
-                    rows["mask"].append((np.zeros(0, np.uint8), 0, 0, 0, 0))
-                else:
-                    (bits, h, w), box = mask
-                    rows["mask"].append((bits, h, w, int(box[0]), int(box[1])))
-        n = len(rows["frame"])
-        order = np.lexsort((-np.asarray(rows["score"], dtype=np.float64).reshape(n),
-                            np.asarray(rows["frame"], dtype=np.int64).reshape(n)))
+    def visualize(self, ctx, inputs, outputs, folder):
+        """The frame with the most people: their tight boxes (green) and the square boxes handed over (red)."""
+        import cv2
 
-        def column(name, dtype, trailing):
-            return np.asarray(rows[name], dtype=dtype).reshape((n,) + trailing)[order]
-
-        num_betas = len(result.tracks[0].bodies.betas[0]) if result.tracks else 10
-        contacts = {"joint_contacts": column("contacts", np.float32, (4,))}
-        if with_ground:
-            contacts["ground_contacts"] = column("ground_contacts", np.float32, (4,))
-        return {
-            "detections": {"frame": column("frame", np.int64, ()), "box": column("box", np.float32, (4,)),
-                           "score": column("score", np.float32, ())},
-            "masks": encode_packed_masks([rows["mask"][k] for k in order]),
-            "keypoints": {"keypoints": column("keypoints", np.float32, (17, 3))},
-            "body": {"pose": column("pose", np.float64, (24, 3)), "betas": column("betas", np.float64, (num_betas,)),
-                     "transl": column("transl", np.float64, (3,))},
-            "tracking": {"track_id": column("track_id", np.int64, ())},
-            "contacts": contacts,
-        }
+        detections = outputs["detections"]
+        if len(detections["frame"]) == 0:
+            return []
+        target = int(np.argmax(np.bincount(detections["frame"])))
+        for i, frame in stream_frames(ctx, inputs["video"]):
+            if i == target:
+                break
+        for n in np.flatnonzero(detections["frame"] == target):
+            for box, colour in ((detections["box"][n], (0, 200, 0)), (detections["square"][n], (0, 0, 255))):
+                cv2.rectangle(frame, tuple(int(round(v)) for v in box[:2]), tuple(int(round(v)) for v in box[2:]),
+                              colour, 2)
+        path = folder / f"boxes_frame{target:05d}.jpg"
+        cv2.imwrite(str(path), frame)
+        return [path]

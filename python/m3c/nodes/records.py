@@ -5,20 +5,16 @@ n, aligned with `detections["frame"]`. Frame indices count processed frames (0 .
 to video frame ids). Pixel coordinates follow OpenCV (as intrinsics and keypoints do): pixel (i, j)'s centre is
 at (i, j), so the image spans [-0.5, W - 0.5] x [-0.5, H - 0.5]. Boxes are (x0, y0, x1, y1) in these coordinates.
 
-    detections  frame (N,) int64, box (N, 4) float32 tight person boxes, score (N,) float32
+    detections  frame (N,) int64, box (N, 4) float32 tight person boxes, square (N, 4) float32 their padded
+                square boxes shifted into the frame (m3c.perception.boxes.process_boxes; may extend past it when
+                the person is larger than the frame), score (N,) float32
     masks       one binary mask per detection, stored inside its tight box (encode_masks / mask_in_region)
-    boxes       square (N, 4) padded square boxes shifted into the frame (may extend past it when the person
-                is larger than the frame), crop (N, 4) the square box clipped to the frame
-    patches     one isolated, square, size x size image per detection around boxes["square"] (JPEG in a buffer)
-    keypoints   keypoints (N, 17, 3): COCO-17 (u, v, confidence), image pixels
-    body        pose (N, 24, 3) axis-angle (root orientation relative to the camera), betas (N, B), and either
-                transl (N, 3) metres in the full-image camera, or crop_cam (N, 3) = (s, tx, ty), the weak-perspective
-                camera of the patch (HMR convention: a body point X projects to patch coordinates
-                s * (X_xy + (tx, ty)) in [-1, 1]), converted to the full image by m3c.perception.boxes.crop_to_full_camera (CLIFF)
-    tracking    track_id (N,) int64, -1 for detections assigned to no track
-    contacts    joint_contacts (N, 4) probabilities that SMPL joints 7, 8, 10, 11 (ankles, feet) are planted (still
-                on the ground); ground_contacts (N, 4), optional: on the ground by heights alone, for the ground fit
+    patches     one isolated, square, size x size image per detection around detections["square"] (JPEG in a
+                buffer)
     cameras     world_from_cam (T, 4, 4) from visual odometry (translation up to scale), static (bool)
+
+Track-level outputs hold one dict per person instead: perception's tracks (m3c.perception.handover, the person's
+own frames) and the local tracks (m3c.motion.local_tracks, every frame from the first to the last, gaps filled).
 """
 
 from __future__ import annotations
