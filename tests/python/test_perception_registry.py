@@ -52,6 +52,33 @@ def test_custom_estimators_register_and_must_implement_the_interface():
     assert issubclass(Detector, object)
 
 
+def test_run_settings_reach_the_estimators_that_take_them(monkeypatch):
+    """The patches' padding is one setting of the run (PerceptionConfig.padding): an estimator that takes a padding
+    gets it unless its own options set one; one that takes none is built as before."""
+    @register("gender", "test_padded")
+    class Padded(GenderEstimator):
+        def __init__(self, padding: float = 5.0):
+            self.padding = padding
+
+        def estimate(self, track_id, people):
+            return "neutral"
+
+    assert create("gender", "test_padded", defaults={"padding": 8.0}).padding == 8.0
+    assert create("gender", "test_padded", {"padding": 2.0}, defaults={"padding": 8.0}).padding == 2.0
+    assert create("gender", "neutral", defaults={"padding": 8.0}).estimate(0, []) == "neutral"
+    import m3c.perception.pipeline as pipeline
+
+    built = {}
+    real_create = pipeline.create
+    monkeypatch.setattr(pipeline, "create", lambda task, name, options, shared, defaults=None: built.setdefault(
+        task, defaults) and real_create(task, name, options, shared, defaults=defaults))
+    result = pipeline.run_perception_frames(iter([]), 30.0, (64, 64), PerceptionConfig.from_dict({"padding": 8.0}))
+    assert result.num_frames == 0 and set(built) == set(TASKS)
+    assert all(d == {"padding": 8.0} for d in built.values())
+    with pytest.raises(ValueError, match="padding must be a finite number of pixels >= 0"):
+        PerceptionConfig.from_dict({"padding": -1.0})
+
+
 def test_config_from_dict_yaml_round_trip(tmp_path):
     cfg = PerceptionConfig.from_dict({"detector": "hog", "pose2d": {"name": "mediapipe", "options": {"patch_pass":
                                                                                                       "always"}},

@@ -6,7 +6,6 @@ m3c.perception's registry (m3c.perception.registry.register), chosen by `percept
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -102,17 +101,14 @@ class PerceptionNode(Node):
     class Config:
         estimators: dict[str, Any] = field(default_factory=dict)
         static_camera: bool = False
-        padding: float = 5.0  # pixels around a tight box before it is squared (the handed-over square boxes)
+        padding: float = 5.0  # pixels around a tight box before it is squared (patches and square boxes)
         options: dict[str, Any] = field(default_factory=dict)
-
-        def __post_init__(self):
-            if not (math.isfinite(self.padding) and self.padding >= 0):
-                raise ValueError(f"padding must be a finite number of pixels >= 0, got {self.padding}")
 
     def _perception_config(self, intrinsics=None, body_model: str | None = None):
         from m3c.perception import PerceptionConfig
 
-        data = {**self.config.options, **self.config.estimators, "static_camera": self.config.static_camera}
+        data = {**self.config.options, **self.config.estimators, "static_camera": self.config.static_camera,
+                "padding": self.config.padding}
         if intrinsics is not None:
             data["intrinsics"] = [float(v) for v in intrinsics]
         try:
@@ -178,7 +174,7 @@ class PerceptionNode(Node):
             raise InputError(f"people were seen in only {seen} of {T} frame(s), too few for a person track (the "
                              f"tracker confirms a person after {config.tracker.min_hits} detections); M3C needs a "
                              "person visible over several frames")
-        tracks, detections, masks = hand_over(result, self.config.padding)
+        tracks, detections, masks = hand_over(result, config.padding)
         return {"detections": detections, "masks": encode_packed_masks(masks), "tracks": {"tracks": tracks}}
 
     def visualize(self, ctx, inputs, outputs, folder):

@@ -53,7 +53,9 @@ class PerceptionConfig:
     merge: how track splits are merged after tracking (m3c.perception.track_merge).
     ground_motion: how the feet's motion against the ground is read from the images for the contacts
     (m3c.perception.ground_motion; enabled false: 3D foot speeds in a static camera, heights alone otherwise).
-    duplicate_iou: two people whose boxes overlap more than this are one (the higher score stays)."""
+    duplicate_iou: two people whose boxes overlap more than this are one (the higher score stays).
+    padding: pixels around a tight box before it is squared (m3c.perception.boxes; the thesis's 5): the patches of
+    every estimator that takes a padding (unless its own options set one) and the square boxes handed over."""
 
     estimators: dict = field(default_factory=lambda: {t: EstimatorSpec(n) for t, n in DEFAULT_ESTIMATORS.items()})
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -66,10 +68,13 @@ class PerceptionConfig:
     restart_gap: int = 5
     duplicate_iou: float = 0.6
     save_masks: bool = True
+    padding: float = 5.0
 
     def __post_init__(self):
         if self.detect_every < 1:
             raise ValueError(f"detect_every must be >= 1, got {self.detect_every}")
+        if not (np.isfinite(self.padding) and self.padding >= 0):
+            raise ValueError(f"padding must be a finite number of pixels >= 0, got {self.padding}")
         missing = sorted(set(TASKS) - set(self.estimators))
         if missing:
             raise ValueError(f"no estimator named for: {', '.join(missing)}")
@@ -272,7 +277,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     if intrinsics.shape != (4,) or not np.isfinite(intrinsics).all() or (intrinsics[:2] <= 0).any():
         raise ValueError(f"intrinsics must be fx, fy, cx, cy with positive focal lengths, got {config.intrinsics}")
     shared: dict = {}
-    est = {task: create(task, spec.name, spec.options, shared) for task, spec in config.estimators.items()}
+    est = {task: create(task, spec.name, spec.options, shared, defaults={"padding": config.padding})
+           for task, spec in config.estimators.items()}
     names = {task: e.name for task, e in est.items()}
     tracker = Tracker(config.tracker)
     seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,

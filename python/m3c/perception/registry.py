@@ -50,8 +50,10 @@ def available(task: str) -> tuple[str, ...]:
     return tuple(sorted(_FACTORIES[task]))
 
 
-def create(task: str, name: str, options: dict | None = None, shared: dict | None = None) -> Estimator:
-    """A new estimator for `task` named `name`, built with `options`."""
+def create(task: str, name: str, options: dict | None = None, shared: dict | None = None,
+           defaults: dict | None = None) -> Estimator:
+    """A new estimator for `task` named `name`, built with `options`; `defaults` (settings of the whole run, such
+    as the patches' padding) go to an estimator that takes them, unless `options` set them."""
     names = available(task)
     if name not in _FACTORIES[task]:
         raise ValueError(f"no {task} estimator named {name!r}; available: {', '.join(names)}")
@@ -68,6 +70,9 @@ def create(task: str, name: str, options: dict | None = None, shared: dict | Non
             allowed = [p for p in parameters if p != "shared"]
             raise ValueError(f"unknown option(s) {', '.join(unknown or ['shared'])} for the {task} estimator "
                              f"{name!r}; it takes: {', '.join(allowed) or 'no options'}")
+    for key, value in (defaults or {}).items():
+        if key not in kwargs and key in parameters:  # named: a **options factory may pass it on to a config
+            kwargs[key] = value
     if "shared" in parameters:
         kwargs["shared"] = shared if shared is not None else {}
     estimator = factory(**kwargs)
