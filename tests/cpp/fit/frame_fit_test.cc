@@ -189,27 +189,29 @@ TEST(BodyFitter, WarmStartedSequenceTracksAMovingBody) {
 }
 
 TEST(BodyFitter, TranslationPriorExtrapolatesAtConstantVelocityOverTheFrameTimes) {
-  // With an overwhelming translation prior, frame 2 lands on the prediction from frames 0 and 1, spaced by the
-  // given times (frame 2 comes two time units after frame 1 here).
+  // With an overwhelming translation prior, frame 3 lands on the prediction from frames 1 and 2, spaced by the
+  // given times (frame 3 comes two time units after frame 2 here). Frame 2 has no prediction: frame 0 was a cold
+  // fit, and no velocity is read across one.
   const body::BodyModel model = MakeTestModel();
   const auto reg = JointPicks(model);
   FitOptions options;
   options.temporal_transl_weight = 1e9;
   const BodyFitter fitter(&model, &reg, options);
   std::vector<FrameObservation> obs;
-  for (int f = 0; f < 3; ++f) {
+  for (int f = 0; f < 4; ++f) {
     const Truth t = MakeTruth(model, reg, 50, 0.2, {-0.3 + 0.1 * f, 0.1, 4.0 + 0.2 * f});
     obs.push_back(Observe(t, kCamera, 0.5, 0.01, true, 200 + f));
   }
-  const auto results = fitter.FitSequence(obs, {}, {0.0, 1.0, 3.0});
-  const Eigen::Vector3d r0 = results[0].state.transl, r1 = results[1].state.transl;
-  EXPECT_LT((results[2].state.transl - (r1 + 2.0 * (r1 - r0))).norm(), 1e-3);
-  EXPECT_THROW(fitter.FitSequence(obs, {}, {0.0, 2.0, 1.0}), std::invalid_argument);
+  const auto results = fitter.FitSequence(obs, {}, {0.0, 1.0, 2.0, 4.0});
+  const Eigen::Vector3d r0 = results[0].state.transl, r1 = results[1].state.transl, r2 = results[2].state.transl;
+  EXPECT_LT((results[3].state.transl - (r2 + 2.0 * (r2 - r1))).norm(), 1e-3);
+  EXPECT_GT((r2 - (r1 + (r1 - r0))).norm(), 1e-2);  // frame 2 is fitted to its keypoints, not to frames 0-1
+  EXPECT_THROW(fitter.FitSequence(obs, {}, {0.0, 2.0, 1.0, 3.0}), std::invalid_argument);
 }
 
 TEST(BodyFitter, DriftingWarmStartRestartsColdWithoutTheVelocityPrediction) {
-  // A person 1.5 m closer in the first frame than in all the others: the velocity of the first two frames,
-  // extrapolated, pulls the depth away while the keypoints say it stays. Once the warm fit is more than
+  // A person 2.5 m closer in the second frame than in all the others: the velocity of the second and third
+  // (warm) frames, extrapolated, pulls the depth away while the keypoints say it stays. Once the warm fit is more than
   // reinit_error_px off, the cold fit (without the prediction) must win and restart the velocity; compared with the
   // prediction's cost included, the drift was kept and grew by metres per frame.
   const body::BodyModel model = MakeTestModel();
@@ -221,13 +223,13 @@ TEST(BodyFitter, DriftingWarmStartRestartsColdWithoutTheVelocityPrediction) {
   const int n = 30;
   for (int f = 0; f < n; ++f) {
     Truth t = base;
-    t.state.transl.z() = f == 0 ? 1.5 : 4.0;
+    t.state.transl.z() = f == 1 ? 1.5 : 4.0;
     t.points = FittedPoints(model, reg, t.state);
     obs.push_back(Observe(t, kCamera, 0.5, 0.01, false, 300 + f));
   }
   const auto results = fitter.FitSequence(obs, {});
   bool restarted = false;
-  for (int f = 2; f < n; ++f) restarted |= !results[f].warm_started;
+  for (int f = 3; f < n; ++f) restarted |= !results[f].warm_started;
   EXPECT_TRUE(restarted);
   for (int f = 1; f < n; ++f) {
     EXPECT_LT(results[f].state.transl.z(), 8.0) << f;
