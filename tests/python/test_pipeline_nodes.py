@@ -218,6 +218,9 @@ def test_camera_scale_from_a_metric_depth_map_reads_the_map_points():
                                      intrinsics=scene.cameras_vo.intrinsics)
     depth = next(o for o in estimate.observations if o.source == "depth map")
     assert depth.usable() and depth.value == pytest.approx(2.5, rel=1e-9)
+    # The map's ground the ground source measured against (the plane y = 0 of the VO frame) is handed on.
+    nx, ny, nz, d = estimate.to_dict()["ground_plane"]
+    assert abs(ny) == pytest.approx(1.0, abs=1e-9) and abs(d) < 1e-9
 
 
 def test_ground_and_lift_without_the_runner():
@@ -244,6 +247,35 @@ def test_ground_and_lift_without_the_runner():
     heights = np.concatenate([h.ravel() for h in heights])
     assert np.ptp(heights) < 0.02  # one shift for every joint of everyone: the ground is level
     assert abs(np.median(heights)) < 0.05  # the ground under the soles, the scene's near its lowest foot joint
+
+
+def test_the_ground_is_the_odometry_maps_when_the_contacts_lie_on_it():
+    """A person whose monocular depth drifts by 30% over the clip tilts a ground fitted to the contacts; the odometry
+    map's ground plane (here: the one the clean contacts give, in VO units) keeps the world's up and the camera's
+    height. A map plane 1 m away from the contacts is another surface: the contacts' ground is kept."""
+    from m3c.ground import GroundParams
+    from m3c.ground.world_frame import estimate_ground
+
+    model, scene, tracks = camera_local_scene(vo_scale=2.5)
+    vo = scene.cameras_vo.world_from_cam
+    clean = estimate_ground(model, tracks, vo, 2.5, GroundParams())
+    R, t = clean["world_from_vo"][:3, :3], clean["world_from_vo"][:3, 3]
+    map_plane = np.r_[R[1], t[1] / 2.5]  # world y = 0 in the VO frame, VO units
+    drifting = [dict(tr) for tr in tracks]
+    drifting[0]["transl"] = tracks[0]["transl"] * (1.0 + 0.3 * np.arange(40) / 39)[:, None]
+
+    def errors(ground):
+        cams, truth = ground["cameras"].world_from_cam(), clean["cameras"].world_from_cam()
+        tilt = np.degrees(np.arccos(np.clip((cams[:, 1, :3] * truth[:, 1, :3]).sum(-1), -1, 1))).max()
+        return tilt, np.abs(cams[:, 1, 3] - truth[:, 1, 3]).max()
+
+    tilted = errors(estimate_ground(model, drifting, vo, 2.5, GroundParams()))
+    on_map = errors(estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane))
+    assert tilted[0] > 1.0 and on_map[0] < 1e-6 and on_map[1] < 1e-6, (tilted, on_map)
+    away = estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane + [0, 0, 0, 1.0 / 2.5])
+    assert errors(away) == pytest.approx(tilted)
+    with pytest.raises(ValueError, match="map_plane must be 4 finite numbers"):
+        estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=[0.0, 0.0, 0.0, 1.0])
 
 
 def test_patches_node_isolates_the_focused_person(tmp_path):

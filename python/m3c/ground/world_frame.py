@@ -51,12 +51,21 @@ def gravity_frame(up: np.ndarray, first_camera: np.ndarray, height: float | None
     return out
 
 
+# The odometry map's ground is the people's when their contacts lie this close to it (median, metres): the scale's
+# ground source made their mean heights agree, so a larger gap means the map's plane is another surface.
+MAX_MAP_GROUND_GAP = 0.3
+
+
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
-                    up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG
+                    up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
+                    map_plane: np.ndarray | None = None
                     ) -> tuple[PlaneFit | None, np.ndarray, list[list[np.ndarray]]]:
     """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), all contact points there,
     and per track per frame its contact points there. in_camera: contact_vertices' output; up_direction: the
-    people's upright direction (body_up), which levels a ground the contacts cannot tilt when `level`."""
+    people's upright direction (body_up), which levels a ground the contacts cannot tilt when `level`.
+    map_plane: the odometry map's ground in the metric VO frame (normal (3,), offset), taken when the contacts
+    lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
+    feet whose monocular depth swings by metres within a second; otherwise the contacts' plane."""
     raw = []
     for track, points in zip(tracks, in_camera):
         world = []
@@ -68,6 +77,17 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
     pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
     up_vo = cameras[0, :3, :3] @ CAMERA_UP
     dominant = None
+    if map_plane is not None and len(pooled) >= params.min_support:
+        normal, offset = np.asarray(map_plane[0], dtype=np.float64), float(map_plane[1])
+        heights = pooled @ normal + offset
+        gap = float(np.median(heights))
+        if abs(gap) <= MAX_MAP_GROUND_GAP:
+            inliers = np.abs(heights - gap) < max(params.inlier_threshold, 0.05)
+            dominant = PlaneFit(normal, offset, inliers, float(np.sqrt(np.mean(heights[inliers] ** 2))))
+            log.info("ground: the odometry map's ground plane (the people's contacts %.2f m above it, median)", gap)
+            return dominant, pooled, raw
+        log.info("the odometry map's ground plane lies %.2f m from the people's contacts (median): the ground "
+                 "from the contacts", gap)
     if len(pooled) >= params.min_support:
         try:
             dominant = fit_plane(pooled, up=up_vo, robust=params.robust,
@@ -85,12 +105,13 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
 
 def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale: float, params: GroundParams, *,
                     planes: str = "shared", contact_threshold: float = 0.5, window: int = 15,
-                    max_tilt: float = 10.0, level: bool = True, log=LOG) -> dict:
+                    max_tilt: float = 10.0, level: bool = True, log=LOG, map_plane=None) -> dict:
     """The ground and the gravity-aligned world frame of camera-frame tracks seen by VO cameras at `scale`.
 
     Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
-    are placed in the metric VO frame. The dominant ground is a robust plane fit to all of them; it defines the
-    world (y up, ground y = 0). Each person's plane per frame is then either that ground (planes "shared",
+    are placed in the metric VO frame. The dominant ground is the odometry map's ground plane when one is given
+    (map_plane: (nx, ny, nz, d) in the VO frame and VO units, the scale estimate's ground_plane) and the contacts
+    lie on it, else a robust plane fit to the contacts; it defines the world (y up, ground y = 0). Each person's plane per frame is then either that ground (planes "shared",
     SLAHMR's single floor) or the thesis's per-person planes (planes "per_person": DBSCAN on contact points, plane
     fits, association and filling over time, each frame pooling the contacts of `window` frames around it; planes
     tilted more than max_tilt degrees from the ground are replaced by it).
@@ -104,7 +125,13 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
     in_camera = contact_vertices(model, tracks, contact_threshold)
     up = body_up(model, tracks, vo_cameras)  # rotations only: the same at any scale
     cameras = WorldCameras.from_vo(vo_cameras, scale).world_from_cam()  # the VO frame in metres
-    dominant, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log)
+    if map_plane is not None:  # (nx, ny, nz, d) in VO units (the scale estimate's ground_plane) -> metres
+        plane = np.asarray(map_plane, dtype=np.float64)
+        if plane.shape != (4,) or not np.isfinite(plane).all() or np.linalg.norm(plane[:3]) == 0:
+            raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, got {plane}")
+        norm = np.linalg.norm(plane[:3])
+        map_plane = (plane[:3] / norm, scale * plane[3] / norm)
+    dominant, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log, map_plane)
     up_vo = cameras[0, :3, :3] @ CAMERA_UP
     per_person = planes == "per_person" or dominant is None
     contact_tracks = []

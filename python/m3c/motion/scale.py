@@ -53,6 +53,8 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
     if depth is not None and depth.get("available") and depth.get("metric"):
         observations.append(scale_from_depth(points, vo, depth["depth"], intrinsics))
     estimate = fuse(observations)
+    if plane is not None:
+        estimate.ground_plane = [*(float(v) for v in plane[0]), float(plane[1])]
     if log is not None:
         for o in observations:
             if o.usable():

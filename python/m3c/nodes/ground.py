@@ -15,7 +15,8 @@ from m3c.pipeline import Node, register_node
 @register_node
 class GroundNode(Node):
     """The ground and the gravity-aligned world frame (thesis 4.1.3, "Ground Estimation"): m3c.ground.world_frame.
-    estimate_ground at the scale node's scale (planes: shared, SLAHMR's single floor, the default; or per_person,
+    estimate_ground at the scale node's scale, on the odometry map's ground plane that the scale measured against
+    when the people's contacts lie on it (map_ground) (planes: shared, SLAHMR's single floor, the default; or per_person,
     the thesis's planes, each frame pooling the contacts of `window` frames around it).
 
     Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), cameras (the fields of
@@ -25,7 +26,7 @@ class GroundNode(Node):
     Output scale: the scale node's, passed on (the ground is fitted at that scale).
     """
 
-    version = "2"  # 2: the cameras in the world (WorldCameras)
+    version = "3"  # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale")
@@ -50,10 +51,11 @@ class GroundNode(Node):
         max_distance: float = GroundParams.max_distance
         fill: Literal["hold", "linear"] = GroundParams.fill
         level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
+        map_ground: bool = True  # the odometry map's ground plane (the scale's) when the contacts lie on it
 
     def params(self) -> GroundParams:
         c = asdict(self.config)
-        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up"):
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up", "map_ground"):
             c.pop(key)
         return GroundParams(**c)
 
@@ -63,6 +65,7 @@ class GroundNode(Node):
                                  np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64), scale["value"],
                                  self.params(), planes=self.config.planes,
                                  contact_threshold=self.config.contact_threshold, window=self.config.window,
-                                 max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log)
+                                 max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log,
+                                 map_plane=scale.get("ground_plane") if self.config.map_ground else None)
         ground["cameras"] = ground["cameras"].as_dict()
         return {"ground": ground, "scale": scale}

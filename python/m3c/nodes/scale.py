@@ -15,8 +15,10 @@ class ScaleNode(Node):
     docstring states the model), fusing every observation that carries scale with its uncertainty.
     Output scale: value, sigma (standard deviation of log(value); None when nothing measured it), source
     ("given", "static camera", "default", or the sources used, e.g. "planted feet+ground"), consistent,
-    observations (per source: value, sigma, frames, reason)."""
+    observations (per source: value, sigma, frames, reason), ground_plane (the odometry map's ground, VO frame and
+    units, that the ground source measured against; None without one)."""
 
+    version = "2"  # 2: per-person ground source, the feet's model error, the map's ground plane in the output
     type_name = "scale"
     level = "track"
     inputs = ("tracks", "cameras", "depth", "camera")

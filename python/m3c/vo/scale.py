@@ -80,17 +80,21 @@ class ScaleObservation:
 class ScaleEstimate:
     """The camera scale (metres per VO unit): value, sigma (standard deviation of log(value)), source (the
     sources used, "+"-joined; "given", "static camera" or "default" when nothing measured it) and every
-    observation. consistent: False when two sources disagree by more than 3 combined standard deviations."""
+    observation. consistent: False when two sources disagree by more than 3 combined standard deviations.
+    ground_plane: (nx, ny, nz, d) the odometry map's ground (n . x + d = 0, x in the VO frame and VO units,
+    map_ground_plane) that the ground source measured the camera's height against; None without one."""
     value: float
     sigma: float | None
     source: str
     observations: list[ScaleObservation] = field(default_factory=list)
     consistent: bool = True
+    ground_plane: list | None = None
 
     def to_dict(self) -> dict:
         return {"value": float(self.value), "sigma": None if self.sigma is None else float(self.sigma),
                 "source": self.source, "consistent": bool(self.consistent),
-                "observations": [o.to_dict() for o in self.observations]}
+                "observations": [o.to_dict() for o in self.observations],
+                "ground_plane": None if self.ground_plane is None else [float(v) for v in self.ground_plane]}
 
 
 # A camera that turns in place: its odometry translation is noise, small against the scene and wandering back and
