@@ -269,11 +269,13 @@ def test_the_ground_is_the_odometry_maps_when_the_contacts_lie_on_it():
         tilt = np.degrees(np.arccos(np.clip((cams[:, 1, :3] * truth[:, 1, :3]).sum(-1), -1, 1))).max()
         return tilt, np.abs(cams[:, 1, 3] - truth[:, 1, 3]).max()
 
-    tilted = errors(estimate_ground(model, drifting, vo, 2.5, GroundParams()))
-    on_map = errors(estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane))
+    contacts = estimate_ground(model, drifting, vo, 2.5, GroundParams())
+    mapped = estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane)
+    assert (contacts["ground_source"], mapped["ground_source"]) == ("contacts", "odometry map")
+    tilted, on_map = errors(contacts), errors(mapped)
     assert tilted[0] > 1.0 and on_map[0] < 1e-6 and on_map[1] < 1e-6, (tilted, on_map)
     away = estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane + [0, 0, 0, 1.0 / 2.5])
-    assert errors(away) == pytest.approx(tilted)
+    assert errors(away) == pytest.approx(tilted) and away["ground_source"] == "contacts"
     with pytest.raises(ValueError, match="map_plane must be 4 finite numbers"):
         estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=[0.0, 0.0, 0.0, 1.0])
 

@@ -59,9 +59,10 @@ MAX_MAP_GROUND_GAP = 0.3
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
                     up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
                     map_plane: np.ndarray | None = None
-                    ) -> tuple[PlaneFit | None, np.ndarray, list[list[np.ndarray]]]:
-    """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), all contact points there,
-    and per track per frame its contact points there. in_camera: contact_vertices' output; up_direction: the
+                    ) -> tuple[PlaneFit | None, str | None, np.ndarray, list[list[np.ndarray]]]:
+    """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), where it came from
+    ("odometry map", "contacts" or None), all contact points there, and per track per frame its contact points
+    there. in_camera: contact_vertices' output; up_direction: the
     people's upright direction (body_up), which levels a ground the contacts cannot tilt when `level`.
     map_plane: the odometry map's ground in the metric VO frame (normal (3,), offset), taken when the contacts
     lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
@@ -85,7 +86,7 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
             inliers = np.abs(heights - gap) < max(params.inlier_threshold, 0.05)
             dominant = PlaneFit(normal, offset, inliers, float(np.sqrt(np.mean(heights[inliers] ** 2))))
             log.info("ground: the odometry map's ground plane (the people's contacts %.2f m above it, median)", gap)
-            return dominant, pooled, raw
+            return dominant, "odometry map", pooled, raw
         log.info("the odometry map's ground plane lies %.2f m from the people's contacts (median): the ground "
                  "from the contacts", gap)
     if len(pooled) >= params.min_support:
@@ -100,7 +101,7 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
         if levelled:
             log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
                      "it is taken from the people's upright direction")
-    return dominant, pooled, raw
+    return dominant, "contacts" if dominant is not None else None, pooled, raw
 
 
 def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale: float, params: GroundParams, *,
@@ -117,7 +118,7 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
     tilted more than max_tilt degrees from the ground are replaced by it).
 
     Returns {world_from_vo (4, 4) (metric VO frame -> world), cameras (m3c.camera.WorldCameras: the cameras in
-    the world at `scale`), up_source ("ground" or "camera"), plane (normal (3,),
+    the world at `scale`), up_source ("ground" or "camera"), ground_source ("odometry map", "contacts" or None), plane (normal (3,),
     offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track normal (n, 3),
     offset (n,) in the world, observed (n,), valid (n,)}.
     """
@@ -131,7 +132,8 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
             raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, got {plane}")
         norm = np.linalg.norm(plane[:3])
         map_plane = (plane[:3] / norm, scale * plane[3] / norm)
-    dominant, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log, map_plane)
+    dominant, ground_source, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log,
+                                                           map_plane)
     up_vo = cameras[0, :3, :3] @ CAMERA_UP
     per_person = planes == "per_person" or dominant is None
     contact_tracks = []
@@ -180,6 +182,6 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
                        "valid": np.ones(track["num_frames"], bool)}
                       for track, points in zip(tracks, raw)]
     return {"world_from_vo": world_from_vo, "cameras": WorldCameras.from_vo(vo_cameras, scale, world_from_vo),
-            "up_source": "ground" if dominant else "camera",
+            "up_source": "ground" if dominant else "camera", "ground_source": ground_source,
             "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
             "contact_points": int(len(pooled)), "tracks": out_tracks}

@@ -147,7 +147,8 @@ def describe(folder: str | Path) -> str:
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
              f"{camera['odometry']}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
-             f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}",
+             f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}"
+             + (f" (from the {summary['world']['ground_source']})" if summary["world"].get("ground_source") else ""),
              f"lift        {summary['lift']['method']}; optimization: "
              f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"
              if summary["optimization"]["optimized"] else f"lift        {summary['lift']['method']}; no optimization",

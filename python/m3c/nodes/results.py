@@ -116,7 +116,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                   "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])]},
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
                            "viewing direction", "ground": "y = 0" if ground["up_source"] == "ground" else
-                  "not found (up from the first camera)", "contact_points": int(ground["contact_points"])},
+                  "not found (up from the first camera)", "ground_source": ground.get("ground_source"),
+                  "contact_points": int(ground["contact_points"])},
         "body_model": {"name": model.data.name, "gender": model.data.gender, "num_betas": int(B),
                        "num_joints": int(J)},
         "camera": {"intrinsics": [float(v) for v in camera["intrinsics"]], "intrinsics_source": camera["source"],
