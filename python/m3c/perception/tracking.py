@@ -12,9 +12,6 @@ noise proportional to the box height as in DeepSORT). Detections are assigned by
   appearance Bhattacharyya distance of colour histograms inside the masks (track: running average); beyond
              max_appearance the pair is refused whatever the other cues say (a person stepping in front of
              another fits the hidden one's box, not its clothes)
-A pair whose identity cues (pose, 3D, appearance: those known) average above max_identity_cost is refused too,
-however well the boxes overlap: a detection whose box spans two people overlaps both, and the IoU alone once
-carried another person's pose onto a track.
 Matching is a cascade: confirmed tracks seen in the previous frame first, then confirmed tracks lost for up to
 max_age frames (re-identification after an occlusion or a detector miss), then tentative tracks; in the second
 stage the stale IoU gives way to the distance from the predicted box
@@ -54,7 +51,6 @@ class TrackerConfig:
     depth_sigma: float = 0.2     # along it, as a fraction of the depth
     appearance_momentum: float = 0.8  # weight of the old descriptor in the running average
     max_appearance: float = 0.6  # colour distance beyond which a detection is never a track's (a gate)
-    max_identity_cost: float = 0.45  # mean of the pose, 3D and colour costs beyond which it is not either (1: off)
     history: int = 5             # recent poses and locations a track keeps (pose: the closest; location: median)
 
     def __post_init__(self):
@@ -68,9 +64,6 @@ class TrackerConfig:
             raise ValueError("location_sigma, depth_sigma and pose_kappa must be > 0")
         if not 0 < self.max_appearance <= 1:
             raise ValueError(f"max_appearance must be in (0, 1] (1: no colour gate), got {self.max_appearance}")
-        if not 0 < self.max_identity_cost <= 1:
-            raise ValueError(f"max_identity_cost must be in (0, 1] (1: no identity gate), got "
-                             f"{self.max_identity_cost}")
         if not 0 <= self.appearance_momentum < 1:
             raise ValueError("appearance_momentum must be in [0, 1)")
 
@@ -236,15 +229,11 @@ class Tracker:
                 location = self._location_cost(track, obs) if cfg.location_weight > 0 else None
                 if location is not None:
                     terms.append((cfg.location_weight, location))
-                colour = None
                 if cfg.appearance_weight > 0 and track.appearance is not None and obs.appearance is not None:
-                    colour = bhattacharyya_distance(track.appearance, obs.appearance)
-                    if colour > cfg.max_appearance:
+                    distance = bhattacharyya_distance(track.appearance, obs.appearance)
+                    if distance > cfg.max_appearance:
                         continue  # other clothes: another person, however well the box fits
-                    terms.append((cfg.appearance_weight, colour))
-                identity = [cost for cost in (pose, location, colour) if cost is not None]
-                if identity and np.mean(identity) > cfg.max_identity_cost:
-                    continue  # another person's pose, place and clothes, whatever the boxes say
+                    terms.append((cfg.appearance_weight, distance))
                 if terms:
                     w = np.array([t[0] for t in terms])
                     cost[i, j] = float(np.dot(w, [t[1] for t in terms]) / w.sum())
