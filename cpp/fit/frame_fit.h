@@ -80,7 +80,8 @@ class BodyFitter {
 
   // A track's frames in order: frame i is warm-started from the last good fit unless restart[i] (restart may
   // be empty: only frame 0 starts cold), and its translation predicted at constant velocity from the last two
-  // good fits when both were warm-started (never across a cold fit). times (seconds or frame numbers, increasing; may be empty = 0, 1, 2, ...) space the frames.
+  // good fits when both were warm-started (never across a cold fit). times (seconds or frame numbers,
+  // increasing; may be empty = 0, 1, 2, ...) space the frames.
   // Frames that cannot be fitted pass the last good state on.
   std::vector<FrameFitResult> FitSequence(const std::vector<FrameObservation>& observations,
                                           const std::vector<char>& restart,

@@ -54,10 +54,11 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
     """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
 
     tracks: camera-frame tracks (root_orient, body_pose, betas, transl, contacts (n, 4) over CONTACT_JOINT_NAMES,
-    optionally ground_contacts (n, 4), which then decide, visible (n,)). A foot vertex is in contact when the foot joint that moves it most has probability >
-    threshold in a visible frame. When all tracks together would place more than max_points points, every
-    `step`-th foot vertex is kept (the same subset in every frame, spread over the soles; step the smallest
-    that keeps the total within max_points), so the count stays bounded on a video of any length."""
+    optionally ground_contacts (n, 4), which then decide, visible (n,)). A foot vertex is in contact when the foot
+    joint that moves it most has probability > threshold in a visible frame. When all tracks together would place
+    more than max_points points, every `step`-th foot vertex is kept (the same subset in every frame, spread over
+    the soles; step the smallest that keeps the total within max_points), so the count stays bounded on a video of
+    any length."""
     if max_points < 1:
         raise ValueError(f"max_points must be >= 1, got {max_points}")
     foot_ids = foot_vertex_ids(model.data.weights)

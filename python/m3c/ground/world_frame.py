@@ -62,8 +62,8 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
                     ) -> tuple[PlaneFit | None, str | None, np.ndarray, list[list[np.ndarray]]]:
     """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), where it came from
     ("odometry map", "contacts" or None), all contact points there, and per track per frame its contact points
-    there. in_camera: contact_vertices' output; up_direction: the
-    people's upright direction (body_up), which levels a ground the contacts cannot tilt when `level`.
+    there. in_camera: contact_vertices' output; up_direction: the people's upright direction (body_up), which
+    levels a ground the contacts cannot tilt when `level`.
     map_plane: the odometry map's ground in the metric VO frame (normal (3,), offset), taken when the contacts
     lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
     feet whose monocular depth swings by metres within a second; otherwise the contacts' plane."""
@@ -112,15 +112,16 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
     Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
     are placed in the metric VO frame. The dominant ground is the odometry map's ground plane when one is given
     (map_plane: (nx, ny, nz, d) in the VO frame and VO units, the scale estimate's ground_plane) and the contacts
-    lie on it, else a robust plane fit to the contacts; it defines the world (y up, ground y = 0). Each person's plane per frame is then either that ground (planes "shared",
-    SLAHMR's single floor) or the thesis's per-person planes (planes "per_person": DBSCAN on contact points, plane
-    fits, association and filling over time, each frame pooling the contacts of `window` frames around it; planes
-    tilted more than max_tilt degrees from the ground are replaced by it).
+    lie on it, else a robust plane fit to the contacts; it defines the world (y up, ground y = 0). Each person's
+    plane per frame is then either that ground (planes "shared", SLAHMR's single floor) or the thesis's
+    per-person planes (planes "per_person": DBSCAN on contact points, plane fits, association and filling over
+    time, each frame pooling the contacts of `window` frames around it; planes tilted more than max_tilt degrees
+    from the ground are replaced by it).
 
     Returns {world_from_vo (4, 4) (metric VO frame -> world), cameras (m3c.camera.WorldCameras: the cameras in
-    the world at `scale`), up_source ("ground" or "camera"), ground_source ("odometry map", "contacts" or None), plane (normal (3,),
-    offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track normal (n, 3),
-    offset (n,) in the world, observed (n,), valid (n,)}.
+    the world at `scale`), up_source ("ground" or "camera"), ground_source ("odometry map", "contacts" or None),
+    plane (normal (3,), offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track
+    normal (n, 3), offset (n,) in the world, observed (n,), valid (n,)}.
     """
     tracks = list(tracks)
     in_camera = contact_vertices(model, tracks, contact_threshold)
@@ -128,9 +129,10 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
     cameras = WorldCameras.from_vo(vo_cameras, scale).world_from_cam()  # the VO frame in metres
     if map_plane is not None:  # (nx, ny, nz, d) in VO units (the scale estimate's ground_plane) -> metres
         plane = np.asarray(map_plane, dtype=np.float64)
-        if plane.shape != (4,) or not np.isfinite(plane).all() or np.linalg.norm(plane[:3]) == 0:
-            raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, got {plane}")
-        norm = np.linalg.norm(plane[:3])
+        norm = np.linalg.norm(plane[:3]) if plane.shape == (4,) else 0.0
+        if not (np.isfinite(plane).all() and norm > 0):
+            raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, "
+                             f"got {plane}")
         map_plane = (plane[:3] / norm, scale * plane[3] / norm)
     dominant, ground_source, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log,
                                                            map_plane)

@@ -1,5 +1,6 @@
 """The patches node: the thesis's isolated square patches (4.1.2), one per detection, around the square boxes
-perception handed over (detections["square"]). Box processing, the whitening rule and the sampling are m3c.perception.boxes's."""
+perception handed over (detections["square"]). Box processing, the whitening rule and the sampling are
+m3c.perception.boxes's."""
 
 from __future__ import annotations
 

@@ -109,7 +109,8 @@ def ground_flow(previous: np.ndarray, current: np.ndarray, points: np.ndarray, h
     forward, ok, _ = cv2.calcOpticalFlowPyrLK(previous, current, samples.reshape(-1, 1, 2), None, **lk)
     back, ok_back, _ = cv2.calcOpticalFlowPyrLK(current, previous, forward, None, **lk)
     forward, back = forward.reshape(-1, 2), back.reshape(-1, 2)
-    good = (ok.ravel() == 1) & (ok_back.ravel() == 1) & (np.linalg.norm(back - samples, axis=1) <= config.max_round_trip)
+    round_trip = np.linalg.norm(back - samples, axis=1)
+    good = (ok.ravel() == 1) & (ok_back.ravel() == 1) & (round_trip <= config.max_round_trip)
     flow = forward - samples
     index = np.flatnonzero(live)
     for p in range(len(index)):

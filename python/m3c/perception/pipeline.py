@@ -116,7 +116,8 @@ class PerceptionConfig:
         out = {task: {"name": spec.name, "options": dict(spec.options)} for task, spec in self.estimators.items()}
         out["tracker"] = asdict(self.tracker)
         out["merge"] = asdict(self.merge)
-        out["ground_motion"] = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self.ground_motion).items()}
+        out["ground_motion"] = {k: list(v) if isinstance(v, tuple) else v
+                                for k, v in asdict(self.ground_motion).items()}
         for f in fields(self):
             if f.name not in ("estimators", "tracker", "merge", "ground_motion"):
                 value = getattr(self, f.name)
