@@ -213,6 +213,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
               (tr.contacts.rows() == n && contact_regressor_ &&
                tr.contacts.cols() == contact_regressor_->num_keypoints() && AllFinite(tr.contacts)))
         << who << "contacts must be (n, number of contact points) and finite, or empty";
+    M3C_CHECK(tr.ground_contacts.size() == 0 ||
+              (tr.contacts.size() > 0 && tr.ground_contacts.rows() == n &&
+               tr.ground_contacts.cols() == tr.contacts.cols() && AllFinite(tr.ground_contacts)))
+        << who << "ground_contacts must be empty or shaped as contacts (given too) and finite";
     state.transl.push_back(tr.transl);
     state.root.push_back(tr.root);
     state.body.push_back(tr.body);
@@ -348,11 +352,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   };
 
   // Per-point weights weight * p for contact probabilities p >= threshold at frame f; empty if none is in contact.
-  auto contact_weights = [&](const TrackInput& tr, int f, double weight) {
-    std::vector<double> w(tr.contacts.cols());
+  auto contact_weights = [&](const RowMatrixXd& probabilities, int f, double weight) {
+    std::vector<double> w(probabilities.cols());
     bool any = false;
-    for (int c = 0; c < tr.contacts.cols(); ++c) {
-      const double p = tr.contacts(f, c);
+    for (int c = 0; c < probabilities.cols(); ++c) {
+      const double p = probabilities(f, c);
       w[c] = p >= config_.contact_threshold ? weight * p : 0.0;
       any = any || w[c] > 0;
     }
@@ -421,7 +425,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         }
       } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
         for (int f = 0; f + 1 < n; ++f) {
-          const std::vector<double> w = contact_weights(tr, f, weight);
+          const std::vector<double> w = contact_weights(tr.contacts, f, weight);
           if (w.empty()) continue;
           if (split_body && !contact_joints.empty()) {  // a residual block per planted joint, on the shared joints
             for (size_t c = 0; c < w.size(); ++c) {
@@ -434,8 +438,9 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                      vars.body[i][f + 1], vars.betas[i]});
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
+        const RowMatrixXd& on_ground = tr.ground_contacts.size() > 0 ? tr.ground_contacts : tr.contacts;
         for (int f = 0; f < n; ++f) {
-          const std::vector<double> w = contact_weights(tr, f, weight);
+          const std::vector<double> w = contact_weights(on_ground, f, weight);
           if (w.empty()) continue;
           add_block(problem,
                     new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),

@@ -30,6 +30,10 @@ struct TrackInput {
   RowMatrixXd ground_normal;      // (n, 3) ground plane normal in each frame's camera coordinates, or empty
   Eigen::VectorXd ground_offset;  // (n) plane offset d_c in metres: n_c . x_cam + d_c = 0
   RowMatrixXd contacts;  // (n, C) contact probabilities of `contact_regressor` points, or empty
+  // (n, C) the points surely on the ground (contact_height pulls them onto it), or empty: `contacts`. Planted
+  // feet (contact_velocity holds them still) are more than those standing on the ground: a monocular fit's
+  // lifting heel may be planted, and pulling it down sinks the body.
+  RowMatrixXd ground_contacts;
 };
 
 struct CameraInput {

@@ -90,6 +90,28 @@ def test_default_stage_terms_match_torch(model, scene, stage_name):
     assert stage.objective_before == pytest.approx(sum(expected.values()), rel=RTOL)
 
 
+def test_contact_height_reads_the_ground_contacts(model, scene):
+    """Given ground_contacts, contact_height pulls those points onto the ground and contact_velocity still holds
+    the planted ones: both terms equal torch's, and contact_height differs from its value on the contacts."""
+    weights = {"contact_velocity": 40.0, "contact_height": 30.0}
+    config = single_stage(StageSpec("contacts", ["transl", "root"], weights), 0, contact_height_tolerance=0.0)
+    tracks = perturbed(scene.init, seed=4)
+    rng = np.random.default_rng(4)
+    with_ground = [dataclasses.replace(t, ground_contacts=np.where(rng.uniform(size=t.contacts.shape) < 0.5,
+                                                                   t.contacts, 0.0)) for t in tracks]
+    terms = {}
+    for label, tr in (("contacts", tracks), ("ground", with_ground)):
+        stage = optimize(model, tr, scene.cameras_vo, config).stages[0]
+        expected = torch_terms(StageObjective(model, tr, scene.cameras_vo, config, config.stages[0]), tr, 1.0)
+        for term, (before, _) in stage.terms.items():
+            assert before == pytest.approx(expected[term], rel=RTOL), (label, term)
+        terms[label] = {term: before for term, (before, _) in stage.terms.items()}
+    assert terms["ground"]["contact_velocity"] == terms["contacts"]["contact_velocity"] > 0
+    assert 0 < terms["ground"]["contact_height"] < 0.9 * terms["contacts"]["contact_height"]
+    with pytest.raises(ValueError, match="ground_contacts"):
+        bad = [dataclasses.replace(t, ground_contacts=t.contacts[:-1]) for t in tracks]
+        optimize(model, bad, scene.cameras_vo, config)
+
 def test_every_term_with_other_weights_and_settings(model, scene):
     """All built-in terms with unequal weights, another robust scale and confidence cut, non-unit ground normals."""
     weights = {"reprojection": 3e-3, "shape_prior": 0.7, "pose_anchor": 0.3, "pose_smoothness": 2.0,

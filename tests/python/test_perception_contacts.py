@@ -3,13 +3,14 @@ ground stage."""
 
 import numpy as np
 import pytest
-
 from m3c.body import default_body_model
+from m3c.body.transform import facing_directions
 from m3c.eval.scenes import make_scene
 from m3c.ground import estimate_ground_planes
 from m3c.motion import track_joints
 from m3c.perception import contact_track, create, estimate_up, kinematic_contacts
 from m3c.perception.contacts import contact_rest_heights, local_velocities
+from scipy.spatial.transform import Rotation
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +41,10 @@ def test_contacts_agree_with_the_true_stance_foot(model, scene):
         assert c.shape == (len(joints), 4) and ((c >= 0) & (c <= 1)).all()
         agreement = (per_foot(c) == per_foot(truth.contacts)).mean()
         assert agreement >= 0.85, agreement
-        # Heights alone (a moving camera's frame) still see the lowest foot, but not when it is lifting off.
-        heights_only = estimator.estimate(noisy, scene.fps, np.array([0.0, 1.0, 0.0]), False)
+        # Heights alone (a moving camera's frame without the facing rule) still see the lowest foot, but not when
+        # it is lifting off.
+        heights_only = create("contacts", "kinematic", {"facing_speed_threshold": None}).estimate(
+            noisy, scene.fps, np.array([0.0, 1.0, 0.0]), False)
         assert (per_foot(heights_only) == per_foot(truth.contacts)).mean() >= 0.6
 
 
@@ -93,3 +96,39 @@ def test_rest_heights_and_errors(model):
         kinematic_contacts(np.full((2, 4, 3), np.nan), np.array([0.0, 1.0]), [0, 1, 0])
     with pytest.raises(ValueError, match="joints must have shape"):
         create("contacts", "kinematic").estimate(np.zeros((5, 17, 3)), 30.0)
+
+
+def test_facing_rule_sees_the_stance_foot_in_a_moving_camera(model, scene):
+    """In a moving camera's frame, a foot moving forward relative to the body is swinging: the rule beats heights
+    alone on the walkers, and a camera that translates and turns (yaw) under the people does not change it."""
+    rng = np.random.default_rng(1)
+    up = np.array([0.0, 1.0, 0.0])
+    facing_rule = create("contacts", "kinematic", {"facing_speed_threshold": 0.4})
+    heights = create("contacts", "kinematic", {"facing_speed_threshold": None})
+    for truth in scene.truth:
+        joints = track_joints(model, truth)
+        noisy = (joints + 0.005 * rng.normal(size=joints.shape) +
+                 0.03 * rng.normal(size=(len(joints), 1, 1)) * np.array([0.3, 0.2, 1.0]))
+        c = facing_rule.estimate(noisy, scene.fps, up, False)
+        agreement = (per_foot(c) == per_foot(truth.contacts)).mean()
+        baseline = (per_foot(heights.estimate(noisy, scene.fps, up, False)) == per_foot(truth.contacts)).mean()
+        assert agreement >= 0.85 and agreement > baseline + 0.025, (agreement, baseline)
+        # The same people seen from a camera that moves along a curve and turns about the vertical.
+        n = len(joints)
+        yaw = np.linspace(0.0, 0.8, n)
+        R = np.stack([np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]) for a in yaw])
+        path = np.stack([np.linspace(0, 4, n), np.zeros(n), 0.5 * np.sin(np.linspace(0, 3, n))], 1)
+        moved = np.einsum("nij,nkj->nki", R, noisy - path[:, None])
+        assert (per_foot(facing_rule.estimate(moved, scene.fps, up, False)) == per_foot(c)).mean() >= 0.97
+        # For the ground, heights alone, whatever the rule for planted feet.
+        np.testing.assert_array_equal(facing_rule.estimate(noisy, scene.fps, up, False, for_ground=True),
+                                      heights.estimate(noisy, scene.fps, up, False))
+
+
+def test_facing_directions_follow_the_root_rotation(model):
+    angles = np.radians([0.0, 35.0, 90.0, 200.0])
+    pose = np.zeros((len(angles), 24, 3))
+    pose[:, 0] = Rotation.from_euler("y", angles[:, None]).as_rotvec()
+    joints = model.joints(pose, np.zeros(model.num_betas))
+    expected = Rotation.from_euler("y", angles[:, None]).apply([0.0, 0.0, 1.0])  # the rest pose faces +z
+    np.testing.assert_allclose(facing_directions(joints, [0.0, 1.0, 0.0]), expected, atol=1e-9)

@@ -46,3 +46,17 @@ def spine_directions(joints: np.ndarray) -> np.ndarray:
     estimate_up and, in the odometry's frame, m3c.ground.world_frame.body_up."""
     spine = joints[:, SMPL_JOINT_NAMES.index("neck")] - joints[:, SMPL_JOINT_NAMES.index("pelvis")]
     return spine / np.maximum(np.linalg.norm(spine, axis=1, keepdims=True), 1e-9)
+
+
+def facing_directions(joints: np.ndarray, up) -> np.ndarray:
+    """Unit directions (n, 3) the body faces, horizontal to `up` (3,), of SMPL joints (n, J, 3): perpendicular to
+    the right-to-left line of the hips and the shoulders (in the rest pose, y up, the body faces +z with its left
+    at +x). Zero where that line is vertical."""
+    name = SMPL_JOINT_NAMES.index
+    side = (joints[:, name("left_hip")] - joints[:, name("right_hip")] +
+            joints[:, name("left_shoulder")] - joints[:, name("right_shoulder")])
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    forward = np.cross(side, up)
+    forward -= (forward @ up)[:, None] * up
+    norm = np.linalg.norm(forward, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, forward / np.maximum(norm, 1e-9), 0.0)

@@ -16,7 +16,9 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
                     it also penalises real motion)
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
-  contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground
+  contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground, c the
+                    probabilities of Track.ground_contacts (the feet surely on the ground) where given, else
+                    of its contacts
   scale_prior       ((log s - log s0) / sigma)^2: the camera scale s held to the scale estimator's s0 within its
                     uncertainty sigma (Cameras.initial_scale, scale_sigma; no residual without sigma)
 Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them

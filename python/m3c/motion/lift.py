@@ -18,7 +18,7 @@ def lift_tracks(model, tracks: list[dict], world_from_cam: np.ndarray, ground_tr
     function (track, root_world, transl_world) -> (root_world, transl_world) that replaces the camera lift's
     root orientation and translation (WHAM's, see m3c.motion.wham_lift.wham_trajectory).
     Returns per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient, body_pose,
-    betas, contacts?, ground_normal?, ground_offset?.
+    betas, contacts?, ground_contacts?, ground_normal?, ground_offset?.
     """
     out = []
     for k, track in enumerate(tracks):
@@ -30,8 +30,9 @@ def lift_tracks(model, tracks: list[dict], world_from_cam: np.ndarray, ground_tr
         world = {key: track[key] for key in ("track_id", "first_frame", "num_frames", "visible",
                                              "keypoints", "body_pose", "betas")}
         world.update(root_orient=root, transl=transl)
-        if "contacts" in track:
-            world["contacts"] = track["contacts"]
+        for key in ("contacts", "ground_contacts"):
+            if key in track:
+                world[key] = track[key]
         if ground_tracks and ground_tracks[k]["valid"].all():
             world["ground_normal"] = ground_tracks[k]["normal"]
             world["ground_offset"] = ground_tracks[k]["offset"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -23,7 +23,8 @@ class Track:
     axis-angle; body_pose: n x (J-1) x 3; betas: B. Optional: ground_normal n x 3 and ground_offset n (the
     person's ground plane n.x + d = 0 in each frame's CAMERA coordinates, metric, as a camera-local estimate
     gives it: it moves with the camera scale the optimizer estimates), contacts n x 4 probabilities for
-    CONTACT_JOINTS.
+    CONTACT_JOINTS (planted: contact_velocity holds them still), ground_contacts n x 4 (those surely on the ground,
+    which contact_height pulls onto it; None: contacts).
     """
 
     first_frame: int
@@ -35,6 +36,7 @@ class Track:
     ground_normal: np.ndarray | None = None
     ground_offset: np.ndarray | None = None
     contacts: np.ndarray | None = None
+    ground_contacts: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -118,8 +120,12 @@ def _to_core_track(track: Track, model: BodyModel, num_keypoints: int) -> "_core
     if track.ground_normal is not None:
         core.ground_normal = _matrix(track.ground_normal, n, 3, "ground_normal")
         core.ground_offset = np.asarray(track.ground_offset, dtype=np.float64).reshape(-1)
+    if track.ground_contacts is not None and track.contacts is None:
+        raise ValueError("ground_contacts are given without contacts: give the planted feet's contacts too")
     if track.contacts is not None:
         core.contacts = _matrix(track.contacts, n, len(CONTACT_JOINTS), "contacts")
+        if track.ground_contacts is not None:
+            core.ground_contacts = _matrix(track.ground_contacts, n, len(CONTACT_JOINTS), "ground_contacts")
     return core
 
 
@@ -175,9 +181,9 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
     out_tracks = []
     for track, res in zip(tracks, result.tracks):
         n = track.num_frames
-        out_tracks.append(Track(track.first_frame, np.asarray(track.keypoints), res.transl.copy(), res.root.copy(),
-                                res.body.reshape(n, -1, 3).copy(), res.betas.copy(), track.ground_normal,
-                                track.ground_offset, track.contacts))
+        out_tracks.append(replace(track, keypoints=np.asarray(track.keypoints), transl=res.transl.copy(),
+                                  root_orient=res.root.copy(), body_pose=res.body.reshape(n, -1, 3).copy(),
+                                  betas=res.betas.copy()))
     stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
                           s.objective_after, s.scale, s.world_before, s.world_after,
                           {t.term: (t.before, t.after) for t in s.terms})

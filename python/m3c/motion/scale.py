@@ -31,7 +31,8 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
     vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
     observations = []
     feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
-                                   [(t["contacts"] >= contact_threshold) & t["visible"][:, None]
+                                   [(t.get("ground_contacts", t["contacts"]) >= contact_threshold)
+                                    & t["visible"][:, None]
                                     if "contacts" in t else np.zeros((t["num_frames"], len(CONTACT_JOINTS)), bool)
                                     for t in tracks],
                                    [track_frames(t) for t in tracks], vo)

@@ -11,7 +11,7 @@ odometry's scale). A video no longer than one window is optimised as one problem
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -76,9 +76,11 @@ def _piece(track: Track, start: int, stop: int) -> Track | None:
     def cut(value):
         return None if value is None else np.asarray(value)[rows]
 
-    return Track(lo - start, np.asarray(track.keypoints)[rows], np.asarray(track.transl)[rows],
-                 np.asarray(track.root_orient)[rows], np.asarray(track.body_pose)[rows], np.asarray(track.betas),
-                 cut(track.ground_normal), cut(track.ground_offset), cut(track.contacts))
+    return replace(track, first_frame=lo - start, keypoints=np.asarray(track.keypoints)[rows],
+                   transl=np.asarray(track.transl)[rows], root_orient=np.asarray(track.root_orient)[rows],
+                   body_pose=np.asarray(track.body_pose)[rows], betas=np.asarray(track.betas),
+                   ground_normal=cut(track.ground_normal), ground_offset=cut(track.ground_offset),
+                   contacts=cut(track.contacts), ground_contacts=cut(track.ground_contacts))
 
 
 def blended_scale_and_offset(weights: np.ndarray, scales, offsets) -> tuple[np.ndarray, np.ndarray]:
@@ -188,8 +190,8 @@ def _blend_track(track: Track, p: int, ranges, weights: np.ndarray, solved: list
         betas_sum += w.sum() * np.asarray(piece.betas, dtype=np.float64)
         betas_weight += w.sum()
     betas = betas_sum / betas_weight if betas_weight > 0 else np.asarray(track.betas, dtype=np.float64)
-    return Track(first, np.asarray(track.keypoints), transl, root, body, betas, track.ground_normal,
-                 track.ground_offset, track.contacts)
+    return replace(track, first_frame=first, keypoints=np.asarray(track.keypoints), transl=transl,
+                   root_orient=root, body_pose=body, betas=betas)
 
 
 

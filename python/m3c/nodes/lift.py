@@ -25,7 +25,7 @@ class LiftNode(Node):
     estimator's, None when nothing measured it), scale_source, static, method.
     """
 
-    version = "2"  # 2: cameras (WorldCameras) replace world_from_cam in VO units and initial_scale
+    version = "3"  # 2: cameras (WorldCameras) replace world_from_cam in VO units and initial_scale; 3: ground_contacts
     type_name = "lift"
     level = "track"
     inputs = ("video", "camera", "tracks", "cameras", "scale", "ground")

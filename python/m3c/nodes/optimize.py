@@ -37,7 +37,7 @@ def to_motion_track(track: dict, metric_world_from_cam: np.ndarray) -> Track:
         normal = np.einsum("tji,tj->ti", cams[:, :3, :3], normal)
     return Track(int(track["first_frame"]), np.asarray(track["keypoints"], dtype=np.float64),
                  np.asarray(track["transl"]), np.asarray(track["root_orient"]), np.asarray(track["body_pose"]),
-                 np.asarray(track["betas"]), normal, offset, track.get("contacts"))
+                 np.asarray(track["betas"]), normal, offset, track.get("contacts"), track.get("ground_contacts"))
 
 
 def unusable_reason(model, track: Track, metric_world_from_cam: np.ndarray, config: OptimizerConfig) -> str | None:
@@ -68,7 +68,7 @@ class OptimizeNode(Node):
     stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
     after]}), stopped_early, optimized (False when disabled)."""
 
-    version = "2"  # 2: cameras (WorldCameras) replace the metric world_from_cam
+    version = "3"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on ground_contacts
     type_name = "optimize"
     level = "track"
     inputs = ("video", "camera", "world")

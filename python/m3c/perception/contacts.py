@@ -22,7 +22,7 @@ import numpy as np
 from m3c.body import BodyModel
 from m3c.ground import ContactTrack, foot_vertex_ids
 from m3c.body.joint_names import CONTACT_JOINTS
-from m3c.body.transform import spine_directions
+from m3c.body.transform import facing_directions, spine_directions
 from m3c.perception.interfaces import ContactEstimator
 from m3c.perception.registry import register
 
@@ -42,6 +42,13 @@ class KinematicContactConfig:
     # seed 0, checked on seed 1: agreement with the true contacts 0.56 -> 0.82).
     ground_speed_threshold: float = 1.5
     ground_speed_height_threshold: float = 0.2
+    # In a moving camera's frame (no foot speeds against the ground), a foot that moves forward relative to the
+    # body faster than facing_speed_threshold is swinging: a planted foot moves backwards relative to a walker's
+    # body, at his speed, whatever the camera does. That rule decides there, with the looser
+    # facing_height_threshold (None: heights alone). Tuned on the video benchmark's seed 0 (agreement of the feet
+    # with the true contacts: precision 0.80 -> 0.81, recall 0.44 -> 0.77 over seeds 0 and 1), checked on seed 1.
+    facing_speed_threshold: float | None = 0.4
+    facing_height_threshold: float = 0.15
     window_seconds: float = 1.0
     speed_window_seconds: float = 0.1
     root_window_seconds: float | None = None  # see kinematic_contacts(root=...); None: plain foot speeds
@@ -95,7 +102,8 @@ def local_velocities(points: np.ndarray, times: np.ndarray, half_window: float) 
 
 def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static: bool = True,
                        config: KinematicContactConfig | None = None, rest_heights=None,
-                       root: np.ndarray | None = None, ground_speeds: np.ndarray | None = None) -> np.ndarray:
+                       root: np.ndarray | None = None, ground_speeds: np.ndarray | None = None,
+                       facing: np.ndarray | None = None) -> np.ndarray:
     """Contact probabilities (n, P) of foot points (n, P, 3) metres at times (n,) seconds (increasing; gaps
     allowed), with up (3,) the up direction in the points' frame and rest_heights (P,) each point's height
     above the sole when standing (default 0).
@@ -108,7 +116,11 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
 
     ground_speeds: (n, P) m/s of each point against the ground under it (NaN where unknown), or None; where known
     it is the speed v of the speed factor, with config.ground_speed_threshold and ground_speed_height_threshold,
-    whatever ground_static says."""
+    whatever ground_static says.
+
+    facing: (n, 3) the unit directions the body faces (m3c.body.transform.facing_directions), or None; with it, root
+    and config.facing_speed_threshold, and ground_static False, v is each point's velocity relative to the root
+    along the facing direction, with config.facing_height_threshold."""
     config = config or KinematicContactConfig()
     points = np.asarray(points, dtype=np.float64)
     times = np.asarray(times, dtype=np.float64)
@@ -142,6 +154,15 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
                         local_velocities(root[:, None], times, config.root_window_seconds))
         speed = np.linalg.norm(velocity, axis=2)
         prob = prob * _sigmoid((config.speed_threshold - speed) / config.speed_softness)
+    elif facing is not None and root is not None and config.facing_speed_threshold is not None and n >= 2:
+        facing = np.asarray(facing, dtype=np.float64)
+        if facing.shape != (n, 3):
+            raise ValueError(f"facing must have shape ({n}, 3), got {facing.shape}")
+        relative = local_velocities(points - np.asarray(root, dtype=np.float64)[:, None], times,
+                                    config.speed_window_seconds)
+        forward = (relative * facing[:, None]).sum(axis=2)
+        prob = (_sigmoid((config.facing_height_threshold - above) / config.height_softness) *
+                _sigmoid((config.facing_speed_threshold - forward) / config.speed_softness))
     if ground_speeds is not None:
         ground_speeds = np.asarray(ground_speeds, dtype=np.float64)
         if ground_speeds.shape != (n, P):
@@ -162,11 +183,12 @@ class KinematicContacts(ContactEstimator):
 
     def estimate(self, joints: np.ndarray, fps: float, up=None, ground_static: bool = True,
                  frame_ids: np.ndarray | None = None, rest_heights=None,
-                 ground_speeds: np.ndarray | None = None) -> np.ndarray:
+                 ground_speeds: np.ndarray | None = None, for_ground: bool = False) -> np.ndarray:
         """joints: (n, 24, 3) metres; frames at frame_ids / fps (default consecutive). up: None = from the
         spine. rest_heights: (4,) see contact_rest_heights (default 0). ground_speeds: (n, 4) m/s of the contact
-        joints against the ground under them (see kinematic_contacts). Returns (n, 4) probabilities for
-        CONTACT_JOINTS."""
+        joints against the ground under them (see kinematic_contacts). for_ground: heights (and, in a ground-static
+        frame, 3D speeds) alone, without the image and facing cues, whose looser height limits would spread the
+        ground's points upwards. Returns (n, 4) probabilities for CONTACT_JOINTS."""
         joints = np.asarray(joints, dtype=np.float64)
         if joints.ndim != 3 or joints.shape[1:] != (24, 3):
             raise ValueError(f"joints must have shape (n, 24, 3), got {joints.shape}")
@@ -175,7 +197,9 @@ class KinematicContacts(ContactEstimator):
         frame_ids = np.arange(len(joints)) if frame_ids is None else np.asarray(frame_ids)
         up = estimate_up(joints) if up is None else up
         return kinematic_contacts(joints[:, list(CONTACT_JOINTS)], frame_ids / fps, up, ground_static, self.config,
-                                  rest_heights, root=joints[:, PELVIS], ground_speeds=ground_speeds)
+                                  rest_heights, root=joints[:, PELVIS],
+                                  ground_speeds=None if for_ground else ground_speeds,
+                                  facing=None if for_ground else facing_directions(joints, up))
 
 
 def sole_vertex_ids(model: BodyModel, sole_height: float = 0.02) -> np.ndarray:

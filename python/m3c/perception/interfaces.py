@@ -80,14 +80,16 @@ class ContactEstimator(Estimator):
     """One track's SMPL joints (n, 24, 3) at frame_ids / fps -> contact probabilities (n, 4) of
     m3c.body.joint_names.CONTACT_JOINTS; up None = estimated; ground_static: the joints' frame does not move with the
     ground (world, static camera); rest_heights: (4,) the joints' heights above the sole when standing;
-    ground_speeds: (n, 4) m/s of the joints against the ground under them, NaN where unknown, or None."""
+    ground_speeds: (n, 4) m/s of the joints against the ground under them, NaN where unknown, or None.
+    for_ground: the feet that surely stand on the ground (the ground planes and the camera scale are fitted to
+    them), rather than every planted foot (which the optimizer holds still)."""
 
     task = "contacts"
 
     @abstractmethod
     def estimate(self, joints: np.ndarray, fps: float, up: np.ndarray | None, ground_static: bool,
                  frame_ids: np.ndarray | None = None, rest_heights: np.ndarray | None = None,
-                 ground_speeds: np.ndarray | None = None) -> np.ndarray:
+                 ground_speeds: np.ndarray | None = None, for_ground: bool = False) -> np.ndarray:
         ...
 
 

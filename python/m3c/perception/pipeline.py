@@ -447,10 +447,11 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
         rest = contact_rest_heights(model, betas)
         contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid], rest,
                                                    ground_speeds=speeds)
-        if speeds is not None:
+        on_ground = est["contacts"].estimate(joints, fps, None, config.static_camera, frame_ids[valid], rest,
+                                             for_ground=True)
+        if not np.array_equal(on_ground, contacts[valid]):  # kept where the two differ
             ground_contacts = np.zeros((n, 4))
-            ground_contacts[valid] = est["contacts"].estimate(joints, fps, None, config.static_camera,
-                                                              frame_ids[valid], rest)
+            ground_contacts[valid] = on_ground
     t2 = time.perf_counter()
     seconds["body"] += t1 - t0
     seconds["contacts"] += t2 - t1

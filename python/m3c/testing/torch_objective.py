@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -114,10 +114,10 @@ class TorchState:
         for i, t in enumerate(template):
             n = t.num_frames
             s = slice(row, row + n)
-            out.append(Track(t.first_frame, t.keypoints, self.transl[s].detach().numpy().copy(),
-                             self.root[s].detach().numpy().copy(),
-                             self.body[s].detach().numpy().reshape(n, -1, 3).copy(),
-                             self.betas[i].detach().numpy().copy(), t.ground_normal, t.ground_offset, t.contacts))
+            out.append(replace(t, transl=self.transl[s].detach().numpy().copy(),
+                               root_orient=self.root[s].detach().numpy().copy(),
+                               body_pose=self.body[s].detach().numpy().reshape(n, -1, 3).copy(),
+                               betas=self.betas[i].detach().numpy().copy()))
             row += n
         return out
 
@@ -208,6 +208,7 @@ class StageObjective:
 
         # Contact weights (probability where it reaches the threshold) and ground planes in the world.
         contacts = np.zeros((len(rows), len(CONTACT_JOINTS)))
+        on_ground = np.zeros_like(contacts)  # contact_height's points: ground_contacts where given
         has_ground = np.zeros(len(rows), dtype=bool)
         normal_cam = np.tile([0.0, 0.0, 1.0], (len(rows), 1))
         offset_cam = np.zeros(len(rows))
@@ -216,13 +217,16 @@ class StageObjective:
             if t.contacts is not None:
                 p = np.asarray(t.contacts, dtype=np.float64).reshape(t.num_frames, -1)
                 contacts[s] = np.where(p >= config.contact_threshold, p, 0.0)
+                g = p if t.ground_contacts is None else np.asarray(t.ground_contacts, dtype=np.float64).reshape(
+                    t.num_frames, -1)
+                on_ground[s] = np.where(g >= config.contact_threshold, g, 0.0)
                 if t.ground_normal is not None:
                     has_ground[s] = True
                     normal_cam[s] = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)
                     offset_cam[s] = np.asarray(t.ground_offset, dtype=np.float64).reshape(-1)
         self.contact_weights = as_t(contacts)
         norm = np.linalg.norm(normal_cam, axis=1)
-        self.height_weights = as_t(contacts * has_ground[:, None])
+        self.height_weights = as_t(on_ground * has_ground[:, None])
         self.ground_normal = as_t(np.einsum("nij,nj->ni", world_from_cam[rows, :3, :3], normal_cam) / norm[:, None])
         self.ground_offset_cam = as_t(offset_cam / norm)
 
