@@ -140,3 +140,38 @@ def test_someone_stepping_into_a_track_box_in_other_clothes_gets_a_new_id():
     # Without the colour gate the averaged cost (IoU, pose and location agree) hands A's id to B.
     a_ids, b_id = frames(Tracker(TrackerConfig(max_appearance=1.0)))
     assert b_id == a_ids[0]
+
+
+
+ARMS_UP = TEMPLATE.copy()
+ARMS_UP[7:11, 1] = [0.0, 0.0, -0.1, -0.1]  # elbows and wrists above the head
+
+
+def posed(x0: float, x1: float, template: np.ndarray, person_x: float) -> Observation:
+    """Box x0..x1 (full height) holding a person at person_x in the template's pose: no colours, no location."""
+    kp = np.column_stack([person_x + template[:, 0] * BOX_W, 100 + template[:, 1] * BOX_H, np.full(17, 0.9)])
+    return Observation(np.array([x0, 100, x1, 100 + BOX_H], dtype=float), kp)
+
+
+def test_a_box_spanning_two_people_goes_to_the_lost_track_whose_pose_it_shows():
+    # A stands half behind B. A's track is lost while B hides A; then the detector returns one box spanning
+    # both with A's pose: B's track takes it on the boxes' overlap (stage 1), A's lost track re-identifies it on
+    # the pose, which is A's and not B's (B has its arms raised). Pose and boxes are the only cues.
+    def frames(tracker):
+        ids = [tracker.update([posed(340, 380, TEMPLATE, 340), posed(360, 400, ARMS_UP, 360)]) for _ in range(6)]
+        assert all(i == ids[0] for i in ids) and ids[0][0] != ids[0][1]
+        for _ in range(5):  # A hidden behind B
+            assert tracker.update([posed(360, 400, ARMS_UP, 360)]) == [ids[0][1]]
+        spanning = tracker.update([posed(340, 400, TEMPLATE, 340)])[0]
+        return ids[0], spanning, tracker.update([posed(360, 400, ARMS_UP, 360)])[0]
+
+    (a_id, b_id), spanning, b_after = frames(Tracker())
+    assert spanning == a_id and b_after == b_id
+    # Without reclaiming, B's track (seen in the previous frame) keeps it: 1 - IoU 1/3, pose 0.61, mean 0.47 < 0.6.
+    (a_id, b_id), spanning, _ = frames(Tracker(TrackerConfig(reclaim_margin=2.0)))
+    assert spanning == b_id
+
+
+def test_reclaim_margin_must_not_be_negative():
+    with pytest.raises(ValueError, match="reclaim_margin"):
+        TrackerConfig(reclaim_margin=-0.1)

@@ -251,3 +251,28 @@ def test_bad_settings_are_refused_before_anything_runs(model, tmp_path):
         with pytest.raises(ValueError, match=message):
             vb.run_video_benchmark(model, vb.VideoBenchmarkConfig(**kwargs), tmp_path, show_progress=False)
     assert not any(tmp_path.iterdir())
+
+
+def test_a_pose_fitting_two_overlapping_people_is_no_identity_switch():
+    """CLEAR MOT matching: a person keeps its last track while that track still fits it, even where the track's
+    pose fits another, hidden person better; a real swap of the tracks is still two switches."""
+    T = 10
+    base = np.column_stack([np.linspace(0, 40, 17), np.linspace(0, 100, 17)])  # 100 px tall
+    truth = {"keypoints_2d": np.stack([np.repeat(base[None], T, 0), np.repeat(base[None] + [25.0, 0], T, 0)]),
+             "keypoints_in_image": np.ones((2, T, 17), bool), "silhouette_pixels": np.full((2, T), 100),
+             "visible_pixels": np.full((2, T), 100)}
+    keypoints = np.concatenate([truth["keypoints_2d"], np.ones((2, T, 17, 1))], axis=-1)
+    arrays = {"track_ids": np.array([10, 11]), "frame_ids": np.arange(T), "visible": np.ones((2, T), bool),
+              "keypoints_2d": keypoints.copy()}
+    # Frame 5: person 0 hidden (its track unseen); track 11 (person 1's) shows a pose 10 px from person 0's and
+    # 15 px from person 1's: both within the match distance (0.2 of 100 px).
+    arrays["visible"][0, 5] = False
+    arrays["keypoints_2d"][1, 5, :, 0] = base[:, 0] + 10.0
+    scores = vb.detection_scores(truth, arrays)
+    assert scores["id_switches"] == 0 and scores["detected"] == 2 * T - 1
+    # Frame-by-frame Hungarian matching alone (no kept correspondences) gives track 11 to person 0 there: 2.
+    costs = np.linalg.norm(arrays["keypoints_2d"][1, 5, :, :2] - truth["keypoints_2d"][:, 5], axis=-1).mean(-1) / 100
+    assert costs[0] < costs[1] <= vb.MATCH_DISTANCE
+    swapped = {**arrays, "keypoints_2d": keypoints.copy(), "visible": np.ones((2, T), bool)}
+    swapped["keypoints_2d"][:, 5:] = keypoints[::-1, 5:]
+    assert vb.detection_scores(truth, swapped)["id_switches"] == 2

@@ -5,7 +5,10 @@ Each sequence is scored twice from the same run: the world lift before optimizat
 and the final result (Global Opt). Beside the body metrics of m3c.eval.evaluate (PA-MPJPE, MPJPE, W-MPJPE100,
 WA-MPJPE100, RTE, jitter, foot sliding of truly planted feet), it measures what a moving camera gets wrong:
   recall       detected person-frames among those where the person is in view and mostly unoccluded (%)
-  ID switches  changes of the predicted track id that a ground-truth person is matched to, frame by frame
+  ID switches  changes of the predicted track id that a ground-truth person is matched to, frame by frame; as
+               in CLEAR MOT (Bernardin and Stiefelhagen 2008), a person keeps the track it was last matched to
+               while that track's keypoints stay within the match distance, and the rest are matched by the
+               Hungarian method: one pose that fits two overlapping people equally is not a switch
   ATE          camera centres after a Sim(3) alignment (mm), moving cameras only
   scale error  metric camera path length against the true one (%), cameras that travel at least 0.5 m
   speed error  mean horizontal pelvis speed (m3c.eval.plausibility) against the true one (%), people moving at
@@ -160,7 +163,8 @@ def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTr
 
 def detection_scores(truth: dict, arrays: dict) -> dict:
     """Frame-by-frame matching of detections (results' keypoints where a track was detected) to the true
-    people: recall over visible people and identity switches."""
+    people: recall over visible people and identity switches (CLEAR MOT matching: last correspondences kept
+    while valid, the rest by the Hungarian method)."""
     n_true = truth["keypoints_2d"].shape[0]
     silhouette = truth["silhouette_pixels"]
     occlusion = 1.0 - truth["visible_pixels"] / np.maximum(silhouette, 1)
@@ -188,8 +192,13 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
                 use = inside & (kp[:, 2] >= 0.3)
                 if use.sum() >= 3:
                     cost[p, k] = np.linalg.norm(kp[use, :2] - gt[use], axis=-1).mean() / height
-        rows, cols = linear_sum_assignment(np.where(np.isfinite(cost), cost, 1e6))
-        for p, k in zip(rows, cols):
+        pairs = _kept_pairs(cost, [ids[k] for k in tracks], last)
+        free_p = [p for p in range(n_true) if p not in {a for a, _ in pairs}]
+        free_k = [k for k in range(len(tracks)) if k not in {b for _, b in pairs}]
+        rest = cost[np.ix_(free_p, free_k)]
+        rows, cols = linear_sum_assignment(np.where(np.isfinite(rest), rest, 1e6))
+        pairs += [(free_p[r], free_k[c]) for r, c in zip(rows, cols)]
+        for p, k in pairs:
             if cost[p, k] > MATCH_DISTANCE:
                 continue
             matched_frames += 1
@@ -205,6 +214,19 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
         "matched_person_frames": int(matched_frames),
         "person_frames": int(visible.shape[0] * len(frames)),
     }
+
+
+def _kept_pairs(cost: np.ndarray, track_ids: list, last: list) -> list[tuple[int, int]]:
+    """(person, column) pairs of the people whose last matched track is among the columns and still within
+    MATCH_DISTANCE (CLEAR MOT's kept correspondences), the closer first where two claim one track."""
+    claims = sorted((cost[p, track_ids.index(i)], p, track_ids.index(i)) for p, i in enumerate(last)
+                    if i is not None and i in track_ids and cost[p, track_ids.index(i)] <= MATCH_DISTANCE)
+    pairs, taken = [], set()
+    for _, p, k in claims:
+        if k not in taken:
+            pairs.append((p, k))
+            taken.add(k)
+    return pairs
 
 
 def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarray) -> dict:

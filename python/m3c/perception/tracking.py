@@ -16,6 +16,10 @@ Matching is a cascade: confirmed tracks seen in the previous frame first, then c
 max_age frames (re-identification after an occlusion or a detector miss), then tentative tracks; in the second
 stage the stale IoU gives way to the distance from the predicted box
 (1 - exp(-d^2 / (2 g^2)), g the gate) and the gate on the centre distance widens with the time lost.
+A detection that the first stage gave to a track but whose pose and colours resemble a lost track's by
+reclaim_margin more (and that the lost track re-identifies) goes to the lost track instead: a person coming
+out from behind another is often detected in a box spanning both, which the front person's track takes on the
+boxes' overlap although the pose in it is the other person's.
 Unmatched detections start tentative tracks, confirmed after min_hits detections; a tentative track that
 misses a frame is dropped.
 """
@@ -42,6 +46,8 @@ class TrackerConfig:
     reid_motion_weight: float = 0.5  # re-identification: distance from the predicted box, instead of IoU
     max_cost: float = 0.6        # a detection joins a track seen in the previous frame below this cost
     reid_max_cost: float = 0.45  # ... or a lost track below this one
+    reclaim_margin: float = 0.15  # a lost track whose pose and colours fit a detection this much better than
+    #                               those of the track seen in the previous frame that took it gets it
     max_age: int = 30            # frames a lost track waits to be re-identified
     min_hits: int = 3            # detections before a track counts (tentative until then)
     gate: float = 1.0            # centre distance gate, in box heights; widens by 0.5 per frame lost
@@ -64,6 +70,9 @@ class TrackerConfig:
             raise ValueError("location_sigma, depth_sigma and pose_kappa must be > 0")
         if not 0 < self.max_appearance <= 1:
             raise ValueError(f"max_appearance must be in (0, 1] (1: no colour gate), got {self.max_appearance}")
+        if self.reclaim_margin < 0:
+            raise ValueError(f"reclaim_margin must be >= 0 (a value above 1 turns reclaiming off), got "
+                             f"{self.reclaim_margin}")
         if not 0 <= self.appearance_momentum < 1:
             raise ValueError("appearance_momentum must be in [0, 1)")
 
@@ -267,28 +276,68 @@ class Tracker:
         track.time_since_update = 0
         self._hits[track.track_id] = track.hits
 
+    def _match(self, tracks: list[_Track], observations: list[Observation], ids: list[int], use_iou: bool,
+               max_cost: float) -> None:
+        """One cascade stage: assigns the observations without an id yet (ids[c] < 0) to `tracks`."""
+        free = [c for c in range(len(observations)) if ids[c] < 0]
+        remaining = [observations[c] for c in free]
+        for r, c in self._assign(self._cost_matrix(tracks, remaining, use_iou), max_cost):
+            self._absorb(tracks[r], remaining[c])
+            ids[free[c]] = tracks[r].track_id
+
+    def _looks(self, track: _Track, obs: Observation) -> float | None:
+        """Mean of the cues that tell people apart wherever they stand (pose, colours): those known."""
+        cues = [self._pose_cost(track, obs)]
+        if track.appearance is not None and obs.appearance is not None:
+            cues.append(bhattacharyya_distance(track.appearance, obs.appearance))
+        cues = [c for c in cues if c is not None]
+        return float(np.mean(cues)) if cues else None
+
+    def _reclaimed(self, pairs: list[tuple[int, int]], seen: list[_Track], lost: list[_Track],
+                   observations: list[Observation]) -> dict[int, int]:
+        """{observation: stage-1 track row} of the stage-1 pairs whose detection a lost track re-identifies (cost
+        below reid_max_cost) and resembles (pose, colours) by reclaim_margin more than the track that took it:
+        a person back from behind another, detected in a box spanning both that the other's track took on the
+        overlap of the boxes."""
+        cfg = self.config
+        if not lost or not pairs:
+            return {}
+        reid = self._cost_matrix(lost, observations, False)
+        out = {}
+        for r, c in pairs:
+            best = int(np.argmin(reid[:, c]))
+            if reid[best, c] >= cfg.reid_max_cost:
+                continue
+            theirs, ours = self._looks(lost[best], observations[c]), self._looks(seen[r], observations[c])
+            if theirs is not None and ours is not None and ours - theirs >= cfg.reclaim_margin:
+                out[c] = r
+        return out
+
     def update(self, observations: list[Observation]) -> list[int]:
         cfg = self.config
         for track in self._tracks:
             track.kalman.predict()
             track.time_since_update += 1
         ids = [-1] * len(observations)
-        free = list(range(len(observations)))
         confirmed = [t for t in self._tracks if t.hits >= cfg.min_hits]
+        seen = [t for t in confirmed if t.time_since_update == 1]
+        lost = [t for t in confirmed if t.time_since_update > 1]
         # Stage 1: confirmed tracks seen in the previous frame, all cues. Stage 2: confirmed tracks lost for a
         # while (re-identification), without the stale IoU. Stage 3: tentative tracks, last, so a track started
         # on a partial view of a known person cannot take that person's next detection from its own track.
-        stages = (([t for t in confirmed if t.time_since_update == 1], True, cfg.max_cost),
-                  ([t for t in confirmed if t.time_since_update > 1], False, cfg.reid_max_cost),
-                  ([t for t in self._tracks if t.hits < cfg.min_hits], True, cfg.max_cost))
-        for tracks, use_iou, max_cost in stages:
-            remaining = [observations[c] for c in free]
-            matched = []
-            for r, c in self._assign(self._cost_matrix(tracks, remaining, use_iou), max_cost):
-                self._absorb(tracks[r], remaining[c])
-                ids[free[c]] = tracks[r].track_id
-                matched.append(free[c])
-            free = [c for c in free if c not in matched]
+        pairs = self._assign(self._cost_matrix(seen, observations, True), cfg.max_cost)
+        reclaimed = self._reclaimed(pairs, seen, lost, observations)
+        for r, c in pairs:
+            if c not in reclaimed:
+                self._absorb(seen[r], observations[c])
+                ids[c] = seen[r].track_id
+        self._match(lost, observations, ids, False, cfg.reid_max_cost)
+        for c, r in reclaimed.items():  # no lost track took it after all: it stays with the first taker
+            if ids[c] < 0:
+                self._absorb(seen[r], observations[c])
+                ids[c] = seen[r].track_id
+        self._match([t for t in self._tracks if t.hits < cfg.min_hits], observations, ids, True, cfg.max_cost)
+        free = [c for c in range(len(observations)) if ids[c] < 0]
         # Drop tentative tracks that missed and tracks lost for too long; start new ones.
         self._tracks = [t for t in self._tracks if t.time_since_update == 0 or
                         (t.hits >= cfg.min_hits and t.time_since_update <= cfg.max_age)]
