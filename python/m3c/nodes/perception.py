@@ -54,7 +54,8 @@ class PerceptionNode(Node):
     # 5: boxes and keypoints in M3C's pixel convention (m3c.perception.boxes): MediaPipe's shifted by -0.5 px
     #    and the body fit reads no velocity across a cold fit (cpp/fit)
     # 6: the tracks handed over whole (m3c.perception.handover), with the square boxes (padding) and foot keypoints
-    # 7: planted feet from their motion relative to the body in a moving camera; the ground's contacts apart
+    # 7: planted feet from their motion relative to the body in a moving camera; the ground's contacts apart;
+    #    a lost track reclaims a detection the first cascade stage gave to another (tracking.reclaim_margin)
     version = "7"
 
     def _network_checkpoints(self, ctx) -> dict:
