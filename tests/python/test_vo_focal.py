@@ -53,6 +53,15 @@ def test_turning_camera_focal_is_recovered():
     assert estimate.costs[np.argmin(np.abs(estimate.ratios - 1.0))] > 1.1 * estimate.costs.min()
 
 
+def test_search_goes_on_past_the_end_where_the_minimum_lies():
+    """A focal shorter than the search range's low end, the cost rising towards the other: the search extends
+    downwards and finds it (without the extension its least cost would lie at the end: uninformative)."""
+    ratio = 0.55
+    estimate = estimate_focal(_room_frames(ratio, "turn"), config=FocalSearchConfig(**FAST, low=0.7))
+    assert estimate.informative, estimate.message
+    assert estimate.ratios.min() < 0.7 < estimate.ratios.max()
+    assert estimate.focal == pytest.approx(ratio * DIAGONAL, rel=0.05)
+
 def test_translating_camera_is_uninformative():
     estimate = estimate_focal(_room_frames(0.8, "translate"), config=FocalSearchConfig(**FAST))
     assert not estimate.informative

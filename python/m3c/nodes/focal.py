@@ -37,7 +37,8 @@ class FocalNode(Node):
     optional_inputs = ("masks", "detections", "tracks")
     outputs = ("camera", "tracks")
     # 2: re-expresses perception's tracks (it re-expressed the per-detection body table)
-    version = "2"
+    # 3: the search goes on past an end of its range where the least cost lies near it (max_extension)
+    version = "3"
 
     @dataclass
     class Config:

@@ -32,7 +32,9 @@ class FocalSearchConfig:
     (the VO's init_min_flow_px); max_keyframes: keyframes per window (the first bundle adjustment's size);
     low, high: the coarse search range in units of the default focal (image diagonal), num_coarse log-spaced
     candidates, then num_refine candidates around the best; min_contrast: the cost rise at the ends of the
-    search range (relative to the minimum) below which the cost is flat and the estimate uninformative;
+    search range (relative to the minimum) below which the cost is flat and the estimate uninformative (while the
+    least cost lies within a step of an end whose rise is below it, the search goes on past that end, at most
+    max_extension coarse steps);
     width_rise: the uncertainty (log_sigma) is the half-width in log(focal) of the cost's minimum where the cost
     has risen by this fraction; max_log_sigma: a wider minimum is uninformative too."""
     windows: int = 3
@@ -44,6 +46,7 @@ class FocalSearchConfig:
     num_coarse: int = 7
     num_refine: int = 4
     min_contrast: float = 0.10
+    max_extension: int = 3
     max_log_sigma: float = 0.25
     width_rise: float = 0.02
     max_image_side: int = 640
@@ -52,7 +55,7 @@ class FocalSearchConfig:
 
     def __post_init__(self):
         check_settings(self, {"windows": 1, "window_frames": 3, "max_keyframes": 3, "num_coarse": 3, "num_refine": 0,
-                              "max_image_side": 16, "iterations": 1},
+                              "max_image_side": 16, "iterations": 1, "max_extension": 0},
                        ("keyframe_flow_px", "low", "high", "min_contrast", "max_log_sigma", "width_rise"),
                        strictly_positive=True, what="focal search: ")
         if not isinstance(self.multi_start, bool):
@@ -216,18 +219,34 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
                 log(f"focal {key:.3f} x default ({key * default:.0f} px): cost {tried[key]:.4g}")
         return tried[key]
 
-    coarse = np.exp(np.linspace(np.log(config.low), np.log(config.high), config.num_coarse))
-    costs = np.array([cost(r) for r in coarse])
+    coarse = list(np.exp(np.linspace(np.log(config.low), np.log(config.high), config.num_coarse)))
+    step = np.log(coarse[1] / coarse[0])
+    costs = [cost(r) for r in coarse]
+    # A minimum near an end of the range, where the cost barely rises while it rises at the other end, may lie
+    # beyond it (a wide-angle phone camera is about 0.55 x the diagonal): search on past that end.
+    for _ in range(config.max_extension):
+        if not np.isfinite(costs).all():
+            break
+        best = int(np.argmin(costs))
+        rises = [c >= (1.0 + config.min_contrast) * costs[best] for c in (costs[0], costs[-1])]
+        if best <= 1 and not rises[0] and rises[1]:
+            coarse.insert(0, coarse[0] * math.exp(-step))
+            costs.insert(0, cost(coarse[0]))
+        elif best >= len(coarse) - 2 and not rises[1] and rises[0]:
+            coarse.append(coarse[-1] * math.exp(step))
+            costs.append(cost(coarse[-1]))
+        else:
+            break
+    coarse, costs = np.array(coarse), np.array(costs)
     if not np.isfinite(costs).all():  # not expected (whether the VO starts does not depend on the focal)
         return FocalEstimate(default, default, math.inf, False, coarse, costs, [],
                              "focal not observable: the odometry gave no cost at some candidate focal lengths; "
                              f"keeping the default {default:.0f} px")
     best = int(np.argmin(costs))
     contrast = min(costs[0], costs[-1]) / costs[best] - 1.0 if costs[best] > 0 else 0.0
-    step = np.log(coarse[1] / coarse[0])
     if config.num_refine:
-        lo = max(np.log(coarse[best]) - step, np.log(config.low))
-        hi = min(np.log(coarse[best]) + step, np.log(config.high))
+        lo = max(np.log(coarse[best]) - step, np.log(coarse[0]))
+        hi = min(np.log(coarse[best]) + step, np.log(coarse[-1]))
         for r in np.exp(np.linspace(lo, hi, config.num_refine + 2)[1:-1]):
             cost(r)
     ratios = np.array(sorted(tried))
@@ -257,7 +276,8 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
             why = (f"the cost is flat: it rises only {100 * contrast:.1f}% from its minimum at {ratios[best]:.2f} x "
                    f"default towards the ends of the search (need {100 * config.min_contrast:.0f}%)")
         elif at_end:
-            why = f"the cost's minimum lies at the end of the search range ({config.low:g}..{config.high:g} x default)"
+            why = (f"the cost's minimum lies at the end of the search range ({ratios[0]:.2f}..{ratios[-1]:.2f} x "
+                   "default)")
         else:
             why = f"the cost's minimum is too wide (log-sigma {log_sigma:.2f} > {config.max_log_sigma:g})"
         message = f"focal not observable from this camera motion: {why}; keeping the default {default:.0f} px"
