@@ -138,8 +138,10 @@ class Chain:
     def summary(self, label, point: Point):
         t = self.totals
         ratio = t["torch"] / max(t["ceres"], 1e-9)
-        print(f"  {label}: Ceres {t['ceres']:.1f} s over the stages, torch {'>' if t['capped'] else ''}"
-              f"{t['torch']:.1f} s to the same costs (ratio {'>' if t['capped'] else ''}{ratio:.1f}); final camera "
+        torch_part = ("torch not run (--no-torch)" if self.args.no_torch else
+                      f"torch {'>' if t['capped'] else ''}{t['torch']:.1f} s to the same costs (ratio "
+                      f"{'>' if t['capped'] else ''}{ratio:.1f})")
+        print(f"  {label}: Ceres {t['ceres']:.1f} s over the stages, {torch_part}; final camera "
               f"scale {point.scale:.3f} (true {self.scene.vo_scale}, error "
               f"{100 * abs(point.scale / self.scene.vo_scale - 1):.1f}%), world joint error "
               f"{world_error_mm(self.model, point.tracks, self.scene.truth):.0f} mm")
