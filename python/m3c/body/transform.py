@@ -56,7 +56,6 @@ def facing_directions(joints: np.ndarray, up) -> np.ndarray:
     side = (joints[:, name("left_hip")] - joints[:, name("right_hip")] +
             joints[:, name("left_shoulder")] - joints[:, name("right_shoulder")])
     up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    forward = np.cross(side, up)
-    forward -= (forward @ up)[:, None] * up
+    forward = np.cross(side, up)  # perpendicular to up: horizontal
     norm = np.linalg.norm(forward, axis=1, keepdims=True)
     return np.where(norm > 1e-9, forward / np.maximum(norm, 1e-9), 0.0)

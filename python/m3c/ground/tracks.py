@@ -49,6 +49,13 @@ def track_frames(track: dict) -> np.ndarray:
     return int(track["first_frame"]) + np.arange(int(track["num_frames"]))
 
 
+def ground_contact_probabilities(track: dict) -> np.ndarray | None:
+    """A track's contact probabilities (n, 4) of the feet surely on the ground, which the ground and the camera
+    scale are fitted to: its ground_contacts where perception kept them apart from the planted feet, else its
+    contacts; None without either."""
+    return track.get("ground_contacts", track.get("contacts"))
+
+
 def contact_vertices(model, tracks: Sequence[dict], threshold: float,
                      max_points: int = MAX_CONTACT_POINTS) -> list[list[np.ndarray]]:
     """Per track, per frame, its foot vertices in contact, in that frame's camera (metres, (k, 3) float64).
@@ -64,9 +71,9 @@ def contact_vertices(model, tracks: Sequence[dict], threshold: float,
     foot_ids = foot_vertex_ids(model.data.weights)
     columns = [SMPL_JOINT_NAMES.index(name) for name in CONTACT_JOINT_NAMES]
     foot_joint = np.argmax(np.asarray(model.data.weights)[foot_ids][:, columns], axis=1)
-    # The points the ground is fitted to: feet on the ground (ground_contacts where the contacts read the images,
-    # whose looser height limit would spread the points upwards).
-    masks = [(t.get("ground_contacts", t.get("contacts")) > threshold) & t["visible"][:, None]
+    # The points the ground is fitted to: feet surely on the ground (the planted feet's looser height limits would
+    # spread the points upwards).
+    masks = [(ground_contact_probabilities(t) > threshold) & t["visible"][:, None]
              if "contacts" in t else None for t in tracks]
     per_joint = np.bincount(foot_joint, minlength=len(CONTACT_JOINT_NAMES))
     total = sum(int((m @ per_joint).sum()) for m in masks if m is not None)

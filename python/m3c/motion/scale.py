@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 
 from m3c.body import BodyModel
-from m3c.ground.tracks import contact_vertices, track_frames, track_poses
+from m3c.ground.tracks import contact_vertices, ground_contact_probabilities, track_frames, track_poses
 from m3c.ground.world_frame import body_up
 from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.optimize import Cameras, Track, track_joints
@@ -31,8 +31,7 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
     vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
     observations = []
     feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
-                                   [(t.get("ground_contacts", t["contacts"]) >= contact_threshold)
-                                    & t["visible"][:, None]
+                                   [(ground_contact_probabilities(t) >= contact_threshold) & t["visible"][:, None]
                                     if "contacts" in t else np.zeros((t["num_frames"], len(CONTACT_JOINTS)), bool)
                                     for t in tracks],
                                    [track_frames(t) for t in tracks], vo)
