@@ -15,6 +15,8 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis;
                     it also penalises real motion)
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
+  root_acceleration |P_{t+1} - 2 P_t + P_{t-1}|^2 of the pelvis joint P alone (the body's depth along the camera
+                    ray, which the images barely hold, without stiffening the limbs)
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground, c the
                     probabilities of Track.ground_contacts (the feet surely on the ground) where given, else

@@ -68,7 +68,8 @@ class OptimizeNode(Node):
     stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
     after]}), stopped_early, optimized (False when disabled)."""
 
-    version = "3"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on ground_contacts
+    version = "4"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on
+    # ground_contacts; 4: the default recipe's joint_acceleration 10 -> 30
     type_name = "optimize"
     level = "track"
     inputs = ("video", "camera", "world")

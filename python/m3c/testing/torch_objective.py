@@ -28,8 +28,8 @@ from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
-               "joint_smoothness",
-               "joint_acceleration", "contact_velocity", "contact_height", "motion_prior", "scale_prior")
+               "joint_smoothness", "joint_acceleration", "root_acceleration", "contact_velocity", "contact_height",
+               "motion_prior", "scale_prior")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -321,6 +321,9 @@ class StageObjective:
             elif term == "joint_acceleration":
                 i = self.triples
                 out[term] = 0.5 * w * ((joints[i + 2] - 2 * joints[i + 1] + joints[i]) ** 2).sum()
+            elif term == "root_acceleration":
+                i, pelvis = self.triples, joints[:, 0]
+                out[term] = 0.5 * w * ((pelvis[i + 2] - 2 * pelvis[i + 1] + pelvis[i]) ** 2).sum()
             elif term == "contact_velocity":
                 feet = joints[:, list(CONTACT_JOINTS)]
                 step = ((feet[self.pairs + 1] - feet[self.pairs]) ** 2).sum(-1)
