@@ -13,6 +13,7 @@
 #include "motion/vposer_term.h"
 #include "util/blas_threads.h"
 #include "util/check.h"
+#include "util/openmp_levels.h"
 
 namespace m3c::motion {
 
@@ -38,12 +39,14 @@ struct State {
 };
 
 // A problem's evaluation callback: decodes latent poses first (the motion prior reads the decoded body blocks),
-// then evaluates the shared joints and the motion prior's batch.
+// then evaluates the shared joints and the motion prior's batch. Ceres calls it on the thread that solves, where
+// OpenMP is off for CHOLMOD (SolveSerial): these loops get this thread's parallelism outside the solve back.
 class StageCallback : public ceres::EvaluationCallback {
  public:
   StageCallback(LatentPoseDecoder* decoder, SharedJoints* joints, HumorTransitionBatch* humor)
-      : decoder_(decoder), joints_(joints), humor_(humor) {}
+      : decoder_(decoder), joints_(joints), humor_(humor), levels_(util::ScopedOpenMpLevels::Current()) {}
   void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) override {
+    const util::ScopedOpenMpLevels ours(levels_);
     if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
     if (joints_) joints_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
     if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
@@ -53,7 +56,19 @@ class StageCallback : public ceres::EvaluationCallback {
   LatentPoseDecoder* decoder_;
   SharedJoints* joints_;
   HumorTransitionBatch* humor_;
+  int levels_;
 };
+
+// Ceres calls with OpenMP off on this thread (util/openmp_levels.h: CHOLMOD's teams of 4 per supernode).
+bool EvaluateSerial(ceres::Problem* problem, const ceres::Problem::EvaluateOptions& options, double* cost,
+                    std::vector<double>* residuals) {
+  const util::ScopedOpenMpLevels serial(0);
+  return problem->Evaluate(options, cost, residuals, nullptr, nullptr);
+}
+void SolveSerial(const ceres::Solver::Options& options, ceres::Problem* problem, ceres::Solver::Summary* summary) {
+  const util::ScopedOpenMpLevels serial(0);
+  ceres::Solve(options, problem, summary);
+}
 
 }  // namespace
 
@@ -550,7 +565,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     double cost = 0.0;
     ceres::Problem::EvaluateOptions options;
     options.num_threads = config_.num_threads;
-    if (!problem->Evaluate(options, &cost, nullptr, nullptr, nullptr)) return std::nan("");
+    if (!EvaluateSerial(problem, options, &cost, nullptr)) return std::nan("");
     return cost;
   };
   // The cost of each term's residual blocks within a stage's problem (its own levels and weights) and their sum,
@@ -565,7 +580,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     *total = 0.0;
     if (options.residual_blocks.empty()) return costs;  // an empty list would mean every block to Ceres
     std::vector<double> residuals;
-    if (!problem->Evaluate(options, total, &residuals, nullptr, nullptr)) {
+    if (!EvaluateSerial(problem, options, total, &residuals)) {
       *total = std::nan("");
       return std::vector<double>(terms.size(), std::nan(""));
     }
@@ -665,7 +680,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     if (!std::isfinite(report.objective_before)) {
       failure = "the objective is not finite at the stage's start";
     } else {
-      ceres::Solve(options, &problem, &summary);
+      SolveSerial(options, &problem, &summary);
       report.iterations = static_cast<int>(summary.iterations.size()) - 1;
       report.objective_after = summary.final_cost;
       if (summary.termination_type == ceres::FAILURE) {

@@ -188,7 +188,10 @@ TEST_F(HumorTermTest, BatchMatchesSingleBlocks) {
   batch.AddTrack(b.Blocks(b.transl), b.Blocks(b.root), b.Blocks(b.body), b.betas.data(), Rb, tb);
   ASSERT_EQ(batch.num_transitions(), (7 - 3) + (5 - 3));
   const std::vector<double> nll = batch.Nll();
-  batch.PrepareForEvaluation(true, true);
+  // Ceres asks for values only at a trial point; the batch evaluates the gradients with them (an accepted step
+  // asks for them next), and the blocks read both from it.
+  batch.PrepareForEvaluation(false, true);
+  const int packed = 4 * (6 + 3 * (model.num_joints() - 1)) + model.num_betas();
   for (int i = 0; i < batch.num_transitions(); ++i) {
     const bool first = i < 4;
     HumorTransitionCost single(&model, prior_, 30.0, first ? Ra : Rb, first ? ta : tb, 0.075, nll[i] - 50.0);
@@ -196,7 +199,9 @@ TEST_F(HumorTermTest, BatchMatchesSingleBlocks) {
     const std::vector<double*> params = batch.Parameters(i);
     EXPECT_NEAR(single.Nll(params.data()), nll[i], 1e-9 * std::abs(nll[i]));
     double looked_up = 0.0;
-    EXPECT_TRUE(batch.Lookup(i, params.data(), &looked_up, nullptr));
+    std::vector<double> gradient(packed);
+    EXPECT_TRUE(batch.Lookup(i, params.data(), &looked_up, gradient.data())) << "transition " << i;
+    EXPECT_NEAR(looked_up, nll[i], 1e-9 * std::abs(nll[i]));
     const Evaluation s = EvaluateCost(single, params), t = EvaluateCost(batched, params);
     EXPECT_NEAR(s.r, t.r, 1e-9 * s.r);
     for (size_t blk = 0; blk < s.jac.size(); ++blk) {
