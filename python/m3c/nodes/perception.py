@@ -56,7 +56,8 @@ class PerceptionNode(Node):
     # 6: the tracks handed over whole (m3c.perception.handover), with the square boxes (padding) and foot keypoints
     # 7: planted feet from their motion relative to the body in a moving camera; the ground's contacts apart;
     #    a lost track reclaims a detection the first cascade stage gave to another (tracking.reclaim_margin)
-    version = "7"
+    # 8: the body fit's translation prior 3000 -> 100 (its constant-velocity prediction made the depth wander)
+    version = "8"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
