@@ -216,7 +216,9 @@ TEST(BodyFitter, DriftingWarmStartRestartsColdWithoutTheVelocityPrediction) {
   // prediction's cost included, the drift was kept and grew by metres per frame.
   const body::BodyModel model = MakeTestModel();
   const auto reg = JointPicks(model);
-  const BodyFitter fitter(&model, &reg, FitOptions());
+  FitOptions options;
+  options.temporal_transl_weight = 3000.0;  // the old default, under which the prediction carries the depth
+  const BodyFitter fitter(&model, &reg, options);
   Truth base = MakeTruth(model, reg, 60, 0.2, {0.0, 0.0, 4.0});
   base.state.betas.setZero();
   std::vector<FrameObservation> obs;
