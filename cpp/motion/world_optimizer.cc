@@ -428,10 +428,19 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                                       nullptr, vars.body[i][f] + 3 * k);
           }
         }
-      } else if (term == "joint_smoothness" || term == "joint_acceleration") {
+      } else if (term == "joint_smoothness" || term == "joint_acceleration" || term == "root_acceleration") {
+        // root_acceleration: the pelvis joint alone (the whole body's depth along the camera ray, which the
+        // images hold weakly, without stiffening the limbs).
+        const bool pelvis_only = term == "root_acceleration";
         const int order = term == "joint_smoothness" ? 1 : 2, F = order + 1;
+        std::vector<double> point_weights(J, pelvis_only ? 0.0 : weight);
+        point_weights[0] = weight;
         for (int f = 0; split_body && f + F <= n; ++f) {  // a residual block per chain, on the shared joints
           const std::vector<double> stencil = stencil_at(tr.first_frame + f, order);
+          if (pelvis_only) {
+            add_joint_stencil(problem, i, f, stencil, {0}, {weight});
+            continue;
+          }
           for (const std::vector<int>& chain : shared_joints.Chains()) {
             add_joint_stencil(problem, i, f, stencil, chain, std::vector<double>(chain.size(), weight));
           }
@@ -441,23 +450,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           for (int g = f; g < f + F; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
           blocks.push_back(vars.betas[i]);
           add_block(problem, new PointStencilCost(model_, joint_regressor_.get(), stencil_at(tr.first_frame + f, order),
-                                                  std::vector<double>(J, weight)),
+                                                  point_weights),
                     blocks);
-        }
-      } else if (term == "root_acceleration") {
-        // The pelvis joint alone: the whole body's depth along the camera ray is weakly held by the images.
-        for (int f = 0; f + 3 <= n; ++f) {
-          const std::vector<double> stencil = stencil_at(tr.first_frame + f, 2);
-          if (split_body) {
-            add_joint_stencil(problem, i, f, stencil, {0}, {weight});
-            continue;
-          }
-          std::vector<double> w(J, 0.0);
-          w[0] = weight;
-          std::vector<double*> blocks;
-          for (int g = f; g < f + 3; ++g) blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g], vars.body[i][g]});
-          blocks.push_back(vars.betas[i]);
-          add_block(problem, new PointStencilCost(model_, joint_regressor_.get(), stencil, w), blocks);
         }
       } else if (term == "contact_velocity" && tr.contacts.size() > 0) {
         for (int f = 0; f + 1 < n; ++f) {
