@@ -280,35 +280,82 @@ def test_track_bad_input():
     assert estimate_ground_planes([], up=CAMERA_UP) == []
 
 
-def test_level_with_body_up_takes_the_tilt_the_soles_cannot_fix():
-    from m3c.ground import PlaneFit, level_with_body_up
+def _ground_scene(rng, *, height, pitch_deg, depths, lateral, frames=150, depth_error=0.1, moving=False):
+    """Contact points (one per frame) seen by a camera `height` metres above the ground y = 0 of a y-up world,
+    pitched down by pitch_deg, at depths drawn from `depths` and lateral offsets from `lateral`; each point
+    moved along its camera ray by a relative depth error that changes every 10 frames (it swings slowly).
+    Returns (points, centers, camera x axis) in a frame where the first camera is at the origin, OpenCV axes."""
+    pitch = np.radians(pitch_deg)
+    # The camera's axes in the world (columns): x right, y down the image, z forward along -z, pitched down.
+    R = np.stack([[1.0, 0, 0], [0, -np.cos(pitch), np.sin(pitch)], [0, -np.sin(pitch), -np.cos(pitch)]], axis=1)
+    centers_w = np.tile([0.0, height, 0.0], (frames, 1))
+    if moving:
+        centers_w[:, 0] += np.linspace(0, 3, frames)
+    forward = np.array([R[0, 2], 0.0, R[2, 2]]) / np.hypot(R[0, 2], R[2, 2])
+    ground = centers_w * [1, 0, 1] + rng.uniform(*depths, frames)[:, None] * forward \
+        + rng.uniform(*lateral, frames)[:, None] * [1.0, 0, 0]
+    error = np.repeat(rng.normal(0, depth_error, frames // 10 + 1), 10)[:frames]
+    seen = centers_w + (ground - centers_w) * (1 + error)[:, None]  # along the ray
+    to_cam = lambda x: (x - centers_w[0]) @ R  # world -> first camera's frame (rows: x . R)
+    return to_cam(seen), to_cam(centers_w), R.T @ np.array([0.0, 1.0, 0.0])
 
-    rng = np.random.default_rng(3)
-    # Soles along a straight walk (x) on the ground y = 0, two feet 0.2 m apart; the true up is +y.
-    along = rng.uniform(0, 3, 400)
-    side = np.where(rng.random(400) < 0.5, -0.1, 0.1) + rng.normal(0, 0.02, 400)
-    points = np.stack([along, rng.normal(0, 0.003, 400), side], axis=1)
-    # A fit rolled by 15 degrees about the walking line and pitched by 2 degrees along it ...
-    roll, pitch = np.radians(15), np.radians(2)
-    normal = np.array([-np.sin(pitch), np.cos(roll), np.sin(roll)])
-    fit = PlaneFit(normal=normal / np.linalg.norm(normal), offset=0.0, inliers=np.ones(400, bool), rms=0.05)
-    # ... keeps its slope along the walk (the points fix it) and takes its roll from the people's upright
-    # direction, here leaning forward along the path and 1 degree sideways.
-    body_up = np.array([0.3, 1.0, np.tan(np.radians(1))])
-    fixed, changed = level_with_body_up(fit, points, body_up)
-    assert changed
-    n = fit.normal
-    expected = np.array([n[0] / n[1], 1.0, np.tan(np.radians(1))])
-    np.testing.assert_allclose(fixed.normal, expected / np.linalg.norm(expected), atol=5e-3)  # ~0.3 degrees
-    assert fixed.rms < 0.1
-    # Points spread over an area fix the tilt themselves: the plane is kept.
-    area = np.stack([rng.uniform(0, 3, 400), np.zeros(400), rng.uniform(0, 2, 400)], axis=1)
-    same, changed = level_with_body_up(fit, area, body_up)
-    assert not changed and same is fit
-    # A patch (a step or two) fixes nothing: the normal is the people's up.
-    fixed, changed = level_with_body_up(fit, points * [0.1, 1, 1], body_up)
-    assert changed
-    np.testing.assert_allclose(fixed.normal, body_up / np.linalg.norm(body_up), atol=1e-9)
+
+@pytest.mark.parametrize("moving", [False, True])
+def test_ground_along_rays_recovers_a_pitched_cameras_height(moving):
+    """People spread over depth and width: the fit recovers the camera's height and the ground's tilt from
+    points scattered 10% along their rays, whatever the prior says about the pitch."""
+    from m3c.ground import fit_ground_along_rays
+
+    rng = np.random.default_rng(5)
+    points, centers, true_up = _ground_scene(rng, height=1.8, pitch_deg=9.0, depths=(4, 12), lateral=(-3, 3),
+                                             moving=moving)
+    level = np.array([0.0, -1.0, 0.0])  # a level camera: 9 degrees off the truth in pitch
+    fit = fit_ground_along_rays(points, centers, level, [1.0, 0.0, 0.0])
+    assert np.degrees(np.arccos(fit.normal @ true_up)) < 1.5
+    assert abs(fit.signed_distance(centers[0]) - 1.8) < 0.1
+    assert fit.inliers.mean() > 0.9
+
+
+def test_ground_along_rays_does_not_put_the_camera_on_the_floor():
+    """People at one distance (one image row): perpendicular distances fit the plane of their rays, through
+    the camera (camera height near 0); the ray fit finds the camera's height."""
+    from m3c.ground import fit_ground_along_rays, fit_plane
+
+    rng = np.random.default_rng(6)
+    points, centers, true_up = _ground_scene(rng, height=2.0, pitch_deg=5.0, depths=(9.5, 11.5), lateral=(-4, 2))
+    tls = fit_plane(points, up=true_up, robust=False)
+    assert abs(tls.signed_distance(centers[0])) < 0.5  # the camera's height: the degenerate answer
+    fit = fit_ground_along_rays(points, centers, true_up, [1.0, 0.0, 0.0])
+    assert abs(fit.signed_distance(centers[0]) - 2.0) < 0.2
+    assert np.degrees(np.arccos(fit.normal @ true_up)) < 1.5
+    # Priors 4 degrees off give way to the points: rolled (6 m sideways) and pitched (2 m of depth, 150 frames).
+    c, s = np.cos(np.radians(4)), np.sin(np.radians(4))
+    pitched = np.array([[1, 0, 0], [0, c, -s], [0, s, c]]) @ true_up
+    assert np.degrees(np.arccos(fit_ground_along_rays(points, centers, pitched, [1.0, 0, 0]).normal @ true_up)) < 1.5
+    rolled = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]) @ true_up
+    across = fit_ground_along_rays(points, centers, rolled, [1.0, 0.0, 0.0])
+    assert np.degrees(np.arccos(across.normal @ true_up)) < 1.5
+
+
+def test_ground_along_rays_follows_the_prior_where_the_points_fix_nothing():
+    from m3c.ground import RayGroundParams, fit_ground_along_rays
+
+    rng = np.random.default_rng(7)
+    points, centers, true_up = _ground_scene(rng, height=1.5, pitch_deg=3.0, depths=(7.0, 7.01), lateral=(0.1, 0.11))
+    prior = true_up + [0.02, 0.0, 0.05]
+    prior /= np.linalg.norm(prior)
+    fit = fit_ground_along_rays(points, centers, prior, [1.0, 0.0, 0.0])
+    assert np.degrees(np.arccos(fit.normal @ prior)) < 0.5
+    assert np.all(np.abs(fit.signed_distance(points)) < 0.5)
+    with pytest.raises(ValueError, match="at least 3"):
+        fit_ground_along_rays(points[:2], centers[:2], prior, [1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="both be"):
+        fit_ground_along_rays(points, centers[:5], prior, [1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="finite"):
+        fit_ground_along_rays(points * np.nan, centers, prior, [1.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match="parallel"):
+        fit_ground_along_rays(points, centers, prior, prior)
+    assert RayGroundParams().depth_error == 0.1
 
 
 def _camera_track(rng, n: int, first_frame: int = 0) -> dict:

@@ -273,7 +273,8 @@ def test_the_ground_is_the_odometry_maps_when_the_contacts_lie_on_it():
     mapped = estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane)
     assert (contacts["ground_source"], mapped["ground_source"]) == ("contacts", "odometry map")
     tilted, on_map = errors(contacts), errors(mapped)
-    assert tilted[0] > 1.0 and on_map[0] < 1e-6 and on_map[1] < 1e-6, (tilted, on_map)
+    # (arccos near 1 resolves about 1e-6 degrees)
+    assert tilted[0] > 1.0 and on_map[0] < 1e-5 and on_map[1] < 1e-6, (tilted, on_map)
     away = estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=map_plane + [0, 0, 0, 1.0 / 2.5])
     assert errors(away) == pytest.approx(tilted) and away["ground_source"] == "contacts"
     with pytest.raises(ValueError, match="map_plane must be 4 finite numbers"):

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from m3c import _core
 
@@ -114,38 +115,82 @@ def fit_plane(points, *, up, robust: bool = GroundParams.robust,
     return PlaneFit(normal=normal, offset=float(offset), inliers=inliers, rms=float(rms))
 
 
-def level_with_body_up(plane: PlaneFit, points, body_up, min_extent: float = 0.25) -> tuple[PlaneFit, bool]:
-    """Takes the plane's tilt from the people's upright direction where the contact points cannot fix it.
+@dataclass(frozen=True)
+class RayGroundParams:
+    """The noise model of `fit_ground_along_rays` (defaults measured on the video benchmark, seeds 0-2).
 
-    The tilt of a plane fitted to soles is fixed, along each in-plane direction, only as far as the points
-    extend along it: over a short clip (a step or two) or a straight walk (a narrow strip), the soles' own tilt
-    decides it, and a foot fitted a little rolled tilts the ground. Along each in-plane principal axis of the
-    inliers with an rms extent below min_extent metres, the normal takes the slope of body_up (3,), the
-    people's mean pelvis-to-neck direction (people stand and walk upright on average: sideways exactly, forward
-    within a few degrees). Returns (plane, whether it was changed); the plane keeps passing through the points."""
-    points = np.asarray(points, dtype=np.float64)[plane.inliers]
-    up = np.asarray(body_up, dtype=np.float64)
-    if len(points) < 3 or not np.isfinite(up).all() or np.linalg.norm(up) == 0:
-        return plane, False
+    depth_error: relative error of a contact point's depth along its camera ray (the camera-local fit's depth
+        wanders by 5-15% while its image position is accurate to pixels).
+    correlated_frames: frames over which that error is one error (it swings at 0.6-1 Hz): each point's residual
+        counts 1 / correlated_frames.
+    roll_sigma, pitch_sigma: degrees, the prior's spread of the ground's tilt about the first camera's view
+        axis (sideways: people are upright in the image, so their fitted spine holds it within a few degrees)
+        and about its horizontal axis (forward: a monocular fit cannot see a person lean towards the camera,
+        so the people's pitch is a weak guess).
+    robust_scale: residuals beyond this many standard deviations count linearly (Huber).
+    """
+
+    depth_error: float = 0.1
+    correlated_frames: float = 10.0
+    roll_sigma: float = 3.0
+    pitch_sigma: float = 20.0
+    robust_scale: float = 2.0
+
+
+def fit_ground_along_rays(points, centers, prior_up, sideways, params: RayGroundParams = RayGroundParams()
+                          ) -> PlaneFit:
+    """The ground through contact points whose error lies along their camera rays, with a prior on its tilt.
+
+    points (N, 3): contact points, metres (one per person and frame: the mean of its contact vertices);
+    centers (N, 3): the centre of the camera that saw each; prior_up (3,): the expected up direction;
+    sideways (3,): the first camera's x axis (splits the prior's tilt into roll and pitch).
+
+    A point is its camera centre plus its depth times its ray, and the depth is what is uncertain. The residual
+    of a plane (n, d) is the relative depth error of the point against the ray's intersection with it,
+    (n . x + d) / (n . c + d): the point's height over its camera's height. A perpendicular distance instead
+    treats the scatter along the rays as ground: points of people at one distance from the camera, spread along
+    their rays by the depth noise, are then best fitted by a plane through the camera (a camera on the floor).
+    Along the tilt the points do not fix (all at one depth: the forward tilt; all in one place: any tilt) the
+    prior (prior_up, RayGroundParams' sigmas) decides. Minimised with scipy's least_squares (Huber loss) over the
+    normal's tilt from prior_up and the first camera's height. Raises ValueError for fewer than 3 points or
+    non-finite input."""
+    points = np.asarray(points, dtype=np.float64)
+    centers = np.asarray(centers, dtype=np.float64)
+    up, side = np.asarray(prior_up, dtype=np.float64), np.asarray(sideways, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3 or centers.shape != points.shape:
+        raise ValueError(f"points and centers must both be (N, 3), got {points.shape} and {centers.shape}")
+    if len(points) < 3:
+        raise ValueError(f"a ground needs at least 3 contact points, got {len(points)}")
+    if not (np.isfinite(points).all() and np.isfinite(centers).all() and np.isfinite(up).all()
+            and np.isfinite(side).all()):
+        raise ValueError("points, centers, prior_up and sideways must be finite")
     up = up / np.linalg.norm(up)
-    centred = points - points.mean(axis=0)
-    in_plane = centred - np.outer(centred @ plane.normal, plane.normal)
-    _, spread, axes = np.linalg.svd(in_plane, full_matrices=False)
-    extent = spread[:2] / np.sqrt(len(points))  # rms extent along the two in-plane axes
-    short = extent < min_extent
-    if not short.any():
-        return plane, False
-    # The normal in the basis (axis 0, axis 1, fitted normal), with the slopes along short axes from body_up.
-    coords = np.array([up @ axes[0] if short[0] else 0.0, up @ axes[1] if short[1] else 0.0,
-                       abs(up @ plane.normal)])
-    normal = coords[0] * axes[0] + coords[1] * axes[1] + coords[2] * plane.normal
-    if np.linalg.norm(normal) < 1e-6:
-        return plane, False
-    normal /= np.linalg.norm(normal)
-    heights = points @ normal
-    offset = -float(np.median(heights))
-    rms = float(np.sqrt(np.mean((heights + offset) ** 2)))
-    return PlaneFit(normal=normal, offset=offset, inliers=plane.inliers, rms=rms), True
+    roll_axis = side - (side @ up) * up  # tilting the normal along it rolls the ground about the view axis
+    if np.linalg.norm(roll_axis) < 1e-6:
+        raise ValueError("sideways must not be parallel to prior_up")
+    roll_axis /= np.linalg.norm(roll_axis)
+    pitch_axis = np.cross(up, roll_axis)
+    origin = centers[0]
+    weight = 1.0 / (params.depth_error * np.sqrt(params.correlated_frames))
+    sigmas = np.radians([params.roll_sigma, params.pitch_sigma])
+
+    def plane(x):
+        normal = up + x[0] * roll_axis + x[1] * pitch_axis
+        normal /= np.linalg.norm(normal)
+        return normal, x[2] - normal @ origin  # x[2]: the first camera's height above the plane
+
+    def residuals(x):
+        normal, offset = plane(x)
+        camera_heights = np.maximum(centers @ normal + offset, 1e-3)  # a camera under its ground is no answer
+        return np.concatenate([weight * (points @ normal + offset) / camera_heights, np.arctan(x[:2]) / sigmas])
+
+    start_height = float(np.median((origin - points) @ up))
+    fit = least_squares(residuals, [0.0, 0.0, max(start_height, 0.1)], loss="huber", f_scale=params.robust_scale)
+    normal, offset = plane(fit.x)
+    heights = points @ normal + offset
+    inliers = np.abs(weight * heights / np.maximum(centers @ normal + offset, 1e-3)) <= params.robust_scale
+    rms = float(np.sqrt(np.mean(heights[inliers] ** 2))) if inliers.any() else float("nan")
+    return PlaneFit(normal=normal, offset=float(offset), inliers=inliers, rms=rms)
 
 
 @dataclass(frozen=True)

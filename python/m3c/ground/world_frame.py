@@ -16,15 +16,21 @@ import numpy as np
 
 from m3c.body.transform import spine_directions
 from m3c.camera import WorldCameras
-from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, fit_plane, level_with_body_up
+from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, RayGroundParams, fit_ground_along_rays
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
 
 LOG = logging.getLogger(__name__)
 
 
+# Person-frames whose spine leans further than this from the people's mean upright direction do not count in it:
+# a crouching or bending person (the basketball clip's dribbler leans 43 degrees) is not upright.
+MAX_SPINE_LEAN = 25.0
+
+
 def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray:
-    """Mean unit pelvis-to-neck direction of every visible person-frame in the frame of world_from_cam (camera
-    rotations only, so the same at any scale)."""
+    """The people's upright direction in the frame of world_from_cam (camera rotations only, so the same at any
+    scale): the mean unit pelvis-to-neck direction of the visible person-frames, trimmed (repeatedly) to those
+    within MAX_SPINE_LEAN degrees of the mean."""
     directions = []
     for track in tracks:
         frames = np.flatnonzero(track["visible"])
@@ -32,7 +38,16 @@ def body_up(model, tracks: list[dict], world_from_cam: np.ndarray) -> np.ndarray
         spine = spine_directions(joints)
         rotations = world_from_cam[track["first_frame"] + frames, :3, :3]
         directions.append(np.einsum("nij,nj->ni", rotations, spine))
-    mean = np.concatenate(directions).mean(axis=0) if directions else np.zeros(3)
+    if not directions:
+        return np.zeros(3)
+    directions = np.concatenate(directions)
+    mean = directions.mean(axis=0)
+    for _ in range(5):
+        mean /= max(np.linalg.norm(mean), 1e-12)
+        upright = directions @ mean >= np.cos(np.radians(MAX_SPINE_LEAN))
+        if upright.sum() < max(3, len(directions) // 4):  # no clear upright majority: keep the plain mean
+            break
+        mean = directions[upright].mean(axis=0)
     return mean / max(np.linalg.norm(mean), 1e-12)
 
 
@@ -58,25 +73,28 @@ MAX_MAP_GROUND_GAP = 0.3
 
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
                     up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
-                    map_plane: np.ndarray | None = None
+                    map_plane: np.ndarray | None = None, ray_params: RayGroundParams = RayGroundParams()
                     ) -> tuple[PlaneFit | None, str | None, np.ndarray, list[list[np.ndarray]]]:
     """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), where it came from
     ("odometry map", "contacts" or None), all contact points there, and per track per frame its contact points
-    there. in_camera: contact_vertices' output; up_direction: the people's upright direction (body_up), which
-    levels a ground the contacts cannot tilt when `level`.
+    there. in_camera: contact_vertices' output; up_direction: the people's upright direction (body_up), the
+    prior of the contacts' ground's tilt when `level` (else the first camera's up).
     map_plane: the odometry map's ground in the metric VO frame (normal (3,), offset), taken when the contacts
     lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
-    feet whose monocular depth swings by metres within a second; otherwise the contacts' plane."""
-    raw = []
+    feet whose monocular depth swings by metres within a second; otherwise the contacts' ground
+    (m3c.ground.planes.fit_ground_along_rays: one point per person and frame, its error along the camera ray)."""
+    raw, frame_points, frame_centers = [], [], []
     for track, points in zip(tracks, in_camera):
         world = []
         for i, p in enumerate(points):
             cam = cameras[track["first_frame"] + i]
             world.append(p @ cam[:3, :3].T + cam[:3, 3])
+            if len(p):
+                frame_points.append(world[-1].mean(axis=0))
+                frame_centers.append(cam[:3, 3])
         raw.append(world)
     all_points = [p for points in raw for p in points]
     pooled = np.concatenate(all_points) if all_points else np.zeros((0, 3))
-    up_vo = cameras[0, :3, :3] @ CAMERA_UP
     dominant = None
     if map_plane is not None and len(pooled) >= params.min_support:
         normal, offset = np.asarray(map_plane[0], dtype=np.float64), float(map_plane[1])
@@ -90,17 +108,12 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
         log.info("the odometry map's ground plane lies %.2f m from the people's contacts (median): the ground "
                  "from the contacts", gap)
     if len(pooled) >= params.min_support:
+        prior = up_direction if level and np.linalg.norm(up_direction) > 0 else cameras[0, :3, :3] @ CAMERA_UP
         try:
-            dominant = fit_plane(pooled, up=up_vo, robust=params.robust,
-                                 inlier_threshold=max(params.inlier_threshold, 0.05),
-                                 min_support=params.min_support, seed=params.seed)
+            dominant = fit_ground_along_rays(np.array(frame_points), np.array(frame_centers), prior,
+                                             cameras[0, :3, 0], ray_params)
         except ValueError as err:
             log.warning("no ground plane fits the %d contact points: %s", len(pooled), err)
-    if dominant is not None and level:
-        dominant, levelled = level_with_body_up(dominant, pooled, up_direction)
-        if levelled:
-            log.info("the contact points span a strip or a patch, not an area: the ground's tilt across "
-                     "it is taken from the people's upright direction")
     return dominant, "contacts" if dominant is not None else None, pooled, raw
 
 

@@ -26,7 +26,9 @@ class GroundNode(Node):
     Output scale: the scale node's, passed on (the ground is fitted at that scale).
     """
 
-    version = "3"  # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree
+    # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree; 4: the
+    # contacts' ground fitted along the camera rays, with the people's upright direction as the tilt's prior
+    version = "4"
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale")
@@ -50,7 +52,7 @@ class GroundNode(Node):
         seed: int = GroundParams.seed
         max_distance: float = GroundParams.max_distance
         fill: Literal["hold", "linear"] = GroundParams.fill
-        level_with_body_up: bool = True  # tilt the contacts cannot fix comes from the people's upright direction
+        level_with_body_up: bool = True  # the contacts' ground's tilt prior: the people's upright (else the camera's)
         map_ground: bool = True  # the odometry map's ground plane (the scale's) when the contacts lie on it
 
     def params(self) -> GroundParams:
