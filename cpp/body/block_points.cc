@@ -25,4 +25,10 @@ void BlockPoints::Evaluate(const BodyModel& model, const KeypointRegressor& regr
                         points_.data(), with_jacobian ? jacobian_.data() : nullptr);
 }
 
+void BlockPoints::Reserve(const BodyModel& model, const KeypointRegressor& regressor, bool with_jacobian) {
+  pose_.resize(3 * model.num_joints());
+  points_.resize(3 * regressor.num_keypoints());
+  if (with_jacobian) jacobian_.resize(static_cast<size_t>(3 * regressor.num_keypoints()) * NumJacobianColumns(model));
+}
+
 }  // namespace m3c::body

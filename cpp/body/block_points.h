@@ -23,6 +23,8 @@ class BlockPoints {
   // points (K,3); when with_jacobian, jacobian (3K, 3 + 3J + B) with columns [transl | root | body | betas].
   void Evaluate(const BodyModel& model, const KeypointRegressor& regressor, const PoseBlocks& blocks,
                 bool with_jacobian);
+  // Allocates the storage Evaluate() needs, so that it allocates nothing.
+  void Reserve(const BodyModel& model, const KeypointRegressor& regressor, bool with_jacobian);
   int num_points() const { return static_cast<int>(points_.size() / 3); }
   Eigen::Map<const Eigen::Vector3d> point(int k) const { return Eigen::Map<const Eigen::Vector3d>(points_.data() + 3 * k); }
   const double* data() const { return points_.data(); }  // (K, 3) row-major

@@ -306,21 +306,21 @@ struct HumorTransitionBatch::Cache {
   bool BetasMatch(size_t i, const double* b) const {
     return std::equal(betas.begin() + i * num_betas, betas.begin() + (i + 1) * num_betas, b);
   }
-  std::vector<FrameJoints> frames;
-  std::vector<StateValue> states;
   std::vector<double> nll, grad;  // per transition; grad packed (PackedSize values each)
 };
 
 HumorTransitionBatch::HumorTransitionBatch(const body::BodyModel* model, const nn::HumorPrior* prior, double fps,
-                                           int num_threads)
+                                           int num_threads, int chunk)
     : model_(model),
       prior_(prior),
       joints_(std::make_shared<body::KeypointRegressor>(body::IdentityJointRegressor(*model))),
       fps_(fps),
       num_threads_(std::max(1, num_threads)),
+      chunk_(chunk),
       cache_(std::make_unique<Cache>()) {
   CheckModel(*model, fps);
   M3C_CHECK(prior != nullptr) << "no HuMoR prior";
+  M3C_CHECK(chunk > 0) << "chunk must be > 0, got " << chunk;
   cache_->per_frame = PerFrame(*model);
   cache_->num_betas = model->num_betas();
 }
@@ -392,14 +392,14 @@ void HumorTransitionBatch::Evaluate(bool with_gradient) {
   Cache& c = *cache_;
   c.valid = false;
   const int per_frame = PerFrame(*model_), B = model_->num_betas(), packed = PackedSize(*model_);
-  // Where each frame and state lives: (track, frame) pairs.
+  // Where each frame and state lives: (track, frame) pairs, in the order of the cache's frames and states.
   std::vector<std::pair<int, int>> frames, states;
   for (int i = 0; i < static_cast<int>(tracks_.size()); ++i) {
     const int n = static_cast<int>(tracks_[i].transl.size());
     for (int f = 0; f < n; ++f) frames.emplace_back(i, f);
     for (int f = 1; f + 1 < n; ++f) states.emplace_back(i, f);  // f: the middle frame
   }
-  const int num_frames = static_cast<int>(frames.size()), num_states = static_cast<int>(states.size());
+  const int num_frames = static_cast<int>(frames.size());
   const int N = num_transitions();
   c.inputs.resize(static_cast<size_t>(num_frames) * per_frame);
   c.betas.resize(tracks_.size() * B);
@@ -409,50 +409,70 @@ void HumorTransitionBatch::Evaluate(bool with_gradient) {
     c.StoreFrame(k, t.transl[f], t.root[f], t.body[f]);
   }
   for (size_t i = 0; i < tracks_.size(); ++i) std::copy(tracks_[i].betas, tracks_[i].betas + B, c.betas.begin() + i * B);
-
-  c.frames.resize(num_frames);
-#pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 4)
-  for (int k = 0; k < num_frames; ++k) {
-    const TrackBlocks& t = tracks_[frames[k].first];
-    const int f = frames[k].second;
-    EvaluateFrame(*t.context, t.transl[f], t.root[f], t.body[f], t.betas, with_gradient, &c.frames[k]);
-  }
-  c.states.resize(num_states);
-#pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 4)
-  for (int k = 0; k < num_states; ++k) {
-    const TrackBlocks& t = tracks_[states[k].first];
-    const int f = states[k].second;
-    const double* trans[3] = {t.transl[f - 1], t.transl[f], t.transl[f + 1]};
-    const double* root[3] = {t.root[f - 1], t.root[f], t.root[f + 1]};
-    const FrameJoints* window[3] = {&c.frames[t.first_frame + f - 1], &c.frames[t.first_frame + f],
-                                    &c.frames[t.first_frame + f + 1]};
-    BuildStateAt(*t.context, trans, root, window, t.body[f], with_gradient, &c.states[k]);
-  }
-  // The state of middle frame f of track t is states[t.first_state + f - 1]; transition (t, f) pairs the states of
-  // middle frames f and f + 1.
-  auto state_of = [&](const Transition& tr, int s) -> const StateValue& {
-    return c.states[tracks_[tr.track].first_state + tr.frame - 1 + s];
-  };
-  RowMatrixXd x0(N, kStateDim), x1(N, kStateDim), g0, g1;
-  for (int i = 0; i < N; ++i) {
-    x0.row(i) = Eigen::Map<const Eigen::RowVectorXd>(state_of(transitions_[i], 0).x, kStateDim);
-    x1.row(i) = Eigen::Map<const Eigen::RowVectorXd>(state_of(transitions_[i], 1).x, kStateDim);
-  }
-  if (with_gradient) g0.resize(N, kStateDim), g1.resize(N, kStateDim);
   c.nll.assign(N, 0.0);
-  prior_->TransitionNll(N, x0.data(), x1.data(), c.nll.data(), with_gradient ? g0.data() : nullptr,
-                        with_gradient ? g1.data() : nullptr);
-  if (with_gradient) {
-    c.grad.assign(static_cast<size_t>(N) * packed, 0.0);
+  if (with_gradient) c.grad.assign(static_cast<size_t>(N) * packed, 0.0);
+
+  // A chunk of transitions at a time: the frames' joint Jacobians and the states' Jacobians (~100 KB per frame)
+  // are held for one chunk only, not for the whole problem beside Ceres's normal equations (600 frames x 2
+  // people: ~110 MB). Transition (t, f) reads frames f-1..f+2 of track t (cache frame first_frame + f - 1 on) and
+  // the states of middle frames f and f + 1 (cache state first_state + f - 1 on), so a chunk's frames and states
+  // are consecutive in the cache; frames and states at a chunk's edges are evaluated again for the next chunk.
+  std::vector<FrameJoints> chunk_frames;
+  std::vector<StateValue> chunk_states;
+  RowMatrixXd x0, x1, g0, g1;
+  for (int first = 0; first < N; first += chunk_) {
+    const int count = std::min(chunk_, N - first);
+    const Transition& head = transitions_[first];
+    const Transition& tail = transitions_[first + count - 1];
+    const int frame0 = tracks_[head.track].first_frame + head.frame - 1;
+    const int state0 = tracks_[head.track].first_state + head.frame - 1;
+    const int num_chunk_frames = tracks_[tail.track].first_frame + tail.frame + 3 - frame0;
+    const int num_chunk_states = tracks_[tail.track].first_state + tail.frame + 1 - state0;
+    // Their Jacobians are allocated here, on the calling thread, not by the loops' threads: freed, they then serve
+    // this thread's next allocations (the solve's) instead of staying in the other threads' heaps.
+    if (static_cast<int>(chunk_frames.size()) < num_chunk_frames) chunk_frames.resize(num_chunk_frames);
+    if (static_cast<int>(chunk_states.size()) < num_chunk_states) chunk_states.resize(num_chunk_states);
+    if (with_gradient) {
+      for (FrameJoints& f : chunk_frames) f.jacobian.resize(kJointValues, body::NumJacobianColumns(*model_));
+      for (StateValue& s : chunk_states) s.trans_root.resize(kStateDim, 18);
+    }
+#pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 4)
+    for (int k = 0; k < num_chunk_frames; ++k) {
+      const TrackBlocks& t = tracks_[frames[frame0 + k].first];
+      const int f = frames[frame0 + k].second;
+      EvaluateFrame(*t.context, t.transl[f], t.root[f], t.body[f], t.betas, with_gradient, &chunk_frames[k]);
+    }
+#pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 4)
+    for (int k = 0; k < num_chunk_states; ++k) {
+      const TrackBlocks& t = tracks_[states[state0 + k].first];
+      const int f = states[state0 + k].second;
+      const double* trans[3] = {t.transl[f - 1], t.transl[f], t.transl[f + 1]};
+      const double* root[3] = {t.root[f - 1], t.root[f], t.root[f + 1]};
+      const int at = t.first_frame + f - frame0;  // the chunk frame of frame f
+      const FrameJoints* window[3] = {&chunk_frames[at - 1], &chunk_frames[at], &chunk_frames[at + 1]};
+      BuildStateAt(*t.context, trans, root, window, t.body[f], with_gradient, &chunk_states[k]);
+    }
+    auto state_of = [&](const Transition& tr, int s) -> const StateValue& {
+      return chunk_states[tracks_[tr.track].first_state + tr.frame - 1 + s - state0];
+    };
+    x0.resize(count, kStateDim), x1.resize(count, kStateDim);
+    for (int i = 0; i < count; ++i) {
+      x0.row(i) = Eigen::Map<const Eigen::RowVectorXd>(state_of(transitions_[first + i], 0).x, kStateDim);
+      x1.row(i) = Eigen::Map<const Eigen::RowVectorXd>(state_of(transitions_[first + i], 1).x, kStateDim);
+    }
+    if (with_gradient) g0.resize(count, kStateDim), g1.resize(count, kStateDim);
+    prior_->TransitionNll(count, x0.data(), x1.data(), c.nll.data() + first, with_gradient ? g0.data() : nullptr,
+                          with_gradient ? g1.data() : nullptr);
+    if (!with_gradient) continue;
 #pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 8)
-    for (int i = 0; i < N; ++i) {
-      const Transition& tr = transitions_[i];
+    for (int i = 0; i < count; ++i) {
+      const Transition& tr = transitions_[first + i];
       const TrackBlocks& t = tracks_[tr.track];
       const StateValue* pair[2] = {&state_of(tr, 0), &state_of(tr, 1)};
       const double* g[2] = {g0.row(i).data(), g1.row(i).data()};
       const FrameJoints* window[4];
-      for (int k = 0; k < 4; ++k) window[k] = &c.frames[t.first_frame + tr.frame - 1 + k];
-      TransitionGradient(*t.context, pair, g, window, c.grad.data() + static_cast<size_t>(i) * packed);
+      for (int k = 0; k < 4; ++k) window[k] = &chunk_frames[t.first_frame + tr.frame - 1 + k - frame0];
+      TransitionGradient(*t.context, pair, g, window, c.grad.data() + static_cast<size_t>(first + i) * packed);
     }
   }
   c.with_gradient = with_gradient;

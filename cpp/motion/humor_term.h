@@ -6,9 +6,10 @@
 // weight * NLL + const with the exact gradient; the Gauss-Newton model of the term is rank one.
 //
 // A block alone builds its four frames and two states and runs the networks on one transition. Inside a solve,
-// HumorTransitionBatch (a Ceres EvaluationCallback) does that work once per evaluation point for all blocks:
-// each frame's joints once (not four times), each state once (not twice), the networks on one batch of every
-// transition; the blocks then read their value and gradient from it.
+// HumorTransitionBatch (a Ceres EvaluationCallback) does that work once per evaluation point for all blocks, a
+// chunk of consecutive transitions at a time: each frame's joints once (not four times; twice at a chunk's edge),
+// each state once (not twice), the networks on one batch per chunk; the blocks then read their value and gradient
+// from it.
 #pragma once
 
 #include <memory>
@@ -49,8 +50,11 @@ class HumorTransitionCost : public ceres::CostFunction {
 
 class HumorTransitionBatch : public ceres::EvaluationCallback {
  public:
-  // num_threads: threads for the frames, states and network batches.
-  HumorTransitionBatch(const body::BodyModel* model, const nn::HumorPrior* prior, double fps, int num_threads);
+  // num_threads: threads for the frames, states and network batches; chunk: transitions evaluated together (their
+  // frames' and states' Jacobians are held for one chunk at a time; by default the networks' own chunk, so each
+  // network batch is the same as over all transitions at once).
+  HumorTransitionBatch(const body::BodyModel* model, const nn::HumorPrior* prior, double fps, int num_threads,
+                       int chunk = nn::HumorPrior::kBatchChunk);
   ~HumorTransitionBatch() override;
 
   // A person's parameter blocks per frame (n >= 4 frames) and its ground frame; its transitions are frames
@@ -82,10 +86,10 @@ class HumorTransitionBatch : public ceres::EvaluationCallback {
   const nn::HumorPrior* prior_;
   std::shared_ptr<const body::KeypointRegressor> joints_;
   double fps_;
-  int num_threads_;
+  int num_threads_, chunk_;
   std::vector<TrackBlocks> tracks_;
   std::vector<Transition> transitions_;
-  // The last evaluation: values per frame and state, per transition NLL and packed gradient.
+  // The last evaluation: its inputs, per transition NLL and packed gradient.
   struct Cache;
   std::unique_ptr<Cache> cache_;
 };

@@ -48,18 +48,31 @@ std::vector<std::vector<int>> SharedJoints::Chains() const {
 
 void SharedJoints::EvaluateAll(bool with_jacobian) {
   const int J = model_->num_joints(), B = model_->num_betas(), n = num_frames();
+  // Allocated on this thread (the solve's) before the parallel loop: storage that Release frees then serves this
+  // thread's allocations and the next evaluation takes it back. (Allocated by the loop's threads, it would stay
+  // in their heaps while this thread's heap grew.)
+  for (int i = 0; i < n; ++i) {
+    values_[i].resize(6 + 3 * (J - 1) + B);
+    points_[i].Reserve(*model_, *joints_, with_jacobian);
+  }
 #pragma omp parallel for num_threads(num_threads_) schedule(dynamic, 8)
   for (int i = 0; i < n; ++i) {
     const Frame& fr = frames_[i];
     std::vector<double>& v = values_[i];
-    v.resize(6 + 3 * (J - 1) + B);
     std::copy(fr.transl, fr.transl + 3, v.begin());
     std::copy(fr.root, fr.root + 3, v.begin() + 3);
     std::copy(fr.body, fr.body + 3 * (J - 1), v.begin() + 6);
     std::copy(fr.betas, fr.betas + B, v.begin() + 6 + 3 * (J - 1));
     points_[i].Evaluate(*model_, *joints_, {fr.transl, fr.root, fr.body, fr.betas}, with_jacobian);
   }
+  evaluated_ = true;
   with_jacobian_ = with_jacobian;
+}
+
+void SharedJoints::Release() {
+  std::vector<body::BlockPoints>(points_.size()).swap(points_);
+  for (std::vector<double>& v : values_) std::vector<double>().swap(v);  // Get() then computes what it is asked
+  evaluated_ = false;
 }
 
 const body::BlockPoints& SharedJoints::Get(int i, const std::vector<int>& ancestors, const double* transl,

@@ -33,8 +33,10 @@ class SharedJoints {
   // For the problem's evaluation callback: EvaluateAll when the point is new or Jacobians are wanted that the
   // last evaluation did not compute.
   void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) {
-    if (new_evaluation_point || (evaluate_jacobians && !with_jacobian_)) EvaluateAll(evaluate_jacobians);
+    if (new_evaluation_point || !evaluated_ || (evaluate_jacobians && !with_jacobian_)) EvaluateAll(evaluate_jacobians);
   }
+  // Frees the evaluation (its Jacobians, ~50 KB a frame); the next PrepareForEvaluation evaluates again.
+  void Release();
   // Frame i's joints at these values of the blocks that move the joints of interest (transl, root, the body
   // blocks of `ancestors`, a union of Ancestors(), betas; other body values do not move them): the cached
   // evaluation when it was at these values, else computed into `scratch` (valid for those joints only).
@@ -58,7 +60,7 @@ class SharedJoints {
   std::vector<Frame> frames_;
   std::vector<body::BlockPoints> points_;
   std::vector<std::vector<double>> values_;  // per frame, the parameter values of the last evaluation
-  bool with_jacobian_ = false;
+  bool evaluated_ = false, with_jacobian_ = false;
 };
 
 // sqrt(w_j) sum_f c_f p_j(frame f) for joints j (a chain, or one joint): a finite-difference stencil over

@@ -41,7 +41,10 @@ struct State {
 // A problem's evaluation callback: decodes latent poses first (the motion prior reads the decoded body blocks),
 // then evaluates the shared joints and the motion prior's batch. Ceres calls it on the thread that solves, where
 // OpenMP is off for CHOLMOD (SolveSerial): these loops get this thread's parallelism outside the solve back.
-class StageCallback : public ceres::EvaluationCallback {
+// As the solve's iteration callback it frees the shared joints' evaluation: Ceres runs it after an iteration's
+// evaluations and before it factorizes the next step's normal equations, the stage's memory peak, and the next
+// evaluation is at a new point.
+class StageCallback : public ceres::EvaluationCallback, public ceres::IterationCallback {
  public:
   StageCallback(LatentPoseDecoder* decoder, SharedJoints* joints, HumorTransitionBatch* humor)
       : decoder_(decoder), joints_(joints), humor_(humor), levels_(util::ScopedOpenMpLevels::Current()) {}
@@ -50,6 +53,10 @@ class StageCallback : public ceres::EvaluationCallback {
     if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
     if (joints_) joints_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
     if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
+  }
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& /*summary*/) override {
+    if (joints_) joints_->Release();
+    return ceres::SOLVER_CONTINUE;
   }
 
  private:
@@ -669,6 +676,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     options.max_num_iterations = stage.max_iterations;
     options.num_threads = config_.num_threads;
     options.logging_type = ceres::SILENT;
+    options.callbacks.push_back(&callback);
     ceres::Solver::Summary summary;
     std::string failure;
     if (!std::isfinite(report.objective_before)) {

@@ -109,13 +109,10 @@ void HumorPrior::LatentNll(int n, const double* x_prev, const double* z, double*
 void HumorPrior::TransitionNll(int n, const double* x_prev, const double* x_next, double* values,
                                double* grad_prev, double* grad_next) const {
   M3C_CHECK(n >= 0) << "negative sample count";
-  // In chunks: the activations kept for the backward pass grow with the batch (a 600-frame, two-person problem
-  // held ~300 MB of them at once); a few hundred columns already keep the BLAS products efficient.
-  constexpr int kChunk = 256;
-  if (n > kChunk) {
-    for (int first = 0; first < n; first += kChunk) {
+  if (n > kBatchChunk) {
+    for (int first = 0; first < n; first += kBatchChunk) {
       const size_t at = static_cast<size_t>(first);
-      TransitionNll(std::min(kChunk, n - first), x_prev + at * kStateDim, x_next + at * kStateDim,
+      TransitionNll(std::min(kBatchChunk, n - first), x_prev + at * kStateDim, x_next + at * kStateDim,
                     values ? values + at : nullptr, grad_prev ? grad_prev + at * kStateDim : nullptr,
                     grad_next ? grad_next + at * kStateDim : nullptr);
     }

@@ -34,6 +34,10 @@ class HumorPrior {
   T TransitionNll(const T* x_prev, const T* x_next) const;
 
   // n samples at once; arrays row-major (n x 339), (n x 48); values (n). Gradient pointers may be null.
+  // TransitionNll runs the networks on chunks of kBatchChunk samples: the activations kept for the backward pass
+  // grow with the batch (a 600-frame, two-person problem held ~300 MB of them at once), and a few hundred columns
+  // already keep the BLAS products efficient.
+  static constexpr int kBatchChunk = 256;
   void LatentNll(int n, const double* x_prev, const double* z, double* values, double* grad_prev,
                  double* grad_z) const;
   void TransitionNll(int n, const double* x_prev, const double* x_next, double* values, double* grad_prev,

@@ -37,6 +37,12 @@ void WeightProduct(const Eigen::Ref<const RowMatrixXd>& W, bool transpose, const
   const double alpha = 1.0;
   dgemm_(&op_w, &op_b, &m, &n, &k, &alpha, W.data(), &lda, B.data(), &ldb, &beta, C->data(), &ldc);
 }
+
+// GroupNorm's affine map gamma * xhat + beta per column, as an expression (the same arithmetic in the forward and
+// the backward pass).
+auto Affine(const Eigen::MatrixXd& xhat, const Eigen::VectorXd& gamma, const Eigen::VectorXd& beta) {
+  return (xhat.array().colwise() * gamma.array()).colwise() + beta.array();
+}
 }  // namespace
 
 BatchNormEval::BatchNormEval(const SafetensorsFile& file, const std::string& prefix, int channels, double eps) {
@@ -77,20 +83,17 @@ void GroupNormMlp::ForwardBatch(const Eigen::Ref<const Eigen::MatrixXd>& X, Eige
   const int layers = static_cast<int>(weight_.size());
   acts->normalized.resize(layers - 1);
   acts->inv_std.resize(layers - 1);
-  acts->relu.resize(layers - 1);
   acts->skip = X.bottomRows(skip_dim_);
 
-  Eigen::MatrixXd h;
+  Eigen::MatrixXd h, relu;
   WeightProduct(weight_[0], false, X, 0.0, &h);
   h.colwise() += bias_[0];
   for (int k = 1; k < layers; ++k) {
     const int width = widths_[k], size = width / groups_;
     Eigen::MatrixXd& xhat = acts->normalized[k - 1];
     Eigen::MatrixXd& inv = acts->inv_std[k - 1];
-    Eigen::MatrixXd& relu = acts->relu[k - 1];
     xhat.resize(width, n);
     inv.resize(groups_, n);
-    relu.resize(width, n);
     const Eigen::VectorXd& gamma = gn_weight_[k - 1];
     const Eigen::VectorXd& beta = gn_bias_[k - 1];
     for (Eigen::Index j = 0; j < n; ++j) {
@@ -103,7 +106,7 @@ void GroupNormMlp::ForwardBatch(const Eigen::Ref<const Eigen::MatrixXd>& X, Eige
         xhat.col(j).segment(g * size, size) = (block.array() - mean) * inv_std;
       }
     }
-    relu = ((xhat.array().colwise() * gamma.array()).colwise() + beta.array()).max(0.0);
+    relu = Affine(xhat, gamma, beta).max(0.0);
     WeightProduct(weight_[k].leftCols(width), false, relu, 0.0, &h);
     if (skip_dim_ > 0) WeightProduct(weight_[k].rightCols(skip_dim_), false, acts->skip, 1.0, &h);
     h.colwise() += bias_[k];
@@ -117,7 +120,7 @@ void GroupNormMlp::BackwardBatch(const Activations& acts, const Eigen::Ref<const
                                        << output_dim();
   const Eigen::Index n = dY.cols();
   const int layers = static_cast<int>(weight_.size());
-  M3C_CHECK(static_cast<int>(acts.relu.size()) == layers - 1 && (layers == 1 || acts.relu[0].cols() == n))
+  M3C_CHECK(static_cast<int>(acts.normalized.size()) == layers - 1 && (layers == 1 || acts.normalized[0].cols() == n))
       << "BackwardBatch needs the activations of a ForwardBatch over the same " << n << " samples";
   Eigen::MatrixXd dh = dY;
   Eigen::MatrixXd dskip = Eigen::MatrixXd::Zero(skip_dim_, n);
@@ -126,12 +129,11 @@ void GroupNormMlp::BackwardBatch(const Activations& acts, const Eigen::Ref<const
     if (skip_dim_ > 0) WeightProduct(weight_[k].rightCols(skip_dim_), true, dh, 1.0, &dskip);
     Eigen::MatrixXd da;
     WeightProduct(weight_[k].leftCols(width), true, dh, 0.0, &da);
-    // Through ReLU, then GroupNorm's affine: d xhat = dy * gamma where the ReLU passed.
-    const Eigen::MatrixXd& relu = acts.relu[k - 1];
-    da = (relu.array() > 0.0).select(da, 0.0);
+    // Through ReLU, then GroupNorm's affine: d xhat = dy * gamma where the ReLU passed (the forward pass's values).
+    const Eigen::MatrixXd& xhat = acts.normalized[k - 1];
+    da = (Affine(xhat, gn_weight_[k - 1], gn_bias_[k - 1]) > 0.0).select(da, 0.0);
     da.array().colwise() *= gn_weight_[k - 1].array();
     // Through the normalisation: dx = inv_std * (g - mean(g) - xhat * mean(g * xhat)) per group.
-    const Eigen::MatrixXd& xhat = acts.normalized[k - 1];
     const Eigen::MatrixXd& inv = acts.inv_std[k - 1];
     for (Eigen::Index j = 0; j < n; ++j) {
       for (int g = 0; g < groups_; ++g) {

@@ -32,11 +32,11 @@ class GroupNormMlp {
   template <typename T>
   void Forward(const T* x, T* y) const;
 
-  // What BackwardBatch needs from ForwardBatch.
+  // What BackwardBatch needs from ForwardBatch. (Not the ReLU outputs: where the ReLU passed follows from
+  // `normalized` again, and they would double the memory held per sample.)
   struct Activations {
     std::vector<Eigen::MatrixXd> normalized;  // per hidden layer: (x - mean) / std, width x N
     std::vector<Eigen::MatrixXd> inv_std;     // per hidden layer: groups x N
-    std::vector<Eigen::MatrixXd> relu;        // per hidden layer: ReLU output, width x N
     Eigen::MatrixXd skip;                     // skip_dim x N
   };
 

@@ -222,6 +222,38 @@ TEST_F(HumorTermTest, BatchMatchesSingleBlocks) {
   EXPECT_NE(EvaluateCost(single, params).r, std::sqrt(0.075 * 50.0));
 }
 
+TEST_F(HumorTermTest, BatchInChunksMatchesOneChunk) {
+  // Chunks of 3 transitions over tracks of 4 and 2: the second chunk spans both tracks, and the frames and states
+  // at the chunk's edge are evaluated for each chunk that reads them.
+  const body::BodyModel model = MakeTestModel();
+  Sequence a = MakeSequence(model, 7, 1), b = MakeSequence(model, 5, 2);
+  Eigen::Matrix3d Ra, Rb;
+  Eigen::Vector3d ta, tb;
+  GroundFrame(Eigen::Vector3d(0.05, 1.0, -0.1), 0.95, &Ra, &ta);
+  GroundFrame(Eigen::Vector3d(0.0, 1.0, 0.0), 0.9, &Rb, &tb);
+  HumorTransitionBatch whole(&model, prior_, 30.0, 2), chunked(&model, prior_, 30.0, 2, 3);
+  for (HumorTransitionBatch* batch : {&whole, &chunked}) {
+    batch->AddTrack(a.Blocks(a.transl), a.Blocks(a.root), a.Blocks(a.body), a.betas.data(), Ra, ta);
+    batch->AddTrack(b.Blocks(b.transl), b.Blocks(b.root), b.Blocks(b.body), b.betas.data(), Rb, tb);
+    batch->PrepareForEvaluation(true, true);
+  }
+  const int packed = 4 * (6 + 3 * (model.num_joints() - 1)) + model.num_betas();
+  for (int i = 0; i < whole.num_transitions(); ++i) {
+    const std::vector<double*> params = whole.Parameters(i);
+    double nll[2];
+    std::vector<double> grad[2] = {std::vector<double>(packed), std::vector<double>(packed)};
+    ASSERT_TRUE(whole.Lookup(i, params.data(), &nll[0], grad[0].data()));
+    ASSERT_TRUE(chunked.Lookup(i, params.data(), &nll[1], grad[1].data()));
+    EXPECT_NEAR(nll[1], nll[0], 1e-12 * std::abs(nll[0])) << "transition " << i;
+    for (int k = 0; k < packed; ++k) {
+      EXPECT_NEAR(grad[1][k], grad[0][k], 1e-12 * std::max(1.0, std::abs(grad[0][k])))
+          << "transition " << i << " entry " << k;
+    }
+  }
+  const std::vector<double> values = chunked.Nll(), reference = whole.Nll();  // values only
+  for (size_t i = 0; i < values.size(); ++i) EXPECT_NEAR(values[i], reference[i], 1e-12 * std::abs(reference[i]));
+}
+
 TEST_F(HumorTermTest, BatchedSolveFollowsTheSameSteps) {
   // The same problem with the batch as evaluation callback and with independent blocks takes the same
   // Levenberg-Marquardt steps (to round-off, which the iterations amplify: ~1e-12 after 12, ~1e-3 after 25).

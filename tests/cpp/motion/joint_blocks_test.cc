@@ -72,8 +72,10 @@ TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) {
 
   SharedJoints shared(&model, &joints, 2);
   for (const Frame& f : frames) shared.AddFrame(f.transl.data(), f.root.data(), f.body.data(), f.betas.data());
-  for (const bool evaluated : {false, true}) {
-    if (evaluated) shared.EvaluateAll(true);
+  enum { kNotEvaluated, kEvaluated, kReleased };
+  for (const int state : {kNotEvaluated, kEvaluated, kReleased}) {
+    if (state == kEvaluated) shared.EvaluateAll(true);
+    if (state == kReleased) shared.Release();  // a block computes its joints again
     for (const auto& chain : shared.Chains()) {
       JointStencilCost cost(&shared, {0, 1, 2}, stencil, chain, std::vector<double>(chain.size(), weight));
       const int A = static_cast<int>(cost.ancestors().size()), per = 2 + A;
