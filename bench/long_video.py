@@ -25,7 +25,6 @@ keeps the earlier run's cache, so only the nodes whose cache entries were delete
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import threading
 import time
@@ -36,6 +35,7 @@ import numpy as np
 from m3c.io.video import VideoWriter, iter_frames, probe_video
 from m3c.nodes import register_builtin_nodes
 from m3c.pipeline import PipelineConfig, Runner
+from proc_memory import reset_peak, status_mib
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "pexels_walking_moving_camera.mp4"
 SIZE = (960, 540)
@@ -55,11 +55,6 @@ def make_long_video(path: Path, minutes: float, source: Path = EXAMPLE, size=SIZ
     return total
 
 
-def _status_kb(field: str) -> int:
-    text = Path("/proc/self/status").read_text()
-    return int(re.search(rf"^{field}:\s+(\d+) kB", text, re.M).group(1))
-
-
 class MeasuredRunner(Runner):
     """Runner that records, per node it runs, the peak RSS and RSS samples over the node's run."""
 
@@ -68,7 +63,7 @@ class MeasuredRunner(Runner):
         self.measures: dict[str, dict] = {}
         self.minutes = 0.0  # the video's length, for the per-minute figures
         self._current: str | None = None
-        self._samples: list[tuple[float, int]] = []
+        self._samples: list[tuple[float, float]] = []  # (time, RSS MiB)
         self._stop = threading.Event()
         self._sampler = threading.Thread(target=self._sample, daemon=True)
         self._sampler.start()
@@ -76,11 +71,11 @@ class MeasuredRunner(Runner):
     def _sample(self) -> None:
         while not self._stop.wait(0.2):
             if self._current is not None:
-                self._samples.append((time.perf_counter(), _status_kb("VmRSS")))
+                self._samples.append((time.perf_counter(), status_mib("VmRSS")))
 
     def _gather_inputs(self, name, outputs_of):
         # A node's span starts when its inputs are read from the cache.
-        Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current RSS
+        reset_peak()
         self._samples = []
         self._cpu = time.process_time()
         self._start = time.perf_counter()
@@ -98,9 +93,9 @@ class MeasuredRunner(Runner):
         m = self.measures[node.name] = {
             "seconds": span,
             "cores": (time.process_time() - self._cpu) / span,
-            "peak_mb": _status_kb("VmHWM") / 1024,
-            "first_mb": float(np.mean(first)) / 1024 if first else float("nan"),
-            "last_mb": float(np.mean(last)) / 1024 if last else float("nan"),
+            "peak_mb": status_mib("VmHWM"),
+            "first_mb": float(np.mean(first)) if first else float("nan"),
+            "last_mb": float(np.mean(last)) if last else float("nan"),
         }
         if self.minutes:  # a line as each node ends: a run stopped early still leaves its figures
             print(row(node.name, m, self.minutes), flush=True)

@@ -19,6 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from proc_memory import reset_peak, status_mib
+
 EXPORT = """
 import sys, torch
 from m3c.models.export import export_weights
@@ -26,13 +28,6 @@ from m3c.models.humor import HumorModel
 torch.manual_seed(0)
 export_weights(sys.argv[1], humor=HumorModel().eval(), dtype="float64")
 """
-
-
-def status_mb(field: str) -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith(field + ":"):
-            return int(line.split()[1]) / 1024
-    raise KeyError(field)
 
 
 def measure(frames: int, people: int, seed: int, humor: str | None) -> dict:
@@ -50,13 +45,13 @@ def measure(frames: int, people: int, seed: int, humor: str | None) -> dict:
     init, cameras = rescaled(scene.init, scene.cameras_vo, estimate_scale(model, scene.init, scene.cameras_vo))
     config = OptimizerConfig.default()
     config.num_threads = 2
-    before = status_mb("VmRSS")
-    process_peak = status_mb("VmHWM")
-    Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM to the current RSS
+    before = status_mib("VmRSS")
+    process_peak = status_mib("VmHWM")
+    reset_peak()
     t0 = time.perf_counter()
     res = optimize(model, init, cameras, config=config, motion_prior=humor, fps=scene.fps)
     seconds = time.perf_counter() - t0
-    call_peak = status_mb("VmHWM")
+    call_peak = status_mib("VmHWM")
     assert "torch" not in sys.modules, "the measured process imported torch"
     return {"rss_before_mb": before, "call_peak_mb": call_peak, "process_peak_mb": max(process_peak, call_peak),
             "seconds": seconds,
