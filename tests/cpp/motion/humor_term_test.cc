@@ -161,6 +161,21 @@ Sequence MakeSequence(const body::BodyModel& model, int n, unsigned seed) {
   return s;
 }
 
+// Two people (7 and 5 frames) on two slightly different grounds: the batch tests' scene.
+struct TwoTracks {
+  Sequence a, b;
+  Eigen::Matrix3d Ra, Rb;
+  Eigen::Vector3d ta, tb;
+  explicit TwoTracks(const body::BodyModel& model) : a(MakeSequence(model, 7, 1)), b(MakeSequence(model, 5, 2)) {
+    GroundFrame(Eigen::Vector3d(0.05, 1.0, -0.1), 0.95, &Ra, &ta);
+    GroundFrame(Eigen::Vector3d(0.0, 1.0, 0.0), 0.9, &Rb, &tb);
+  }
+  void AddTo(HumorTransitionBatch* batch) {
+    batch->AddTrack(a.Blocks(a.transl), a.Blocks(a.root), a.Blocks(a.body), a.betas.data(), Ra, ta);
+    batch->AddTrack(b.Blocks(b.transl), b.Blocks(b.root), b.Blocks(b.body), b.betas.data(), Rb, tb);
+  }
+};
+
 // Residual and Jacobian blocks of a cost at its parameters.
 struct Evaluation {
   double r = 0.0;
@@ -178,14 +193,12 @@ Evaluation EvaluateCost(const ceres::CostFunction& cost, const std::vector<doubl
 
 TEST_F(HumorTermTest, BatchMatchesSingleBlocks) {
   const body::BodyModel model = MakeTestModel();
-  Sequence a = MakeSequence(model, 7, 1), b = MakeSequence(model, 5, 2);
-  Eigen::Matrix3d Ra, Rb;
-  Eigen::Vector3d ta, tb;
-  GroundFrame(Eigen::Vector3d(0.05, 1.0, -0.1), 0.95, &Ra, &ta);
-  GroundFrame(Eigen::Vector3d(0.0, 1.0, 0.0), 0.9, &Rb, &tb);
+  TwoTracks scene(model);
+  Sequence& a = scene.a;
+  const Eigen::Matrix3d &Ra = scene.Ra, &Rb = scene.Rb;
+  const Eigen::Vector3d &ta = scene.ta, &tb = scene.tb;
   HumorTransitionBatch batch(&model, prior_, 30.0, 2);
-  batch.AddTrack(a.Blocks(a.transl), a.Blocks(a.root), a.Blocks(a.body), a.betas.data(), Ra, ta);
-  batch.AddTrack(b.Blocks(b.transl), b.Blocks(b.root), b.Blocks(b.body), b.betas.data(), Rb, tb);
+  scene.AddTo(&batch);
   ASSERT_EQ(batch.num_transitions(), (7 - 3) + (5 - 3));
   const std::vector<double> nll = batch.Nll();
   // Ceres asks for values only at a trial point; the batch evaluates the gradients with them (an accepted step
@@ -226,15 +239,10 @@ TEST_F(HumorTermTest, BatchInChunksMatchesOneChunk) {
   // Chunks of 3 transitions over tracks of 4 and 2: the second chunk spans both tracks, and the frames and states
   // at the chunk's edge are evaluated for each chunk that reads them.
   const body::BodyModel model = MakeTestModel();
-  Sequence a = MakeSequence(model, 7, 1), b = MakeSequence(model, 5, 2);
-  Eigen::Matrix3d Ra, Rb;
-  Eigen::Vector3d ta, tb;
-  GroundFrame(Eigen::Vector3d(0.05, 1.0, -0.1), 0.95, &Ra, &ta);
-  GroundFrame(Eigen::Vector3d(0.0, 1.0, 0.0), 0.9, &Rb, &tb);
+  TwoTracks scene(model);
   HumorTransitionBatch whole(&model, prior_, 30.0, 2), chunked(&model, prior_, 30.0, 2, 3);
   for (HumorTransitionBatch* batch : {&whole, &chunked}) {
-    batch->AddTrack(a.Blocks(a.transl), a.Blocks(a.root), a.Blocks(a.body), a.betas.data(), Ra, ta);
-    batch->AddTrack(b.Blocks(b.transl), b.Blocks(b.root), b.Blocks(b.body), b.betas.data(), Rb, tb);
+    scene.AddTo(batch);
     batch->PrepareForEvaluation(true, true);
   }
   const int packed = 4 * (6 + 3 * (model.num_joints() - 1)) + model.num_betas();
