@@ -188,7 +188,7 @@ def fit_ground_along_rays(points, centers, prior_up, sideways, params: RayGround
     fit = least_squares(residuals, [0.0, 0.0, max(start_height, 0.1)], loss="huber", f_scale=params.robust_scale)
     normal, offset = plane(fit.x)
     heights = points @ normal + offset
-    inliers = np.abs(weight * heights / np.maximum(centers @ normal + offset, 1e-3)) <= params.robust_scale
+    inliers = np.abs(fit.fun[:len(points)]) <= params.robust_scale  # the data residuals at the solution
     rms = float(np.sqrt(np.mean(heights[inliers] ** 2))) if inliers.any() else float("nan")
     return PlaneFit(normal=normal, offset=float(offset), inliers=inliers, rms=rms)
 
