@@ -9,7 +9,8 @@ estimate's uncertainty as its scale prior. Each stage runs as its own optimizer 
 Ceres result; torch starts from the same state and runs until an evaluated state
 reaches the Ceres stage's final cost, or a time limit. The objective is m3c.testing.torch_objective, which the
 tests check equals the C++ one. Stages before the first motion-prior stage are shared by both variants and run once.
-Both sides use 2 threads.
+A stage the optimizer skips in the pipeline (the same objective as the stage before it, when its learned terms
+have no weights) is skipped here too. Both sides use 2 threads.
 
     python bench/motion_optimizer.py [--frames 600] [--people 2] [--no-humor] [--no-torch]
     python bench/motion_optimizer.py --torch-limit-max 300     # the README's run (~10 min on 2 cores)
@@ -72,6 +73,20 @@ class Chain:
         self.model, self.scene, self.config, self.args = model, scene, config, args
         self.humor_path, self.humor_net = humor_path, humor_net
         self.totals = {"ceres": 0.0, "torch": 0.0, "capped": False}
+        self.previous = None  # the last stage that ran
+
+    def repeats_previous(self, point: Point, spec: StageSpec) -> str | None:
+        """The optimizer's message when, run over the whole recipe, it skips this stage as a repeat of the one
+        before it (the same objective: its learned terms unavailable), else None. The optimizer decides: the
+        two stages are given to it at 0 iterations."""
+        if self.previous is None:
+            return None
+        pair = [dataclasses.replace(s, max_iterations=0) for s in (self.previous, spec)]
+        prior = self.humor_path if any(s.weights.get("motion_prior", 0) > 0 for s in pair) else None
+        res = optimize(self.model, point.tracks, self.cameras(point.scale),
+                       dataclasses.replace(self.config, stages=pair), motion_prior=prior, fps=self.scene.fps)
+        second = res.stages[1]
+        return second.message if second.status == "skipped" and "same objective" in second.message else None
 
     def cameras(self, scale):
         return dataclasses.replace(self.scene.cameras_vo, initial_scale=scale)
@@ -85,6 +100,11 @@ class Chain:
 
     def stage(self, point: Point, spec: StageSpec) -> Point:
         args = self.args
+        repeat = self.repeats_previous(point, spec)
+        if repeat is not None:  # the pipeline does not run it: neither is it timed
+            print(f"  {spec.name:<18}{'skipped':<9}  ({repeat})", flush=True)
+            return point
+        self.previous = spec
         res, config = self.call(point, spec, spec.max_iterations)
         report = res.stages[0]
         after = Point(res.tracks, res.camera_scale)
@@ -220,7 +240,7 @@ def main() -> None:
                     if s.weights.get("motion_prior", 0) > 0 else s for s in config.stages])
                 label += f", motion-prior stages capped at {args.humor_iterations} iterations"
             chain = Chain(model, scene, variant, path, net, args)
-            chain.totals = dict(shared)
+            chain.totals, chain.previous = dict(shared), without.previous
             chain.header(f"{label}: the remaining stages")
             end = point
             for spec in variant.stages[first_prior:]:

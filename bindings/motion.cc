@@ -32,6 +32,8 @@ void BindMotion(py::module_& m) {
       .def_readwrite("min_confidence", &OptimizerConfig::min_confidence)
       .def_readwrite("contact_threshold", &OptimizerConfig::contact_threshold)
       .def_readwrite("contact_height_tolerance", &OptimizerConfig::contact_height_tolerance)
+      .def_readwrite("contact_velocity_sigma", &OptimizerConfig::contact_velocity_sigma)
+      .def_readwrite("upright_sigma", &OptimizerConfig::upright_sigma)
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
       .def_readwrite("world_check", &OptimizerConfig::world_check)

@@ -22,6 +22,16 @@ void ChainPointJacobian(const Eigen::Ref<const RowMatrixXd>& M, const body::Bloc
     }
   }
 }
+
+// A regressor of one point: joint `upper` minus joint `lower`.
+body::KeypointRegressor JointDifference(const body::BodyModel& model, int lower, int upper) {
+  M3C_CHECK(lower >= 0 && upper >= 0 && lower < model.num_joints() && upper < model.num_joints() && lower != upper)
+      << "joints " << lower << " and " << upper << " must be two different joints of the " << model.num_joints();
+  Eigen::SparseMatrix<double, Eigen::RowMajor> joints(1, model.num_joints());
+  joints.insert(0, lower) = -1.0;
+  joints.insert(0, upper) = 1.0;
+  return body::KeypointRegressor(Eigen::SparseMatrix<double, Eigen::RowMajor>(1, model.num_vertices()), joints);
+}
 }  // namespace
 
 ReprojectionCost::ReprojectionCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
@@ -85,8 +95,8 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
 }
 
 PointStencilCost::PointStencilCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
-                                   std::vector<double> stencil, std::vector<double> point_weights)
-    : model_(model), regressor_(regressor), stencil_(std::move(stencil)) {
+                                   std::vector<double> stencil, std::vector<double> point_weights, double sigma)
+    : model_(model), regressor_(regressor), stencil_(std::move(stencil)), sigma_(sigma) {
   M3C_CHECK(stencil_.size() >= 2) << "a stencil needs at least two frames";
   M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
   for (double w : point_weights) {
@@ -117,11 +127,10 @@ bool PointStencilCost::Evaluate(double const* const* parameters, double* residua
       residuals[3 * k + c] = sqrt_weights_[k] * value;
     }
   }
-  if (!jacobians) return true;
-  for (int blk = 0; blk <= betas_block; ++blk) {
+  for (int blk = 0; jacobians && blk <= betas_block; ++blk) {
     if (jacobians[blk]) std::fill(jacobians[blk], jacobians[blk] + num_residuals() * parameter_block_sizes()[blk], 0.0);
   }
-  for (int k = 0; k < K; ++k) {
+  for (int k = 0; jacobians && k < K; ++k) {
     const RowMatrixXd M = sqrt_weights_[k] * RowMatrixXd::Identity(3, 3);
     for (int f = 0; f < F; ++f) {
       for (int blk = 0; blk < 3; ++blk) {
@@ -129,6 +138,62 @@ bool PointStencilCost::Evaluate(double const* const* parameters, double* residua
       }
       if (jacobians[betas_block]) ChainPointJacobian(M, frames[f], k, 3, jacobians[betas_block], 3 * k, stencil_[f]);
     }
+  }
+  for (int k = 0; sigma_ > 0 && k < K; ++k) {
+    RobustPointRows(sqrt_weights_[k], sigma_, k, residuals, jacobians, parameter_block_sizes(), num_residuals());
+  }
+  return true;
+}
+
+void RobustPointRows(double sqrt_weight, double sigma, int k, double* residuals, double** jacobians,
+                     const std::vector<int32_t>& block_sizes, int num_residuals) {
+  if (!(sigma > 0)) return;
+  Eigen::Map<Eigen::Vector3d> r(residuals + 3 * k);
+  if (sqrt_weight == 0.0) return;  // zero rows stay zero
+  const Eigen::Vector3d d = r / sqrt_weight;
+  const double q = sigma * sigma + d.squaredNorm();
+  // d out / d r = sigma (I / sqrt(q) - d d^T / q^(3/2)), with out = sigma r / sqrt(q)
+  const Eigen::Matrix3d M = sigma * (Eigen::Matrix3d::Identity() / std::sqrt(q) - d * d.transpose() / (q * std::sqrt(q)));
+  r *= sigma / std::sqrt(q);
+  if (!jacobians) return;
+  for (size_t b = 0; b < block_sizes.size(); ++b) {
+    if (!jacobians[b]) continue;
+    Eigen::Map<RowMatrixXd> J(jacobians[b], num_residuals, block_sizes[b]);
+    J.middleRows(3 * k, 3) = (M * J.middleRows(3 * k, 3)).eval();
+  }
+}
+
+UprightCost::UprightCost(const body::BodyModel* model, int lower_joint, int upper_joint,
+                         const Eigen::Vector3d& up_in_world, double weight, double sigma)
+    : model_(model), spine_(JointDifference(*model, lower_joint, upper_joint)), sqrt_weight_(std::sqrt(weight)),
+      sigma_(sigma) {
+  M3C_CHECK(weight >= 0 && sigma > 0) << "upright weight must be >= 0 and sigma > 0";
+  M3C_CHECK(up_in_world.allFinite() && up_in_world.norm() > 1e-9) << "the up direction must be a finite nonzero vector";
+  const Eigen::Vector3d u = up_in_world.normalized();
+  // Any unit vector not along u, made orthogonal to it, then the cross product: the plane normal to u.
+  const Eigen::Vector3d seed = std::abs(u.x()) < 0.9 ? Eigen::Vector3d::UnitX() : Eigen::Vector3d::UnitY();
+  const Eigen::Vector3d a = (seed - seed.dot(u) * u).normalized();
+  across_.row(0) = a.transpose();
+  across_.row(1) = u.cross(a).transpose();
+  set_num_residuals(2);
+  mutable_parameter_block_sizes()->assign({3, 3, 3 * (model->num_joints() - 1), model->num_betas()});
+}
+
+bool UprightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  thread_local body::BlockPoints points;
+  points.Evaluate(*model_, spine_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
+  const Eigen::Vector2d h = across_ * points.point(0);
+  const double q = sigma_ * sigma_ + h.squaredNorm(), scale = sqrt_weight_ * sigma_ / std::sqrt(q);
+  residuals[0] = scale * h.x();
+  residuals[1] = scale * h.y();
+  if (!jacobians) return true;
+  // d r / d h = scale (I - h h^T / q)
+  const Eigen::Matrix2d dr_dh = scale * (Eigen::Matrix2d::Identity() - h * h.transpose() / q);
+  const RowMatrixXd dr_dv = dr_dh * across_;
+  for (int b = 0; b < 4; ++b) {
+    if (!jacobians[b]) continue;
+    std::fill(jacobians[b], jacobians[b] + 2 * parameter_block_sizes()[b], 0.0);
+    ChainPointJacobian(dr_dv, points, 0, b, jacobians[b], 0, 1.0);
   }
   return true;
 }

@@ -43,19 +43,45 @@ class ReprojectionCost : public ceres::CostFunction {
   double sqrt_weight_, sigma_, min_depth_;
 };
 
+// Makes rows 3k..3k+2 of a point term r = sqrt(w) d (d a 3-vector, its Jacobian rows already written) robust in
+// the form of ReprojectionCost: sqrt(w) sigma d / sqrt(sigma^2 + |d|^2), so its cost is w GM(|d|^2) with
+// GM(s) = sigma^2 s / (sigma^2 + s), and its Jacobian rows with it. sigma <= 0 leaves them as they are.
+void RobustPointRows(double sqrt_weight, double sigma, int k, double* residuals, double** jacobians,
+                     const std::vector<int32_t>& block_sizes, int num_residuals);
+
 // sqrt(w_k) sum_f c_f p_k(frame f) for every regressor point k: a finite-difference stencil over consecutive
-// frames. Velocity (c = -1, 1): 3D joint smoothness and contact velocity; acceleration (c = 1, -2, 1).
-// Blocks: transl_f, root_f, body_f for each frame f of the stencil, then betas. Residuals: 3K.
+// frames. Velocity (c = -1, 1): 3D joint smoothness and contact velocity; acceleration (c = 1, -2, 1). With
+// sigma > 0 each point's residual is robust (RobustPointRows). Blocks: transl_f, root_f, body_f for each frame f
+// of the stencil, then betas. Residuals: 3K.
 class PointStencilCost : public ceres::CostFunction {
  public:
   PointStencilCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
-                   std::vector<double> stencil, std::vector<double> point_weights);
+                   std::vector<double> stencil, std::vector<double> point_weights, double sigma = 0.0);
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   const body::BodyModel* model_;
   const body::KeypointRegressor* regressor_;
   std::vector<double> stencil_, sqrt_weights_;
+  double sigma_;
+};
+
+// Upright: the body's lower-to-upper joint vector v (SMPL pelvis to neck: the spine) leaning off the world's
+// up direction u (unit; the person's ground normal), in the robust form of ReprojectionCost: with h = P v the
+// component of v across u (P: 2 x 3, an orthonormal basis of the plane normal to u), cost = weight GM(|h|^2),
+// GM(s) = sigma^2 s / (sigma^2 + s), so a person who bends over (|h| >> sigma metres) pulls with a bounded force.
+// Residual sqrt(weight) sigma h / sqrt(sigma^2 + |h|^2). Blocks: transl, root, body, betas. Residuals: 2.
+class UprightCost : public ceres::CostFunction {
+ public:
+  UprightCost(const body::BodyModel* model, int lower_joint, int upper_joint, const Eigen::Vector3d& up_in_world,
+              double weight, double sigma);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  const body::BodyModel* model_;
+  body::KeypointRegressor spine_;  // one point: upper joint minus lower joint
+  Eigen::Matrix<double, 2, 3, Eigen::RowMajor> across_;
+  double sqrt_weight_, sigma_;
 };
 
 // Contact height against the person's ground plane, given in the frame's camera coordinates (metric, as a

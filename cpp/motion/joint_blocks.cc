@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "motion/costs.h"
 #include "util/check.h"
 
 namespace m3c::motion {
@@ -99,8 +100,9 @@ const body::BlockPoints& SharedJoints::Get(int i, const std::vector<int>& ancest
 }
 
 JointStencilCost::JointStencilCost(const SharedJoints* shared, std::vector<int> frames, std::vector<double> stencil,
-                                   std::vector<int> joints, std::vector<double> weights)
-    : shared_(shared), frames_(std::move(frames)), joints_(std::move(joints)), stencil_(std::move(stencil)) {
+                                   std::vector<int> joints, std::vector<double> weights, double sigma)
+    : shared_(shared), frames_(std::move(frames)), joints_(std::move(joints)), stencil_(std::move(stencil)),
+      sigma_(sigma) {
   M3C_CHECK(stencil_.size() >= 2 && stencil_.size() == frames_.size()) << "a stencil needs a frame per coefficient";
   M3C_CHECK(!joints_.empty() && weights.size() == joints_.size()) << "one weight per joint, and at least one joint";
   for (double w : weights) {
@@ -156,6 +158,9 @@ bool JointStencilCost::Evaluate(double const* const* parameters, double* residua
         Eigen::Map<body::RowMatrixXd>(jacobians[betas_slot] + 3 * n * B, 3, B) += c * points.jacobian(j, 3);
       }
     }
+  }
+  for (int n = 0; sigma_ > 0 && n < N; ++n) {
+    RobustPointRows(sqrt_weights_[n], sigma_, n, residuals, jacobians, parameter_block_sizes(), num_residuals());
   }
   return true;
 }

@@ -65,13 +65,13 @@ class SharedJoints {
 
 // sqrt(w_j) sum_f c_f p_j(frame f) for joints j (a chain, or one joint): a finite-difference stencil over
 // consecutive frames (the acceleration c = 1, -2, 1 of "joint_acceleration", the velocity c = -1, 1 of
-// "joint_smoothness" and "contact_velocity"); over every chain it equals PointStencilCost on all joints. Blocks:
-// per stencil frame transl, root, then the joint blocks of `ancestors()` (the joints' strict ancestors, in joint
-// order); last betas. Residuals: 3 per joint.
+// "joint_smoothness" and "contact_velocity"); over every chain it equals PointStencilCost on all joints (with
+// sigma > 0 robust as it: RobustPointRows). Blocks: per stencil frame transl, root, then the joint blocks of
+// `ancestors()` (the joints' strict ancestors, in joint order); last betas. Residuals: 3 per joint.
 class JointStencilCost : public ceres::CostFunction {
  public:
   JointStencilCost(const SharedJoints* shared, std::vector<int> frames, std::vector<double> stencil,
-                   std::vector<int> joints, std::vector<double> weights);
+                   std::vector<int> joints, std::vector<double> weights, double sigma = 0.0);
   const std::vector<int>& ancestors() const { return ancestors_; }
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
@@ -79,6 +79,7 @@ class JointStencilCost : public ceres::CostFunction {
   const SharedJoints* shared_;
   std::vector<int> frames_, joints_, ancestors_;
   std::vector<double> stencil_, sqrt_weights_;
+  double sigma_;
 };
 
 // The joints a regressor selects when each of its points is one body joint with weight 1 (the contact points),

@@ -64,6 +64,10 @@ struct OptimizerConfig {
   double min_confidence = 0.4;        // keypoints below it are ignored (SLAHMR)
   double contact_threshold = 0.5;     // contact probability that activates contact terms
   double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
+  // Geman-McClure scale of "contact_velocity", metres per frame step (0: plain squares): a foot labelled planted
+  // that moves much faster (a mislabelled swing) pulls with a bounded force.
+  double contact_velocity_sigma = 0.02;
+  double upright_sigma = 0.2;  // Geman-McClure scale of "upright", metres of the spine across the up direction
   double min_depth = 0.05;            // metres in front of the camera
   bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
   // A stage must not make the world worse: after each stage the world check (these terms at these weights,

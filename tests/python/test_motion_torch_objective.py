@@ -116,9 +116,10 @@ def test_every_term_with_other_weights_and_settings(model, scene):
     """All built-in terms with unequal weights, another robust scale and confidence cut, non-unit ground normals."""
     weights = {"reprojection": 3e-3, "shape_prior": 0.7, "pose_anchor": 0.3, "pose_smoothness": 2.0,
                "joint_smoothness": 5.0, "joint_acceleration": 7.0, "root_acceleration": 90.0, "contact_velocity": 40.0,
-               "contact_height": 30.0}
+               "contact_height": 30.0, "upright": 4.0}
     config = single_stage(StageSpec("all", ["transl", "root", "body", "betas"], weights), 0, robust_sigma=20.0,
-                          min_confidence=0.8, contact_threshold=0.3, contact_height_tolerance=0.02)
+                          min_confidence=0.8, contact_threshold=0.3, contact_height_tolerance=0.02,
+                          upright_sigma=0.05, contact_velocity_sigma=0.03)
     tracks = perturbed(scene.init, seed=11, ground_scale=2.5)
     cameras = dataclasses.replace(scene.cameras_vo, initial_scale=0.8)
     stage = optimize(model, tracks, cameras, config).stages[0]
@@ -128,8 +129,12 @@ def test_every_term_with_other_weights_and_settings(model, scene):
         assert before == pytest.approx(expected[term], rel=RTOL), term
     # A change of a setting changes the torch value: the settings are read, not defaults.
     other = single_stage(config.stages[0], 0, robust_sigma=100.0)
-    assert torch_terms(StageObjective(model, tracks, cameras, other, other.stages[0]), tracks, 0.8)[
-        "reprojection"] > 1.5 * expected["reprojection"]
+    other_terms = torch_terms(StageObjective(model, tracks, cameras, other, other.stages[0]), tracks, 0.8)
+    assert other_terms["reprojection"] > 1.5 * expected["reprojection"]
+    other = single_stage(config.stages[0], 0, upright_sigma=0.5, contact_velocity_sigma=0.0)
+    other_terms = torch_terms(StageObjective(model, tracks, cameras, other, other.stages[0]), tracks, 0.8)
+    assert other_terms["upright"] > 1.5 * expected["upright"]
+    assert other_terms["contact_velocity"] > 1.5 * expected["contact_velocity"]
 
 
 def test_scale_prior_after_ceres_steps(model, scene):

@@ -33,7 +33,9 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
     summary, arrays = load_results(out, check=False)
     json.loads((out / "results.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
     assert len(summary["tracks"]) == 2  # the standing man and the player, one id each
-    assert all(stage["status"] == "ok" for stage in summary["optimization"]["stages"])
+    # Every stage ran, but those that would repeat the objective before them (no network weights here).
+    assert all(stage["status"] == "ok" or (stage["status"] == "skipped" and "the same objective" in stage["message"])
+               for stage in summary["optimization"]["stages"])
     cams = arrays["world_from_cam"]
     lift_cams = arrays["lift_world_from_cam"]
     for p in range(len(arrays["track_ids"])):

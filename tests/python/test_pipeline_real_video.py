@@ -37,7 +37,9 @@ def test_one_walker_tracked_and_fitted(example_run):
     # The optimized bodies still project onto the detected 2D keypoints.
     error = arrays["reprojection_error"][0][arrays["visible"][0]]
     assert np.median(error) < 8.0
-    assert all(stage["status"] == "ok" for stage in summary["optimization"]["stages"])
+    # Every stage ran, but those that would repeat the objective before them (no network weights here).
+    assert all(stage["status"] == "ok" or (stage["status"] == "skipped" and "the same objective" in stage["message"])
+               for stage in summary["optimization"]["stages"])
 
 
 def test_world_is_grounded_and_camera_follows_the_walker(example_run):

@@ -17,10 +17,16 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   root_acceleration |P_{t+1} - 2 P_t + P_{t-1}|^2 of the pelvis joint P alone (the body's depth along the camera
                     ray, which the images barely hold, without stiffening the limbs)
-  contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold
+  contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold; with
+                    contact_velocity_sigma > 0 (metres per frame step) robust, c GM(|x_{t+1} - x_t|^2), so that a
+                    foot wrongly labelled planted (a swing) pulls with a bounded force
   contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground, c the
                     probabilities of Track.ground_contacts (the feet surely on the ground) where given, else
                     of its contacts
+  upright           sum_t GM(|P (N_t - R_t)|^2), GM(s) = sigma^2 s / (sigma^2 + s), sigma = upright_sigma metres:
+                    the pelvis-to-neck vector N_t - R_t across the person's ground normal (P projects onto the
+                    ground's plane), the spine's lean off the vertical, robust so that a person bending over pulls
+                    with a bounded force
   scale_prior       ((log s - log s0) / sigma)^2: the camera scale s held to the scale estimator's s0 within its
                     uncertainty sigma (Cameras.initial_scale, scale_sigma; no residual without sigma)
 Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
@@ -36,7 +42,7 @@ from __future__ import annotations
 
 import math
 from numbers import Integral, Real
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import yaml
@@ -60,6 +66,8 @@ class OptimizerConfig:
     min_confidence: float = 0.4
     contact_threshold: float = 0.5
     contact_height_tolerance: float = 0.08
+    contact_velocity_sigma: float = 0.02
+    upright_sigma: float = 0.2
     min_depth: float = 0.05
     optimize_offset: bool = False
     # After each stage the world check (these terms at these weights over every person and frame) is compared
@@ -78,16 +86,15 @@ class OptimizerConfig:
         core = _core.default_optimizer_config()
         stages = [StageSpec(s.name, [g for g in PARAMETER_GROUPS if getattr(s, g)], dict(s.weights), s.max_iterations)
                   for s in core.stages]
-        return cls(core.robust_sigma, core.min_confidence, core.contact_threshold, core.contact_height_tolerance,
-                   core.min_depth, core.optimize_offset, dict(core.world_check), core.max_world_increase,
-                   core.latent_pose, core.num_threads, stages)
+        scalars = {f.name: getattr(core, f.name) for f in fields(cls) if f.name not in ("world_check", "stages")}
+        return cls(**scalars, world_check=dict(core.world_check), stages=stages)
 
     def validate(self) -> None:
         """Raises ValueError naming the first bad setting (the C++ core would refuse it later, or worse, Ceres
         would abort the process on num_threads < 1)."""
         if isinstance(self.num_threads, bool) or not isinstance(self.num_threads, Integral) or self.num_threads < 1:
             raise ValueError(f"num_threads must be an integer >= 1, got {self.num_threads!r}")
-        for key in ("robust_sigma", "min_depth"):
+        for key in ("robust_sigma", "min_depth", "upright_sigma"):
             value = getattr(self, key)
             if not (isinstance(value, Real) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{key} must be a finite number > 0, got {value!r}")
@@ -95,7 +102,7 @@ class OptimizerConfig:
             value = getattr(self, key)
             if not (isinstance(value, Real) and 0 <= value <= 1):
                 raise ValueError(f"{key} must lie in [0, 1], got {value!r}")
-        for key in ("contact_height_tolerance", "max_world_increase"):
+        for key in ("contact_height_tolerance", "max_world_increase", "contact_velocity_sigma"):
             value = getattr(self, key)
             if isinstance(value, bool) or not (isinstance(value, Real) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{key} must be a finite number >= 0, got {value!r}")
@@ -129,9 +136,9 @@ class OptimizerConfig:
     def to_core(self) -> "_core.OptimizerConfig":
         self.validate()
         core = _core.OptimizerConfig()
-        for key in ("robust_sigma", "min_confidence", "contact_threshold", "contact_height_tolerance", "min_depth",
-                    "optimize_offset", "max_world_increase", "latent_pose", "num_threads"):
-            setattr(core, key, getattr(self, key))
+        for f in fields(self):  # the scalar settings; the core has each under the same name
+            if f.name not in ("world_check", "stages"):
+                setattr(core, f.name, getattr(self, f.name))
         core.world_check = {k: float(v) for k, v in self.world_check.items()}
         stages = []
         for spec in self.stages:

@@ -24,12 +24,12 @@ import torch
 from m3c.body import BodyModel
 from m3c.body.torch_lbs import axis_angle_to_matrix
 from m3c.motion.config import OptimizerConfig, StageSpec
-from m3c.body.joint_names import CONTACT_JOINTS
+from m3c.body.joint_names import CONTACT_JOINTS, SMPL_JOINT_NAMES
 from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness", "joint_acceleration", "root_acceleration", "contact_velocity", "contact_height",
-               "motion_prior", "scale_prior")
+               "motion_prior", "scale_prior", "upright")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -220,13 +220,14 @@ class StageObjective:
                 g = p if t.ground_contacts is None else np.asarray(t.ground_contacts, dtype=np.float64).reshape(
                     t.num_frames, -1)
                 on_ground[s] = np.where(g >= config.contact_threshold, g, 0.0)
-                if t.ground_normal is not None:
-                    has_ground[s] = True
-                    normal_cam[s] = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)
-                    offset_cam[s] = np.asarray(t.ground_offset, dtype=np.float64).reshape(-1)
+            if t.ground_normal is not None:
+                has_ground[s] = True
+                normal_cam[s] = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)
+                offset_cam[s] = np.asarray(t.ground_offset, dtype=np.float64).reshape(-1)
         self.contact_weights = as_t(contacts)
         norm = np.linalg.norm(normal_cam, axis=1)
         self.height_weights = as_t(on_ground * has_ground[:, None])
+        self.has_ground = as_t(has_ground)  # upright's rows: its up direction is the ground's normal
         self.ground_normal = as_t(np.einsum("nij,nj->ni", world_from_cam[rows, :3, :3], normal_cam) / norm[:, None])
         self.ground_offset_cam = as_t(offset_cam / norm)
 
@@ -327,6 +328,9 @@ class StageObjective:
             elif term == "contact_velocity":
                 feet = joints[:, list(CONTACT_JOINTS)]
                 step = ((feet[self.pairs + 1] - feet[self.pairs]) ** 2).sum(-1)
+                sigma = self.config.contact_velocity_sigma
+                if sigma > 0:  # the robust form: sigma^2 s / (sigma^2 + s)
+                    step = sigma ** 2 * step / (sigma ** 2 + step)
                 out[term] = 0.5 * w * (self.contact_weights[self.pairs] * step).sum()
             elif term == "contact_height":
                 feet = joints[:, list(CONTACT_JOINTS)]
@@ -335,6 +339,12 @@ class StageObjective:
                 height = (feet * self.ground_normal[:, None]).sum(-1) + d[:, None]
                 excess = torch.clamp(height.abs() - self.config.contact_height_tolerance, min=0.0)
                 out[term] = 0.5 * w * (self.height_weights * excess ** 2).sum()
+            elif term == "upright":
+                spine = joints[:, SMPL_JOINT_NAMES.index("neck")] - joints[:, SMPL_JOINT_NAMES.index("pelvis")]
+                up = self.ground_normal
+                across = ((spine - (spine * up).sum(-1, keepdim=True) * up) ** 2).sum(-1)
+                s2 = self.config.upright_sigma ** 2
+                out[term] = 0.5 * w * (self.has_ground * s2 * across / (s2 + across)).sum()
             elif term == "motion_prior":
                 total = joints.new_zeros(())
                 for rows, R, t, levels in self.motion_blocks:

@@ -62,6 +62,28 @@ TEST(Costs, PointStencilJacobians) {
                                    b.body.data(), c.transl.data(), c.root.data(), c.body.data(), a.betas.data()}));
 }
 
+// The robust form: cost weight * GM(|d|^2) per point, d the stencil's unweighted value; Jacobians checked.
+TEST(Costs, RobustPointStencilValueAndJacobians) {
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = ThreePointRegressor(model);
+  Frame a(model, 3), b(model, 7);
+  const std::vector<double> weights = {1.0, 4.0, 0.0};
+  const double sigma = 0.05;
+  PointStencilCost plain(&model, &reg, {-1.0, 1.0}, weights), robust(&model, &reg, {-1.0, 1.0}, weights, sigma);
+  const std::vector<const double*> blocks = {a.transl.data(), a.root.data(), a.body.data(), b.transl.data(),
+                                             b.root.data(),  b.body.data(),  a.betas.data()};
+  EXPECT_TRUE(CheckGradient(robust, blocks));
+  std::vector<double> r_plain(9), r_robust(9);
+  ASSERT_TRUE(plain.Evaluate(blocks.data(), r_plain.data(), nullptr));
+  ASSERT_TRUE(robust.Evaluate(blocks.data(), r_robust.data(), nullptr));
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Vector3d d = Eigen::Map<Eigen::Vector3d>(r_plain.data() + 3 * k) / std::max(std::sqrt(weights[k]), 1e-300);
+    const double s = weights[k] > 0 ? d.squaredNorm() : 0.0;
+    EXPECT_NEAR(Eigen::Map<Eigen::Vector3d>(r_robust.data() + 3 * k).squaredNorm(),
+                weights[k] * sigma * sigma * s / (sigma * sigma + s), 1e-12);
+  }
+}
+
 TEST(Costs, StencilOfAConstantVelocityPathIsZero) {
   const body::BodyModel model = MakeTestModel();
   const auto reg = ThreePointRegressor(model);
@@ -112,6 +134,41 @@ TEST(Costs, ContactHeightJacobiansAndDeadZone) {
   const double* params2[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &doubled, no_offset};
   ASSERT_TRUE(flat.Evaluate(params2, r, nullptr));
   EXPECT_NEAR(r[0], std::abs(0.05 - cam.centre_in_world.y()) - 0.08, 1e-9);
+}
+
+TEST(Costs, UprightJacobiansAndValue) {
+  const body::BodyModel model = MakeTestModel();
+  Frame f(model, 5);
+  const double weight = 2.5, sigma = 0.2;
+  const Eigen::Vector3d up(0.2, 1.0, -0.1);
+  UprightCost cost(&model, 0, 12, up, weight, sigma);
+  EXPECT_TRUE(CheckGradient(cost, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()}));
+  // The value against the joints computed directly: |r|^2 = weight GM(|h|^2), h the spine across up.
+  const body::KeypointRegressor joints = body::IdentityJointRegressor(model);
+  std::vector<double> pts(3 * model.num_joints()), pose(3 * model.num_joints());
+  std::copy(f.root.begin(), f.root.end(), pose.begin());
+  std::copy(f.body.begin(), f.body.end(), pose.begin() + 3);
+  body::KeypointsWithJacobian(model, joints, pose.data(), f.betas.data(), f.transl.data(), pts.data(), nullptr);
+  const Eigen::Vector3d spine = Eigen::Map<Eigen::Vector3d>(pts.data() + 36) - Eigen::Map<Eigen::Vector3d>(pts.data());
+  const Eigen::Vector3d u = up.normalized(), across = spine - spine.dot(u) * u;
+  const double s = across.squaredNorm();
+  ASSERT_GT(s, 1e-4);  // the test pose leans
+  double r[2];
+  const double* params[4] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()};
+  ASSERT_TRUE(cost.Evaluate(params, r, nullptr));
+  EXPECT_NEAR(r[0] * r[0] + r[1] * r[1], weight * sigma * sigma * s / (sigma * sigma + s), 1e-12);
+  // Up along the spine: no lean, no cost; the translation does not move the spine.
+  UprightCost along(&model, 0, 12, spine, weight, sigma);
+  ASSERT_TRUE(along.Evaluate(params, r, nullptr));
+  EXPECT_NEAR(r[0], 0.0, 1e-12);
+  EXPECT_NEAR(r[1], 0.0, 1e-12);
+  std::vector<double> moved = {f.transl[0] + 3.0, f.transl[1] - 1.0, f.transl[2] + 0.5};
+  const double* params_moved[4] = {moved.data(), f.root.data(), f.body.data(), f.betas.data()};
+  double r_moved[2];
+  ASSERT_TRUE(cost.Evaluate(params_moved, r_moved, nullptr));
+  ASSERT_TRUE(cost.Evaluate(params, r, nullptr));
+  EXPECT_NEAR(r_moved[0], r[0], 1e-12);
+  EXPECT_NEAR(r_moved[1], r[1], 1e-12);
 }
 
 TEST(Costs, PriorsJacobians) {

@@ -48,8 +48,8 @@ TEST(JointBlocks, SelectedJoints) {
 }
 
 // The chain stencils over all chains against PointStencilCost over all joints (the unshared path): the same
-// residuals and Jacobians, from the shared evaluation and from a block's own.
-TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) {
+// residuals and Jacobians, from the shared evaluation and from a block's own; sigma > 0: both robust.
+void CheckChainStencilsEqualTheWholeBodyStencil(double sigma) {
   const body::BodyModel model = MakeTestModel();
   const body::KeypointRegressor joints = body::IdentityJointRegressor(model);
   const int J = model.num_joints(), B = model.num_betas();
@@ -57,7 +57,7 @@ TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) {
   for (Frame& f : frames) f.betas = frames[0].betas;  // one person
   const std::vector<double> stencil = {1.0, -2.0, 1.0};
   const double weight = 2.5;
-  PointStencilCost whole(&model, &joints, stencil, std::vector<double>(J, weight));
+  PointStencilCost whole(&model, &joints, stencil, std::vector<double>(J, weight), sigma);
   std::vector<const double*> whole_params;
   for (const Frame& f : frames) whole_params.insert(whole_params.end(), {f.transl.data(), f.root.data(), f.body.data()});
   whole_params.push_back(frames[0].betas.data());
@@ -77,7 +77,7 @@ TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) {
     if (state == kEvaluated) shared.EvaluateAll(true);
     if (state == kReleased) shared.Release();  // a block computes its joints again
     for (const auto& chain : shared.Chains()) {
-      JointStencilCost cost(&shared, {0, 1, 2}, stencil, chain, std::vector<double>(chain.size(), weight));
+      JointStencilCost cost(&shared, {0, 1, 2}, stencil, chain, std::vector<double>(chain.size(), weight), sigma);
       const int A = static_cast<int>(cost.ancestors().size()), per = 2 + A;
       std::vector<const double*> params;
       for (const Frame& f : frames) {
@@ -123,6 +123,12 @@ TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) {
     }
   }
 }
+
+TEST(JointBlocks, ChainStencilsEqualTheWholeBodyStencil) { CheckChainStencilsEqualTheWholeBodyStencil(0.0); }
+
+// The robust form (contact_velocity_sigma): the test model's joints move by about 0.1-0.5 per frame, so a sigma of
+// 0.05 puts the residuals well into the bounded part of the loss.
+TEST(JointBlocks, RobustChainStencilsEqualTheWholeBodyStencil) { CheckChainStencilsEqualTheWholeBodyStencil(0.05); }
 
 TEST(JointBlocks, SplitBodyCostEqualsTheWholeBlockCost) {
   const body::BodyModel model = MakeTestModel();
