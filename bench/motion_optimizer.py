@@ -31,12 +31,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from m3c.body import BodyModel
-from m3c.body.synthetic import make_synthetic_model
-from m3c.eval.scenes import make_scene
 from m3c.motion import OptimizerConfig, StageSpec, optimize, track_joints
-from m3c.motion.scale import estimate_scale, rescaled
 from m3c.testing.torch_objective import StageObjective, TorchState, run_lbfgs
+from optimizer_scene import add_scene_arguments, optimizer_scene
 
 
 def world_error_mm(model, tracks, truth) -> float:
@@ -169,9 +166,7 @@ class Chain:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=600)
-    parser.add_argument("--people", type=int, default=2)
-    parser.add_argument("--seed", type=int, default=3)
+    add_scene_arguments(parser)
     parser.add_argument("--no-humor", action="store_true", help="only the variant without the motion prior")
     parser.add_argument("--no-torch", action="store_true", help="Ceres stages only")
     parser.add_argument("--full-run", action="store_true",
@@ -190,10 +185,7 @@ def main() -> None:
     if args.max_iterations is not None:
         for spec in config.stages:
             spec.max_iterations = min(spec.max_iterations, args.max_iterations)
-    model = BodyModel(make_synthetic_model())
-    scene = make_scene(model, num_people=args.people, num_frames=args.frames, seed=args.seed)
-    estimate = estimate_scale(model, scene.init, scene.cameras_vo)
-    init, cameras_vo = rescaled(scene.init, scene.cameras_vo, estimate)
+    model, scene, estimate, (init, cameras_vo) = optimizer_scene(args.frames, args.people, args.seed)
     print(f"scale estimate (planted feet): {estimate.value:.3f} +- {100 * (estimate.sigma or 0):.1f}% "
           f"(true {scene.vo_scale}); the lift at scale 1: world joint error "
           f"{world_error_mm(model, scene.init, scene.truth):.0f} mm")

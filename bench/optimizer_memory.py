@@ -19,6 +19,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+from optimizer_scene import add_scene_arguments, optimizer_scene
 from proc_memory import reset_peak, status_mib
 
 EXPORT = """
@@ -34,15 +35,9 @@ def measure(frames: int, people: int, seed: int, humor: str | None) -> dict:
     """One optimize call in this process; its memory and stage costs."""
     import time
 
-    from m3c.body import BodyModel
-    from m3c.body.synthetic import make_synthetic_model
-    from m3c.eval.scenes import make_scene
     from m3c.motion import OptimizerConfig, optimize
-    from m3c.motion.scale import estimate_scale, rescaled
 
-    model = BodyModel(make_synthetic_model())
-    scene = make_scene(model, num_people=people, num_frames=frames, seed=seed)
-    init, cameras = rescaled(scene.init, scene.cameras_vo, estimate_scale(model, scene.init, scene.cameras_vo))
+    model, scene, _, (init, cameras) = optimizer_scene(frames, people, seed)
     config = OptimizerConfig.default()
     config.num_threads = 2
     before = status_mib("VmRSS")
@@ -60,9 +55,7 @@ def measure(frames: int, people: int, seed: int, humor: str | None) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=600)
-    parser.add_argument("--people", type=int, default=2)
-    parser.add_argument("--seed", type=int, default=3)
+    add_scene_arguments(parser)
     parser.add_argument("--no-humor", action="store_true", help="only the variant without the motion prior")
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--humor", default=None, help=argparse.SUPPRESS)
