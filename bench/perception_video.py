@@ -7,7 +7,7 @@ detect-whiten-redetect every `detect_every` frames, isolated square patches per 
 pose/3D/colour cues) plus the per-frame body fit and contacts. Printed: frames with a person, fps of each and
 their ratio, body-fit reprojection errors, and how often the keypoints lie inside the segmentation's box.
 
-    PYTHONPATH=python python3 bench/perception_video.py VIDEO [--frames N] [--static-camera]
+    PYTHONPATH=python python3 bench/perception_video.py VIDEO [--frames N]
 """
 
 from __future__ import annotations
@@ -41,7 +41,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("video")
     parser.add_argument("--frames", type=int, default=None)
-    parser.add_argument("--static-camera", action="store_true")
     args = parser.parse_args()
     info = probe_video(args.video)
     frames = [image for _, image in iter_frames(args.video, stop=args.frames, colour="rgb")]
@@ -51,7 +50,7 @@ def main() -> None:
     ref_found, ref_seconds = reference(frames)
     start = time.perf_counter()
     result = run_perception_frames(iter(frames), info.fps, (info.height, info.width),
-                                   PerceptionConfig(static_camera=args.static_camera), source=args.video)
+                                   PerceptionConfig(), source=args.video)
     ours_seconds = time.perf_counter() - start
 
     with_person = int(np.count_nonzero(result.people_per_frame))

@@ -52,7 +52,7 @@ def main() -> None:
     for video, static in [(v, False) for v in videos] + [(Path(v), True) for v in args.static]:
         config = PipelineConfig.default()
         if static or "static" in video.parent.name:
-            config = config.with_overrides({"vo.static": True, "perception.static_camera": True})
+            config = config.with_overrides({"vo.static": True})
         out = Path(args.out) / video.stem
         start = time.perf_counter()
         try:

@@ -105,7 +105,7 @@ def check_single_person_clip(result, min_fraction: float = 0.95, max_median_px: 
 @needs_mediapipe
 @needs_video(TAIJI)
 def test_static_clip():
-    check_single_person_clip(run_perception(TAIJI, PerceptionConfig(static_camera=True), max_frames=120))
+    check_single_person_clip(run_perception(TAIJI, PerceptionConfig(), max_frames=120))
 
 
 @pytest.mark.slow
@@ -129,7 +129,7 @@ def test_two_people_side_by_side_keep_their_ids():
             yield np.ascontiguousarray(np.concatenate([half, half[:, ::-1]], axis=1))
 
     result = run_perception_frames(frames(), probe_video(TAIJI).fps, (360, 1280),
-                                   PerceptionConfig(static_camera=True), source="taiji twice")
+                                   PerceptionConfig(), source="taiji twice")
     assert len(result.tracks) == 2
     for track in result.tracks:
         assert len(track.frame_ids) >= 0.95 * result.num_frames

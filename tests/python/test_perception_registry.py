@@ -82,10 +82,10 @@ def test_run_settings_reach_the_estimators_that_take_them(monkeypatch):
 def test_config_from_dict_yaml_round_trip(tmp_path):
     cfg = PerceptionConfig.from_dict({"detector": "hog", "pose2d": {"name": "mediapipe", "options": {"patch_pass":
                                                                                                       "always"}},
-                                      "tracker": {"max_age": 12}, "static_camera": True, "intrinsics": [1, 2, 3, 4]})
+                                      "tracker": {"max_age": 12}, "detect_every": 3, "intrinsics": [1, 2, 3, 4]})
     assert cfg.estimators["detector"].name == "hog" and cfg.estimators["segmenter"].name == "mediapipe"
     assert cfg.estimators["pose2d"].options == {"patch_pass": "always"}
-    assert cfg.tracker.max_age == 12 and cfg.static_camera
+    assert cfg.tracker.max_age == 12 and cfg.detect_every == 3
     again = PerceptionConfig.from_dict(cfg.to_dict())
     assert again.to_dict() == cfg.to_dict()
     import yaml
@@ -97,6 +97,8 @@ def test_config_from_dict_yaml_round_trip(tmp_path):
         PerceptionConfig.from_dict({"detectr": "hog"})
     with pytest.raises(ValueError, match="give an estimator name"):
         PerceptionConfig.from_dict({"detector": {"model": "x"}})
+    with pytest.raises(ValueError, match="static_camera is no longer a perception setting.*--static-camera"):
+        PerceptionConfig.from_dict({"static_camera": True})  # a config written for the removed 3D-speed contacts
 
 
 def test_setup_script_installs_the_perception_extras_pin():

@@ -51,7 +51,7 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
 def test_two_people_keep_one_identity_each_over_the_whole_clip():
     """Both people are in view in all 300 frames: one track each (the player was five), each covering the clip,
     each on its own side of the court (the man left of the image centre, the player right of it)."""
-    result = run_perception(CLIP, PerceptionConfig(static_camera=True))
+    result = run_perception(CLIP, PerceptionConfig())
     assert result.num_frames == 300
     assert len(result.tracks) == 2
     centres = [0.5 * (t.boxes[:, 0] + t.boxes[:, 2]) for t in result.tracks]

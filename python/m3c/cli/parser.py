@@ -165,7 +165,6 @@ def build_parser() -> argparse.ArgumentParser:
     perceive.add_argument("out", help="output path; OUT.npz and OUT.json are written")
     perceive.add_argument("--config", help="perception settings (YAML: estimators by task, tracker, ...)")
     perceive.add_argument("--max-frames", type=int, default=None)
-    perceive.add_argument("--static-camera", action="store_true", help="the camera does not move")
     perceive.add_argument("--intrinsics", type=float, nargs=4, metavar=("FX", "FY", "CX", "CY"),
                           help="pixels (default: focal length = image diagonal, principal point at the centre)")
     perceive.add_argument("--detector", help="detector estimator name (see m3c.perception.available)")

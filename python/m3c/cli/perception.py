@@ -43,8 +43,6 @@ def perceive(args) -> int:
     from m3c.perception import PerceptionConfig, run_perception
 
     config = PerceptionConfig.from_yaml(args.config) if args.config else PerceptionConfig()
-    if args.static_camera:
-        config.static_camera = True
     if args.intrinsics:
         config.intrinsics = tuple(args.intrinsics)
     for task in ("detector", "pose2d", "body"):

@@ -20,8 +20,6 @@ def pipeline_config(args):
     if getattr(args, "static_camera", False):
         overrides["vo.static"] = True
         for name, entry in config.nodes.items():
-            if entry.type == "perception":
-                overrides[f"{name}.static_camera"] = True  # contacts from foot speeds in the camera frame
             if entry.type == "focal":
                 overrides[f"{name}.enabled"] = False  # a still camera's motion cannot tell its focal length
     if getattr(args, "frames", None):

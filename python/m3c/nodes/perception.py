@@ -32,8 +32,7 @@ class PerceptionNode(Node):
     tracked person per frame (people of unconfirmed tracks and frames whose body fit failed are left out).
 
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
-    static_camera (contacts from foot speeds in the camera frame), padding (pixels around a tight box before it
-    is squared, for the square boxes handed over; the thesis's 5), and any other m3c.perception.PerceptionConfig
+    padding (pixels around a tight box before it is squared, for the square boxes handed over; the thesis's 5), and any other m3c.perception.PerceptionConfig
     setting under `options` (tracker, detect_every, ground_motion, ...).
 
     The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
@@ -57,7 +56,9 @@ class PerceptionNode(Node):
     # 7: planted feet from their motion relative to the body in a moving camera; the ground's contacts apart;
     #    a lost track reclaims a detection the first cascade stage gave to another (tracking.reclaim_margin)
     # 8: the body fit's translation prior 3000 -> 100 (its constant-velocity prediction made the depth wander)
-    version = "8"
+    # 9: no static_camera setting: the contacts use one rule in any camera (3D foot speeds of monocular fits
+    #    failed), on the fits with their depth steadied (m3c.perception.contacts.steady_depth)
+    version = "9"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
@@ -103,15 +104,13 @@ class PerceptionNode(Node):
     @dataclass
     class Config:
         estimators: dict[str, Any] = field(default_factory=dict)
-        static_camera: bool = False
         padding: float = 5.0  # pixels around a tight box before it is squared (patches and square boxes)
         options: dict[str, Any] = field(default_factory=dict)
 
     def _perception_config(self, intrinsics=None, body_model: str | None = None):
         from m3c.perception import PerceptionConfig
 
-        data = {**self.config.options, **self.config.estimators, "static_camera": self.config.static_camera,
-                "padding": self.config.padding}
+        data = {**self.config.options, **self.config.estimators, "padding": self.config.padding}
         if intrinsics is not None:
             data["intrinsics"] = [float(v) for v in intrinsics]
         try:

@@ -100,6 +100,25 @@ def local_velocities(points: np.ndarray, times: np.ndarray, half_window: float) 
     return velocities
 
 
+def steady_depth(joints: np.ndarray, times: np.ndarray, half_window: float) -> np.ndarray:
+    """Camera-frame joints (n, J, 3) (origin at the camera centre, +z forward, the root first), each frame's body
+    moved along its root's line of sight to the median of the root depths within +- half_window seconds. Depth
+    is what a monocular fit gets wrong from frame to frame (its body size along the ray); the move keeps the root
+    where it is in the image and the body's own shape and motion relative to the root as they are (a scaling
+    about the camera centre would keep the whole image, but it makes the relative motion jitter instead), and
+    the median keeps the depth's real changes within the window. Frames whose root is not in front of the camera
+    are left as they are."""
+    joints = np.asarray(joints, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    depth = joints[:, 0, 2]
+    steady = np.empty(len(depth))
+    for t in range(len(depth)):
+        near = depth[(np.abs(times - times[t]) <= half_window) & (depth > 0)]
+        steady[t] = np.median(near) if len(near) else depth[t]
+    stretch = np.where(depth > 0, steady / np.where(depth > 0, depth, 1.0) - 1.0, 0.0)
+    return joints + (stretch[:, None] * joints[:, 0])[:, None]
+
+
 def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static: bool = True,
                        config: KinematicContactConfig | None = None, rest_heights=None,
                        root: np.ndarray | None = None, ground_speeds: np.ndarray | None = None,
