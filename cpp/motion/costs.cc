@@ -287,4 +287,25 @@ bool BlockDifferenceCost::Evaluate(double const* const* parameters, double* resi
   return true;
 }
 
+RayAccelerationCost::RayAccelerationCost(const std::vector<double>& stencil, const Eigen::Vector3d& ray, double weight) {
+  M3C_CHECK(stencil.size() == 3) << "a three-frame stencil, got " << stencil.size() << " coefficients";
+  M3C_CHECK(weight >= 0) << "weight must be >= 0";
+  M3C_CHECK(std::abs(ray.norm() - 1.0) < 1e-9) << "the ray must be a unit vector";
+  const double sqrt_weight = std::sqrt(weight);
+  for (int k = 0; k < 3; ++k) stencil_[k] = sqrt_weight * stencil[k];
+  ray_ = ray;
+}
+
+bool RayAccelerationCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
+  residuals[0] = 0.0;
+  for (int k = 0; k < 3; ++k) {
+    residuals[0] += stencil_[k] * ray_.dot(Eigen::Map<const Eigen::Vector3d>(parameters[k]));
+    if (jacobians && jacobians[k]) {
+      Eigen::Map<Eigen::RowVector3d> row(jacobians[k]);
+      row = stencil_[k] * ray_.transpose();
+    }
+  }
+  return true;
+}
+
 }  // namespace m3c::motion

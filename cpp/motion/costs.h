@@ -126,6 +126,20 @@ class LogPriorCost : public ceres::SizedCostFunction<1, 1> {
   double log_mean_, factor_;
 };
 
+// sqrt(weight) ray . (s_0 t_0 + s_1 t_1 + s_2 t_2): a three-frame stencil (the pelvis's acceleration: the root
+// translations' stencil, since the pelvis is the translation plus a rest offset that a stencil summing to zero
+// cancels) along one fixed unit direction, the camera's line of sight to the person. A monocular fit's depth
+// swings along that line; across it the images hold the body. Blocks: the three root translations.
+class RayAccelerationCost : public ceres::SizedCostFunction<1, 3, 3, 3> {
+ public:
+  RayAccelerationCost(const std::vector<double>& stencil, const Eigen::Vector3d& ray, double weight);
+  bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+
+ private:
+  double stencil_[3];
+  Eigen::Vector3d ray_;
+};
+
 // sqrt(weight) (x_b - x_a) for two blocks of equal size (temporal smoothness of a parameter block).
 class BlockDifferenceCost : public ceres::CostFunction {
  public:

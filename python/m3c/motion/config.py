@@ -17,6 +17,9 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   joint_acceleration sum_j |J_{t+1} - 2 J_t + J_{t-1}|^2 (second order: no pull towards standing still)
   root_acceleration |P_{t+1} - 2 P_t + P_{t-1}|^2 of the pelvis joint P alone (the body's depth along the camera
                     ray, which the images barely hold, without stiffening the limbs)
+  ray_acceleration  (r_t . (P_{t+1} - 2 P_t + P_{t-1}))^2: the pelvis's acceleration along r_t, the unit line of
+                    sight from frame t's camera to the person at the stage's start: the depth the images barely
+                    hold, leaving the motion across the line of sight to them
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold; with
                     contact_velocity_sigma > 0 (metres per frame step) robust, c GM(|x_{t+1} - x_t|^2), so that a
                     foot wrongly labelled planted (a swing) pulls with a bounded force

@@ -28,8 +28,8 @@ from m3c.body.joint_names import CONTACT_JOINTS, SMPL_JOINT_NAMES
 from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
-               "joint_smoothness", "joint_acceleration", "root_acceleration", "contact_velocity", "contact_height",
-               "motion_prior", "scale_prior", "upright")
+               "joint_smoothness", "joint_acceleration", "root_acceleration", "ray_acceleration", "contact_velocity",
+               "contact_height", "motion_prior", "scale_prior", "upright")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -325,6 +325,15 @@ class StageObjective:
             elif term == "root_acceleration":
                 i, pelvis = self.triples, joints[:, 0]
                 out[term] = 0.5 * w * ((pelvis[i + 2] - 2 * pelvis[i + 1] + pelvis[i]) ** 2).sum()
+            elif term == "ray_acceleration":
+                # The line of sight of each triple's middle frame, fixed at the start state (as the C++ stage does
+                # when it builds its problem); the pelvis joint, which the C++ term reads as the root translation.
+                i, pelvis = self.triples, joints[:, 0]
+                start = self.start
+                ray = start.transl[i + 1] - (start.scale * self.centre[i + 1] + start.offset)
+                ray = (ray / ray.norm(dim=-1, keepdim=True)).detach()
+                acc = pelvis[i + 2] - 2 * pelvis[i + 1] + pelvis[i]
+                out[term] = 0.5 * w * ((acc * ray).sum(-1) ** 2).sum()
             elif term == "contact_velocity":
                 feet = joints[:, list(CONTACT_JOINTS)]
                 step = ((feet[self.pairs + 1] - feet[self.pairs]) ** 2).sum(-1)

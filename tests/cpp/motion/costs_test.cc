@@ -192,5 +192,31 @@ TEST(Costs, LogPriorValueJacobianAndDomain) {
   EXPECT_FALSE(prior.Evaluate(params, &residual, nullptr));
 }
 
+TEST(Costs, RayAccelerationValueJacobianAndNothingAcrossTheRay) {
+  const Eigen::Vector3d ray = Eigen::Vector3d(0.3, -0.2, 0.9).normalized();
+  const std::vector<double> stencil = {0.9, -2.1, 1.2};  // uneven frame steps: still summing to zero
+  const double weight = 40.0;
+  RayAccelerationCost cost(stencil, ray, weight);
+  std::vector<double> a = {0.1, 1.0, 5.0}, b = {0.25, 0.95, 5.3}, c = {0.3, 1.1, 5.2};
+  EXPECT_TRUE(CheckGradient(cost, {a.data(), b.data(), c.data()}));
+  const double* params[] = {a.data(), b.data(), c.data()};
+  double residual = 0.0;
+  ASSERT_TRUE(cost.Evaluate(params, &residual, nullptr));
+  Eigen::Vector3d acc = Eigen::Vector3d::Zero();
+  for (int k = 0; k < 3; ++k) acc += stencil[k] * Eigen::Map<const Eigen::Vector3d>(params[k]);
+  EXPECT_NEAR(residual, std::sqrt(weight) * ray.dot(acc), 1e-12);
+  // Moving the middle frame across the line of sight costs nothing; along it, it does.
+  const Eigen::Vector3d across = ray.cross(Eigen::Vector3d::UnitY()).normalized();
+  std::vector<double> moved = b;
+  Eigen::Map<Eigen::Vector3d>(moved.data()) += 0.5 * across;
+  const double* moved_params[] = {a.data(), moved.data(), c.data()};
+  double moved_residual = 0.0;
+  ASSERT_TRUE(cost.Evaluate(moved_params, &moved_residual, nullptr));
+  EXPECT_NEAR(moved_residual, residual, 1e-12);
+  Eigen::Map<Eigen::Vector3d>(moved.data()) += 0.5 * ray;
+  ASSERT_TRUE(cost.Evaluate(moved_params, &moved_residual, nullptr));
+  EXPECT_NEAR(moved_residual - residual, std::sqrt(weight) * stencil[1] * 0.5, 1e-12);
+}
+
 }  // namespace
 }  // namespace m3c::motion
