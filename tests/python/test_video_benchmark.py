@@ -276,3 +276,21 @@ def test_a_pose_fitting_two_overlapping_people_is_no_identity_switch():
     swapped = {**arrays, "keypoints_2d": keypoints.copy(), "visible": np.ones((2, T), bool)}
     swapped["keypoints_2d"][:, 5:] = keypoints[::-1, 5:]
     assert vb.detection_scores(truth, swapped)["id_switches"] == 2
+
+
+def test_planted_feet_are_scored_against_the_true_contacts(follow_video):
+    """The true contacts score precision and recall 1; every foot said planted keeps the recall and lowers the
+    precision to the planted share; contacts a quarter second late lose both."""
+    truth = follow_video.truth()
+    arrays = {**_results_from_truth(truth), "contacts": truth["contacts"].astype(np.float32)}
+    scores = vb.detection_scores(truth, arrays)
+    assert scores["contact_true"] > 0 and scores["contact_hits"] == scores["contact_predicted"] == scores["contact_true"]
+    feet = np.maximum(truth["contacts"][..., [0, 1]], truth["contacts"][..., [2, 3]]) > 0.5
+    always = vb.detection_scores(truth, {**arrays, "contacts": np.ones_like(arrays["contacts"])})
+    assert always["contact_hits"] == scores["contact_true"]
+    assert always["contact_predicted"] == 2 * scores["matched_person_frames"]
+    assert always["contact_hits"] / always["contact_predicted"] == pytest.approx(feet.mean(), abs=0.02)
+    late = vb.detection_scores(truth, {**arrays, "contacts": np.roll(arrays["contacts"], 8, axis=1)})
+    assert late["contact_hits"] < 0.95 * late["contact_predicted"] and late["contact_hits"] < 0.95 * late["contact_true"]
+    # Results without contacts (an older results file) score none.
+    assert "contact_hits" not in vb.detection_scores(truth, _results_from_truth(truth))

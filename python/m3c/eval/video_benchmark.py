@@ -164,7 +164,9 @@ def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTr
 def detection_scores(truth: dict, arrays: dict) -> dict:
     """Frame-by-frame matching of detections (results' keypoints where a track was detected) to the true
     people: recall over visible people and identity switches (CLEAR MOT matching: last correspondences kept
-    while valid, the rest by the Hungarian method)."""
+    while valid, the rest by the Hungarian method). Where the results carry contacts, the planted feet of each
+    matched detection against the true ones (a foot planted when its ankle or toe joint is, probability > 0.5):
+    contact_hits (both say planted), contact_predicted, contact_true, counted per foot and frame."""
     n_true = truth["keypoints_2d"].shape[0]
     silhouette = truth["silhouette_pixels"]
     occlusion = 1.0 - truth["visible_pixels"] / np.maximum(silhouette, 1)
@@ -176,6 +178,8 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
     ids = arrays["track_ids"]
     last = [None] * n_true
     switches = detected = matched_frames = 0
+    with_contacts = "contacts" in arrays and "contacts" in truth
+    contacts = np.zeros(3, dtype=np.int64)  # hits, predicted, true
     for t, frame in enumerate(arrays["frame_ids"]):
         tracks = np.flatnonzero(arrays["visible"][:, t])
         if len(tracks) == 0:
@@ -206,14 +210,27 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
             if last[p] is not None and last[p] != ids[tracks[k]]:
                 switches += 1
             last[p] = ids[tracks[k]]
+            if with_contacts:
+                planted = _planted_feet(arrays["contacts"][tracks[k], t])
+                true = _planted_feet(truth["contacts"][p, frame])
+                contacts += [int((planted & true).sum()), int(planted.sum()), int(true.sum())]
     frames = arrays["frame_ids"]
-    return {
+    out = {
         "visible": int(visible[:, frames].sum()),
         "detected": int(detected),
         "id_switches": int(switches),
         "matched_person_frames": int(matched_frames),
         "person_frames": int(visible.shape[0] * len(frames)),
     }
+    if with_contacts:
+        out.update(contact_hits=int(contacts[0]), contact_predicted=int(contacts[1]), contact_true=int(contacts[2]))
+    return out
+
+
+def _planted_feet(contacts: np.ndarray) -> np.ndarray:
+    """(2,) bool, left and right foot planted, from CONTACT_JOINTS' probabilities (ankles 7, 8; feet 10, 11)."""
+    c = np.nan_to_num(np.asarray(contacts, dtype=np.float64))
+    return np.maximum(c[[0, 1]], c[[2, 3]]) > 0.5
 
 
 def _kept_pairs(cost: np.ndarray, track_ids: list, last: list) -> list[tuple[int, int]]:
@@ -352,6 +369,10 @@ class VideoBenchmarkReport:
         frames = sum(s.detection["person_frames"] for s in seqs)
         out["id_switches"] = sum(s.detection["id_switches"] for s in seqs) if seqs else None
         out["id_switches_per_1000"] = 1000.0 * out["id_switches"] / frames if frames else None
+        hits, predicted, true = (sum(s.detection.get(k, 0) for s in seqs)
+                                 for k in ("contact_hits", "contact_predicted", "contact_true"))
+        out["contact_precision"] = hits / predicted if predicted else None
+        out["contact_recall"] = hits / true if true else None
         for key in ("ate_mm", "scale_error_pct", "ground_height_error_m", "tilt_error_deg"):
             values = [
                 abs(s.methods[method].camera[key])
@@ -460,6 +481,11 @@ class VideoBenchmarkReport:
                 f"{o['id_switches']} ({_fmt(o['id_switches_per_1000'], 2)} per 1000 person-frames over "
                 f"{frames})."
             )
+            if o["contact_precision"] is not None or o["contact_recall"] is not None:
+                lines.append(
+                    f"planted feet (each matched person's feet per frame against the true contacts): precision "
+                    f"{_fmt(o['contact_precision'], 2)}, recall {_fmt(o['contact_recall'], 2)}."
+                )
         failed = [s for s in self.sequences if s.error]
         if failed:
             lines.append(f"failed: {', '.join(s.name for s in failed)}")

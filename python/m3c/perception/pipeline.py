@@ -459,7 +459,7 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
             joints = steady_depth(joints, frame_ids[valid] / fps, config.contact_depth_window)
         # Never ground_static, even in a still camera: a monocular fit's depth jitters (a standing man's feet at
         # 10 m move 1.5 m/s median in 3D, 0.08 m/s across the ray), so 3D foot speeds miss most planted feet (the
-        # video benchmark's static sequence: recall 0.21 against 0.86 with the moving camera's rule).
+        # video benchmark's seed 0 static sequence: recall 0.12 against 0.85 with the moving camera's rule).
         contacts[valid] = est["contacts"].estimate(joints, fps, None, False, frame_ids[valid], rest,
                                                    ground_speeds=speeds)
         on_ground = est["contacts"].estimate(joints, fps, None, False, frame_ids[valid], rest, for_ground=True)
