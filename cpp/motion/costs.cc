@@ -147,14 +147,10 @@ bool PointStencilCost::Evaluate(double const* const* parameters, double* residua
 
 void RobustPointRows(double sqrt_weight, double sigma, int k, double* residuals, double** jacobians,
                      const std::vector<int32_t>& block_sizes, int num_residuals) {
-  if (!(sigma > 0)) return;
-  Eigen::Map<Eigen::Vector3d> r(residuals + 3 * k);
-  if (sqrt_weight == 0.0) return;  // zero rows stay zero
-  const Eigen::Vector3d d = r / sqrt_weight;
-  const double q = sigma * sigma + d.squaredNorm();
-  // d out / d r = sigma (I / sqrt(q) - d d^T / q^(3/2)), with out = sigma r / sqrt(q)
-  const Eigen::Matrix3d M = sigma * (Eigen::Matrix3d::Identity() / std::sqrt(q) - d * d.transpose() / (q * std::sqrt(q)));
-  r *= sigma / std::sqrt(q);
+  if (!(sigma > 0) || sqrt_weight == 0.0) return;  // zero rows stay zero
+  const Eigen::Vector3d d = Eigen::Map<const Eigen::Vector3d>(residuals + 3 * k) / sqrt_weight;
+  // Shaped in place; d out / d r = (d out / d d) / sqrt_weight, as r = sqrt_weight d.
+  const Eigen::Matrix3d M = ShapeGemanMcClure<3>(d, sqrt_weight, sigma, residuals + 3 * k) / sqrt_weight;
   if (!jacobians) return;
   for (size_t b = 0; b < block_sizes.size(); ++b) {
     if (!jacobians[b]) continue;
@@ -183,12 +179,8 @@ bool UprightCost::Evaluate(double const* const* parameters, double* residuals, d
   thread_local body::BlockPoints points;
   points.Evaluate(*model_, spine_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
   const Eigen::Vector2d h = across_ * points.point(0);
-  const double q = sigma_ * sigma_ + h.squaredNorm(), scale = sqrt_weight_ * sigma_ / std::sqrt(q);
-  residuals[0] = scale * h.x();
-  residuals[1] = scale * h.y();
+  const Eigen::Matrix2d dr_dh = ShapeGemanMcClure<2>(h, sqrt_weight_, sigma_, residuals);
   if (!jacobians) return true;
-  // d r / d h = scale (I - h h^T / q)
-  const Eigen::Matrix2d dr_dh = scale * (Eigen::Matrix2d::Identity() - h * h.transpose() / q);
   const RowMatrixXd dr_dv = dr_dh * across_;
   for (int b = 0; b < 4; ++b) {
     if (!jacobians[b]) continue;
