@@ -235,6 +235,11 @@ class StageObjective:
         self.track_starts = starts
         self.start = start if start is not None else TorchState.from_tracks(tracks, cameras.initial_scale,
                                                                              dtype=dtype)
+        # ray_acceleration's line of sight of each triple's middle frame, fixed at the start state (as the C++ stage
+        # does when it builds its problem).
+        i, start = self.triples, self.start
+        rays = start.transl[i + 1] - (start.scale * self.centre[i + 1] + start.offset)
+        self.rays = (rays / rays.norm(dim=-1, keepdim=True)).detach()
         self.motion_blocks = []  # (rows slice, ground R, ground t, levels with NaN where a block is skipped)
         if "motion_prior" in active:
             self._fix_motion_prior(tracks, starts)
@@ -325,15 +330,10 @@ class StageObjective:
             elif term == "root_acceleration":
                 i, pelvis = self.triples, joints[:, 0]
                 out[term] = 0.5 * w * ((pelvis[i + 2] - 2 * pelvis[i + 1] + pelvis[i]) ** 2).sum()
-            elif term == "ray_acceleration":
-                # The line of sight of each triple's middle frame, fixed at the start state (as the C++ stage does
-                # when it builds its problem); the pelvis joint, which the C++ term reads as the root translation.
+            elif term == "ray_acceleration":  # the pelvis joint, which the C++ term reads as the root translation
                 i, pelvis = self.triples, joints[:, 0]
-                start = self.start
-                ray = start.transl[i + 1] - (start.scale * self.centre[i + 1] + start.offset)
-                ray = (ray / ray.norm(dim=-1, keepdim=True)).detach()
                 acc = pelvis[i + 2] - 2 * pelvis[i + 1] + pelvis[i]
-                out[term] = 0.5 * w * ((acc * ray).sum(-1) ** 2).sum()
+                out[term] = 0.5 * w * ((acc * self.rays).sum(-1) ** 2).sum()
             elif term == "contact_velocity":
                 feet = joints[:, list(CONTACT_JOINTS)]
                 step = ((feet[self.pairs + 1] - feet[self.pairs]) ** 2).sum(-1)
