@@ -107,13 +107,19 @@ def steady_depth(joints: np.ndarray, times: np.ndarray, half_window: float) -> n
     where it is in the image and the body's own shape and motion relative to the root as they are (a scaling
     about the camera centre would keep the whole image, but it makes the relative motion jitter instead), and
     the median keeps the depth's real changes within the window. Frames whose root is not in front of the camera
-    are left as they are."""
+    are left as they are. times: increasing seconds."""
     joints = np.asarray(joints, dtype=np.float64)
     times = np.asarray(times, dtype=np.float64)
     depth = joints[:, 0, 2]
+    # Each frame's window is looked for in a slice of the increasing times around it, not the whole track (long
+    # tracks); the slice is a little wider, so that the test |t' - t| <= half_window decides as it is written.
+    reach = half_window * (1 + 1e-9) + 1e-9
+    lo = np.searchsorted(times, times - reach, side="left")
+    hi = np.searchsorted(times, times + reach, side="right")
     steady = np.empty(len(depth))
     for t in range(len(depth)):
-        near = depth[(np.abs(times - times[t]) <= half_window) & (depth > 0)]
+        near = depth[lo[t]:hi[t]]
+        near = near[(np.abs(times[lo[t]:hi[t]] - times[t]) <= half_window) & (near > 0)]
         steady[t] = np.median(near) if len(near) else depth[t]
     stretch = np.where(depth > 0, steady / np.where(depth > 0, depth, 1.0) - 1.0, 0.0)
     return joints + (stretch[:, None] * joints[:, 0])[:, None]
