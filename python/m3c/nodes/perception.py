@@ -32,8 +32,9 @@ class PerceptionNode(Node):
     tracked person per frame (people of unconfirmed tracks and frames whose body fit failed are left out).
 
     Config: estimators (task -> name or {name, options}; m3c.perception.available(task) lists them),
-    padding (pixels around a tight box before it is squared, for the square boxes handed over; the thesis's 5), and any other m3c.perception.PerceptionConfig
-    setting under `options` (tracker, detect_every, ground_motion, ...).
+    padding (pixels around a tight box before it is squared, for the square boxes handed over; the thesis's 5),
+    and any other m3c.perception.PerceptionConfig setting under `options` (tracker, detect_every, ground_motion,
+    contact_depth_window, ...).
 
     The thesis's networks: 2D pose and body left unnamed become `vitpose` and `hmr2` when their official
     checkpoints lie in the models folder (--checkpoints / settings.models_dir / $M3C_MODELS, at
