@@ -99,6 +99,9 @@ def test_config_from_dict_yaml_round_trip(tmp_path):
         PerceptionConfig.from_dict({"detector": {"model": "x"}})
     with pytest.raises(ValueError, match="static_camera is no longer a perception setting.*--static-camera"):
         PerceptionConfig.from_dict({"static_camera": True})  # a config written for the removed 3D-speed contacts
+    with pytest.raises(ValueError, match="contact_depth_window must be > 0 seconds or None, got 0"):
+        PerceptionConfig.from_dict({"contact_depth_window": 0})
+    assert PerceptionConfig.from_dict({"contact_depth_window": None}).contact_depth_window is None
 
 
 def test_setup_script_installs_the_perception_extras_pin():
