@@ -275,7 +275,12 @@ def test_a_pose_fitting_two_overlapping_people_is_no_identity_switch():
     assert costs[0] < costs[1] <= vb.MATCH_DISTANCE
     swapped = {**arrays, "keypoints_2d": keypoints.copy(), "visible": np.ones((2, T), bool)}
     swapped["keypoints_2d"][:, 5:] = keypoints[::-1, 5:]
-    assert vb.detection_scores(truth, swapped)["id_switches"] == 2
+    swapped_scores = vb.detection_scores(truth, swapped)
+    assert swapped_scores["id_switches"] == 2
+    # Each switch is listed: at frame 5 person 0 goes from track 10 to 11 and person 1 from 11 to 10.
+    assert sorted((e["frame"], e["person"], e["from_track"], e["to_track"])
+                  for e in swapped_scores["switch_events"]) == [(5, 0, 10, 11), (5, 1, 11, 10)]
+    assert scores["switch_events"] == []
 
 
 def test_planted_feet_are_scored_against_the_true_contacts(follow_video):

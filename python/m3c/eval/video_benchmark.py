@@ -164,7 +164,8 @@ def predicted_tracks(model: BodyModel, arrays: dict, method: str) -> list[EvalTr
 def detection_scores(truth: dict, arrays: dict) -> dict:
     """Frame-by-frame matching of detections (results' keypoints where a track was detected) to the true
     people: recall over visible people and identity switches (CLEAR MOT matching: last correspondences kept
-    while valid, the rest by the Hungarian method). Where the results carry contacts, the planted feet of each
+    while valid, the rest by the Hungarian method), each switch also listed (switch_events: frame, true person,
+    the track id it left, the one it took), so a sequence's switches can be looked up in its video. Where the results carry contacts, the planted feet of each
     matched detection against the true ones (a foot planted when its ankle or toe joint is, probability > 0.5):
     contact_hits (both say planted), contact_predicted, contact_true, counted per foot and frame."""
     n_true = truth["keypoints_2d"].shape[0]
@@ -178,6 +179,7 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
     ids = arrays["track_ids"]
     last = [None] * n_true
     switches = detected = matched_frames = 0
+    switch_events = []
     with_contacts = "contacts" in arrays and "contacts" in truth
     contacts = np.zeros(3, dtype=np.int64)  # hits, predicted, true
     for t, frame in enumerate(arrays["frame_ids"]):
@@ -209,6 +211,8 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
             detected += int(visible[p, frame])
             if last[p] is not None and last[p] != ids[tracks[k]]:
                 switches += 1
+                switch_events.append({"frame": int(frame), "person": int(p), "from_track": int(last[p]),
+                                      "to_track": int(ids[tracks[k]])})
             last[p] = ids[tracks[k]]
             if with_contacts:
                 planted = _planted_feet(arrays["contacts"][tracks[k], t])
@@ -219,6 +223,7 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
         "visible": int(visible[:, frames].sum()),
         "detected": int(detected),
         "id_switches": int(switches),
+        "switch_events": switch_events,
         "matched_person_frames": int(matched_frames),
         "person_frames": int(visible.shape[0] * len(frames)),
     }
