@@ -199,3 +199,30 @@ def test_steadied_depth_helps_the_contacts_of_a_jittering_fit(model, scene):
             steadied.append((per_foot(estimator.estimate(steady_depth(jittered, times, 1.0), scene.fps, up, False))
                              == true_feet).mean())
     assert np.mean(steadied) >= 0.85 and np.mean(steadied) > np.mean(raw) + 0.025, (raw, steadied)
+
+
+def test_time_windows_hold_exactly_the_frames_within_reach():
+    """Each frame's slice holds every frame within +- half_window (and the callers' test keeps exactly those): on
+    times with gaps, frames whose distance is exactly the half window (sums of 1/30 s, as frame ids over fps make)
+    and tracks of 0-3 frames. local_velocities' slope is then the least-squares line through those frames."""
+    from m3c.perception.contacts import time_windows
+
+    rng = np.random.default_rng(4)
+    for n in (0, 1, 2, 3, 400):
+        times = np.cumsum(rng.choice([1, 1, 1, 2, 3, 40], n)) / 30.0
+        for half in (0.0, 0.1, 2 / 30, 1.0):
+            lo, hi = time_windows(times, half)
+            for t in range(n):
+                within = np.flatnonzero(np.abs(times - times[t]) <= half)
+                assert lo[t] <= within.min() and within.max() < hi[t]
+                inside = lo[t] + np.flatnonzero(np.abs(times[lo[t]:hi[t]] - times[t]) <= half)
+                np.testing.assert_array_equal(inside, within)
+    times = np.cumsum(rng.choice([1, 2, 5], 60)) / 30.0
+    points = rng.normal(size=(60, 2, 3))
+    velocities = local_velocities(points, times, 0.1)
+    for t in (0, 17, 59):
+        near = np.flatnonzero(np.abs(times - times[t]) <= 0.1)
+        if len(near) < 2:
+            near = np.arange(max(t - 1, 0), min(t + 2, 60))
+        slope = np.polyfit(times[near], points[near].reshape(len(near), -1), 1)[0].reshape(2, 3)
+        np.testing.assert_allclose(velocities[t], slope, atol=1e-9)

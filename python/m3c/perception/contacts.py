@@ -84,13 +84,23 @@ def contact_rest_heights(model: BodyModel, betas=None) -> np.ndarray:
     return out.joints[0, list(CONTACT_JOINTS), 1] - out.vertices[0, :, 1].min()
 
 
+def time_windows(times: np.ndarray, half_window: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame t of the increasing `times`, the slice lo[t]:hi[t] that holds every frame within +- half_window
+    seconds of it: a search in the sorted times instead of a test against the whole track (long tracks). The
+    slice is a little wider, so that the callers' test |t' - t| <= half_window decides as it is written."""
+    reach = half_window * (1 + 1e-9) + 1e-9
+    return (np.searchsorted(times, times - reach, side="left"),
+            np.searchsorted(times, times + reach, side="right"))
+
+
 def local_velocities(points: np.ndarray, times: np.ndarray, half_window: float) -> np.ndarray:
     """Velocities (n, P, 3) of points (n, P, 3): the slope of a least-squares line through each point's
-    positions at the times within +- half_window (at least the two nearest neighbours)."""
+    positions at the times (increasing) within +- half_window (at least the two nearest neighbours)."""
     n = len(points)
     velocities = np.zeros(points.shape)
+    lo, hi = time_windows(times, half_window)
     for t in range(n):
-        near = np.flatnonzero(np.abs(times - times[t]) <= half_window)
+        near = lo[t] + np.flatnonzero(np.abs(times[lo[t]:hi[t]] - times[t]) <= half_window)
         if len(near) < 2:
             near = np.arange(max(t - 1, 0), min(t + 2, n))
         dt = times[near] - times[near].mean()
@@ -111,11 +121,7 @@ def steady_depth(joints: np.ndarray, times: np.ndarray, half_window: float) -> n
     joints = np.asarray(joints, dtype=np.float64)
     times = np.asarray(times, dtype=np.float64)
     depth = joints[:, 0, 2]
-    # Each frame's window is looked for in a slice of the increasing times around it, not the whole track (long
-    # tracks); the slice is a little wider, so that the test |t' - t| <= half_window decides as it is written.
-    reach = half_window * (1 + 1e-9) + 1e-9
-    lo = np.searchsorted(times, times - reach, side="left")
-    hi = np.searchsorted(times, times + reach, side="right")
+    lo, hi = time_windows(times, half_window)
     steady = np.empty(len(depth))
     for t in range(len(depth)):
         near = depth[lo[t]:hi[t]]
@@ -163,9 +169,10 @@ def kinematic_contacts(points: np.ndarray, times: np.ndarray, up, ground_static:
     up = up / np.linalg.norm(up)
     height = points @ up - rest
     ground = np.empty(n)
+    lo, hi = time_windows(times, config.window_seconds)
     for t in range(n):
-        window = np.abs(times - times[t]) <= config.window_seconds
-        ground[t] = np.quantile(height[window].ravel(), config.ground_quantile)
+        window = np.abs(times[lo[t]:hi[t]] - times[t]) <= config.window_seconds
+        ground[t] = np.quantile(height[lo[t]:hi[t]][window].ravel(), config.ground_quantile)
     above = height - ground[:, None]
     prob = _sigmoid((config.height_threshold - above) / config.height_softness)
     if ground_static and n >= 2:
