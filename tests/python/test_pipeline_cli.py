@@ -91,8 +91,24 @@ def test_frame_range_outside_the_video(small_video, tmp_path, capsys):
     assert code == 0 and "2 node(s) ran" in out
 
 
+def test_horizontal_field_of_view_gives_the_focal_length(small_video, tmp_path, capsys):
+    """--hfov 90 on a 64-pixel-wide video: focal 32 px (half the width over tan 45 degrees), the centre as the
+    principal point, and the camera counts as given (the focal search leaves it alone)."""
+    from m3c.pipeline.cache import Cache
+
+    code, _, _ = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                         frames_only_config(tmp_path), "--hfov", "90")
+    assert code == 0
+    (entry,) = (tmp_path / "out" / "cache" / "camera").iterdir()
+    camera = Cache(tmp_path / "out" / "cache").load("camera", entry.name)["camera"]
+    np.testing.assert_allclose(camera["intrinsics"], [32.0, 32.0, 32.0, 24.0])
+    assert camera["source"] == "given"
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--intrinsics", "0", "50", "32", "24"], "fx, fy > 0"),
+    (["--hfov", "0.5"], "hfov must be the horizontal field of view in degrees"),
+    (["--hfov", "60", "--intrinsics", "50", "50", "32", "24"], "not both"),
     (["--set", "camera.nope=1"], "unknown setting"),
     (["--set", "ghost.x=1"], "no node named 'ghost'"),
     (["--frames", "5:2"], "bad frame range"),

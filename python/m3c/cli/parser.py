@@ -42,6 +42,10 @@ def _add_video_options(parser, many: bool) -> None:
     parser.add_argument("--intrinsics", nargs=4, type=float, metavar=("FX", "FY", "CX", "CY"),
                         help="camera intrinsics in pixels, the same for every video" if many else
                         "camera intrinsics in pixels (default: focal sqrt(W^2 + H^2), image centre)")
+    parser.add_argument("--hfov", type=float, metavar="DEGREES",
+                        help="the camera's horizontal field of view, instead of --intrinsics (square pixels, principal "
+                             "point at the image centre); worth giving for a camera that does not move, whose focal "
+                             "length its motion cannot tell (a phone's main camera: about 65-75)")
     parser.add_argument("--static-camera", action="store_true",
                         help=f"the camera{'s do' if many else ' does'} not move (no visual odometry)")
     parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",

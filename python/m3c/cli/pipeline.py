@@ -17,6 +17,8 @@ def pipeline_config(args):
     overrides = {}
     if getattr(args, "intrinsics", None):
         overrides["camera.intrinsics"] = list(args.intrinsics)
+    if getattr(args, "hfov", None) is not None:
+        overrides["camera.hfov"] = float(args.hfov)
     if getattr(args, "static_camera", False):
         overrides["vo.static"] = True
         for name, entry in config.nodes.items():

@@ -1,4 +1,5 @@
-"""The camera node: the camera intrinsics, given (--intrinsics) or the default (m3c.io.video.default_intrinsics)."""
+"""The camera node: the camera intrinsics, given (--intrinsics, or --hfov: the horizontal field of view) or the
+default (m3c.io.video.default_intrinsics)."""
 
 from __future__ import annotations
 
@@ -16,8 +17,10 @@ PLAUSIBLE_FOCAL = (0.2, 10.0)
 
 @register_node
 class CameraNode(Node):
-    """The camera intrinsics (fx, fy, cx, cy) in pixels: given in the config (--intrinsics), else
-    default_intrinsics(). Output camera: intrinsics (4,) float64, source ("given" or "default")."""
+    """The camera intrinsics (fx, fy, cx, cy) in pixels: given in the config (intrinsics: --intrinsics; or hfov:
+    --hfov, the horizontal field of view in degrees, with square pixels and the principal point at the image
+    centre, so one setting fits videos of any size), else default_intrinsics(). Output camera: intrinsics (4,)
+    float64, source ("given" or "default")."""
 
     type_name = "camera"
     level = "frame"
@@ -27,15 +30,26 @@ class CameraNode(Node):
     @dataclass
     class Config:
         intrinsics: list[float] | None = None  # fx fy cx cy, pixels
+        hfov: float | None = None  # degrees: the horizontal field of view (instead of intrinsics)
 
     def check(self, ctx) -> None:
-        k = self.config.intrinsics
+        k, hfov = self.config.intrinsics, self.config.hfov
+        if k is not None and hfov is not None:
+            raise InputError("give the camera's intrinsics or its horizontal field of view (hfov), not both")
+        if hfov is not None and not (isinstance(hfov, (int, float)) and 1.0 <= hfov <= 179.0):
+            raise InputError(f"hfov must be the horizontal field of view in degrees, 1..179, got {hfov!r} (a phone's "
+                             "main camera films about 65-75 degrees wide)")
         if k is not None and (len(k) != 4 or not all(np.isfinite(k)) or k[0] <= 0 or k[1] <= 0):
             raise InputError(f"intrinsics must be 4 numbers fx fy cx cy with fx, fy > 0 (pixels), got {k}")
 
     def run(self, ctx, inputs):
         video = inputs["video"]
         self.check(ctx)
+        if self.config.hfov is not None:
+            width, height = video["width"], video["height"]
+            focal = 0.5 * width / np.tan(np.radians(self.config.hfov) / 2)
+            return {"camera": {"intrinsics": np.array([focal, focal, width / 2, height / 2], dtype=np.float64),
+                               "source": "given"}}
         if self.config.intrinsics is None:
             return {"camera": {"intrinsics": default_intrinsics(video["width"], video["height"]),
                                "source": "default"}}
