@@ -7,7 +7,7 @@
 namespace m3c::body {
 
 void BlockPoints::Evaluate(const BodyModel& model, const KeypointRegressor& regressor, const PoseBlocks& blocks,
-                           bool with_jacobian) {
+                           bool with_jacobian, bool body_columns, bool betas_columns) {
   const int J = model.num_joints(), K = regressor.num_keypoints();
   pose_.resize(3 * J);
   std::copy(blocks.root, blocks.root + 3, pose_.begin());
@@ -22,7 +22,7 @@ void BlockPoints::Evaluate(const BodyModel& model, const KeypointRegressor& regr
   if (with_jacobian) jacobian_.resize(static_cast<size_t>(3 * K) * cols_);
   const double zero[3] = {0.0, 0.0, 0.0};
   KeypointsWithJacobian(model, regressor, pose_.data(), blocks.betas, blocks.transl ? blocks.transl : zero,
-                        points_.data(), with_jacobian ? jacobian_.data() : nullptr);
+                        points_.data(), with_jacobian ? jacobian_.data() : nullptr, body_columns, betas_columns);
 }
 
 void BlockPoints::Reserve(const BodyModel& model, const KeypointRegressor& regressor, bool with_jacobian) {

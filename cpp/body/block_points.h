@@ -20,9 +20,11 @@ struct PoseBlocks {
 
 class BlockPoints {
  public:
-  // points (K,3); when with_jacobian, jacobian (3K, 3 + 3J + B) with columns [transl | root | body | betas].
+  // points (K,3); when with_jacobian, jacobian (3K, 3 + 3J + B) with columns [transl | root | body | betas];
+  // body_columns / betas_columns false leave those columns zero, not computed (KeypointsWithJacobian): for a cost
+  // whose body or betas block the stage holds constant (Ceres asks for no Jacobian of it).
   void Evaluate(const BodyModel& model, const KeypointRegressor& regressor, const PoseBlocks& blocks,
-                bool with_jacobian);
+                bool with_jacobian, bool body_columns = true, bool betas_columns = true);
   // Allocates the storage Evaluate() needs, so that it allocates nothing.
   void Reserve(const BodyModel& model, const KeypointRegressor& regressor, bool with_jacobian);
   int num_points() const { return static_cast<int>(points_.size() / 3); }

@@ -55,7 +55,8 @@ void Keypoints(const BodyModel& model, const KeypointRegressor& regressor, int n
 }
 
 void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regressor, const double* pose,
-                           const double* betas, const double* transl, double* keypoints, double* jacobian) {
+                           const double* betas, const double* transl, double* keypoints, double* jacobian,
+                           bool body_columns, bool betas_columns) {
   M3C_CHECK(regressor.num_vertices() == model.num_vertices() && regressor.num_joints() == model.num_joints())
       << "keypoint regressor does not match the body model";
   if (jacobian == nullptr) {
@@ -82,12 +83,14 @@ void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regr
   for (int k = 0; k < J; ++k) G[k] = Rw(k) * RightJacobianSO3(pose + 3 * k);
 
   // d o_j / d beta (3 x B): o_0 = J_0, o_j = o_p + Rw_p (J_j - J_p), rest joints linear in beta.
-  std::vector<RowMat3X> dO(J, RowMat3X::Zero(3, B));
+  std::vector<RowMat3X> dO(betas_columns ? J : 0, RowMat3X::Zero(3, B));
   auto dJ = [&](int j) { return arrays.joint_shapedirs.middleRows(3 * j, 3); };
-  for (int j = 0; j < J; ++j) {
+  for (int j = 0; betas_columns && j < J; ++j) {
     const int p = model.parents()[j];
     dO[j] = p < 0 ? RowMat3X(dJ(j)) : RowMat3X(dO[p] + Rw(p) * (dJ(j) - dJ(p)));
   }
+  // The pose columns a caller reads: the root's always, the body joints' with body_columns.
+  const int posed_joints = body_columns ? J : 1;
 
   Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> jac(jacobian, 3 * K, D);
   jac.setZero();
@@ -102,7 +105,7 @@ void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regr
     PoseFeature(J, sk.local_rot.data(), feature.data());
     // d vec(R_k) / d theta_k (9 x 3): column a is vec(R_k [Jr_k e_a]x).
     std::vector<Eigen::Matrix<double, 9, 3>> dvecR(J);
-    for (int k = 1; k < J; ++k) {
+    for (int k = 1; k < posed_joints; ++k) {
       const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> Rk(&sk.local_rot[9 * k]);
       const Matrix3d Jr = RightJacobianSO3(pose + 3 * k);
       for (int a = 0; a < 3; ++a) {
@@ -133,7 +136,9 @@ void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regr
         const Vector3d p = Rw(j) * (y - Jrest) + o(j);
         value += w * p;
         M += w * Rw(j);
-        Jv.middleCols(kBetas, B) += w * (Rw(j) * (arrays.shapedirs.middleRows(3 * v, 3) - dJ(j)) + dO[j]);
+        if (betas_columns) {
+          Jv.middleCols(kBetas, B) += w * (Rw(j) * (arrays.shapedirs.middleRows(3 * v, 3) - dJ(j)) + dO[j]);
+        }
         for (int k : model.ancestors(j)) {
           if (!touched[k]) {
             c[k].setZero();
@@ -142,7 +147,7 @@ void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regr
           c[k] += w * (p - o(k));
         }
       }
-      for (int k = 0; k < J; ++k) {
+      for (int k = 0; k < posed_joints; ++k) {
         if (touched[k]) Jv.middleCols<3>(kPose + 3 * k) -= Skew(c[k]) * G[k];
         if (k >= 1) {
           Jv.middleCols<3>(kPose + 3 * k) +=
@@ -171,9 +176,9 @@ void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regr
       const double w = it.value();
       value += w * o(j);
       weight_sum += w;
-      rows.middleCols(kBetas, B) += w * dO[j];
+      if (betas_columns) rows.middleCols(kBetas, B) += w * dO[j];
       for (int k : model.ancestors(j)) {
-        if (k != j) rows.middleCols<3>(kPose + 3 * k) -= w * Skew(o(j) - o(k)) * G[k];
+        if (k != j && k < posed_joints) rows.middleCols<3>(kPose + 3 * k) -= w * Skew(o(j) - o(k)) * G[k];
       }
     }
     rows.leftCols<3>() += weight_sum * Matrix3d::Identity();

@@ -22,8 +22,12 @@ inline int NumJacobianColumns(const BodyModel& model) { return 3 + 3 * model.num
 // row-major (3K, 3 + 3J + B) matrix, the layout Ceres uses for a parameter block's Jacobian rows.
 // Rotations use the right Jacobian of SO(3): d theta_k moves the subtree below joint k by
 // (Rw_k Jr(theta_k) d theta_k) x (p - o_k); pose blend shapes add M_v P_v d vec(R_k).
+// body_columns / betas_columns false: those columns (the body joints' 3(J-1), the B betas') are left zero and
+// not computed (the pose blend shapes' and shape directions' products are most of the work), for a caller that
+// holds them constant; the translation and root columns are always computed.
 void KeypointsWithJacobian(const BodyModel& model, const KeypointRegressor& regressor, const double* pose,
-                           const double* betas, const double* transl, double* keypoints, double* jacobian);
+                           const double* betas, const double* transl, double* keypoints, double* jacobian,
+                           bool body_columns = true, bool betas_columns = true);
 
 // The same for the model's own J posed joints (identity joint regressor).
 void JointsWithJacobian(const BodyModel& model, const double* pose, const double* betas, const double* transl,

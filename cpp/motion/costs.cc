@@ -56,7 +56,7 @@ bool ReprojectionCost::Evaluate(double const* const* parameters, double* residua
   const int K = regressor_->num_keypoints();
   thread_local body::BlockPoints points;
   points.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]},
-                  jacobians != nullptr);
+                  jacobians != nullptr, jacobians && jacobians[2], jacobians && jacobians[3]);
   const double scale = parameters[4][0];
   const Eigen::Map<const Eigen::Vector3d> offset(parameters[5]);
   const Eigen::Matrix3d& R = camera_.cam_from_world_rotation;
@@ -118,7 +118,7 @@ bool PointStencilCost::Evaluate(double const* const* parameters, double* residua
   for (int f = 0; f < F; ++f) {
     frames[f].Evaluate(*model_, *regressor_,
                        {parameters[3 * f], parameters[3 * f + 1], parameters[3 * f + 2], parameters[betas_block]},
-                       jacobians != nullptr);
+                       jacobians != nullptr, jacobians && jacobians[3 * f + 2], jacobians && jacobians[betas_block]);
   }
   for (int k = 0; k < K; ++k) {
     for (int c = 0; c < 3; ++c) {
@@ -177,7 +177,8 @@ UprightCost::UprightCost(const body::BodyModel* model, int lower_joint, int uppe
 
 bool UprightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   thread_local body::BlockPoints points;
-  points.Evaluate(*model_, spine_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
+  points.Evaluate(*model_, spine_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr,
+                  jacobians && jacobians[2], jacobians && jacobians[3]);
   const Eigen::Vector2d h = across_ * points.point(0);
   const Eigen::Matrix2d dr_dh = ShapeGemanMcClure<2>(h, sqrt_weight_, sigma_, residuals);
   if (!jacobians) return true;
@@ -210,7 +211,8 @@ ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::K
 bool ContactHeightCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int K = regressor_->num_keypoints();
   thread_local body::BlockPoints p;
-  p.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr);
+  p.Evaluate(*model_, *regressor_, {parameters[0], parameters[1], parameters[2], parameters[3]}, jacobians != nullptr,
+             jacobians && jacobians[2], jacobians && jacobians[3]);
   const double scale = parameters[4][0];
   const Eigen::Map<const Eigen::Vector3d> offset(parameters[5]);
   const Eigen::Vector3d& n = normal_in_world_;

@@ -65,6 +65,33 @@ void CompareWithAutodiff(const std::vector<double>& pose_in) {
 
 TEST(Jacobian, KeypointsMatchAutodiff) { CompareWithAutodiff(RandomVector(72, 0.6, 11)); }
 
+// Without the body or betas columns (a cost whose stage holds those blocks): the columns kept equal the full
+// Jacobian's to the bit (the same operations), the others are zero, and the keypoints are the same.
+TEST(Jacobian, KeypointsWithoutBodyOrBetasColumns) {
+  const BodyModel model = MakeTestModel();
+  const KeypointRegressor reg = MakeRegressor(model);
+  const int J = model.num_joints(), B = model.num_betas(), K = reg.num_keypoints();
+  const int D = NumJacobianColumns(model);
+  std::vector<double> pose = RandomVector(3 * J, 0.6, 21), betas = RandomVector(B, 1.0, 22), transl = {0.3, -0.2, 4.0};
+  std::vector<double> kp(3 * K), full(3 * K * D);
+  KeypointsWithJacobian(model, reg, pose.data(), betas.data(), transl.data(), kp.data(), full.data());
+  for (const bool body : {true, false}) {
+    for (const bool with_betas : {true, false}) {
+      std::vector<double> kp2(3 * K), part(3 * K * D, 7.0);  // 7: the skipped columns must be written as zero
+      KeypointsWithJacobian(model, reg, pose.data(), betas.data(), transl.data(), kp2.data(), part.data(), body,
+                            with_betas);
+      EXPECT_EQ(kp, kp2);
+      for (int r = 0; r < 3 * K; ++r) {
+        for (int c = 0; c < D; ++c) {
+          const bool kept = c < 6 || (c < 3 + 3 * J ? body : with_betas);
+          EXPECT_EQ(part[r * D + c], kept ? full[r * D + c] : 0.0) << "row " << r << " column " << c << " body "
+                                                                     << body << " betas " << with_betas;
+        }
+      }
+    }
+  }
+}
+
 TEST(Jacobian, KeypointsMatchAutodiffAtRestPose) { CompareWithAutodiff(std::vector<double>(72, 0.0)); }
 
 TEST(Jacobian, KeypointsMatchAutodiffNearSmallAngleBranch) { CompareWithAutodiff(RandomVector(72, 3e-5, 13)); }
