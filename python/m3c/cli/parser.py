@@ -45,7 +45,7 @@ def _add_video_options(parser, many: bool) -> None:
     parser.add_argument("--hfov", type=float, metavar="DEGREES",
                         help="the camera's horizontal field of view, instead of --intrinsics (square pixels, principal "
                              "point at the image centre); worth giving for a camera that does not move, whose focal "
-                             "length its motion cannot tell (a phone's main camera: about 65-75)")
+                             "length its motion cannot tell (a phone's main camera: about 60-70)")
     parser.add_argument("--static-camera", action="store_true",
                         help=f"the camera{'s do' if many else ' does'} not move (no visual odometry)")
     parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",

@@ -38,7 +38,7 @@ class CameraNode(Node):
             raise InputError("give the camera's intrinsics or its horizontal field of view (hfov), not both")
         if hfov is not None and not (isinstance(hfov, (int, float)) and 1.0 <= hfov <= 179.0):
             raise InputError(f"hfov must be the horizontal field of view in degrees, 1..179, got {hfov!r} (a phone's "
-                             "main camera films about 65-75 degrees wide)")
+                             "main camera films about 60-70 degrees wide)")
         if k is not None and (len(k) != 4 or not all(np.isfinite(k)) or k[0] <= 0 or k[1] <= 0):
             raise InputError(f"intrinsics must be 4 numbers fx fy cx cy with fx, fy > 0 (pixels), got {k}")
 
