@@ -165,9 +165,10 @@ def detection_scores(truth: dict, arrays: dict) -> dict:
     """Frame-by-frame matching of detections (results' keypoints where a track was detected) to the true
     people: recall over visible people and identity switches (CLEAR MOT matching: last correspondences kept
     while valid, the rest by the Hungarian method), each switch also listed (switch_events: frame, true person,
-    the track id it left, the one it took), so a sequence's switches can be looked up in its video. Where the results carry contacts, the planted feet of each
-    matched detection against the true ones (a foot planted when its ankle or toe joint is, probability > 0.5):
-    contact_hits (both say planted), contact_predicted, contact_true, counted per foot and frame."""
+    the track id it left, the one it took), so a sequence's switches can be looked up in its video. Where the
+    results carry contacts, the planted feet of each matched detection against the true ones (a foot planted when
+    its ankle or toe joint is, probability > 0.5): contact_hits (both say planted), contact_predicted,
+    contact_true, counted per foot and frame."""
     n_true = truth["keypoints_2d"].shape[0]
     silhouette = truth["silhouette_pixels"]
     occlusion = 1.0 - truth["visible_pixels"] / np.maximum(silhouette, 1)
