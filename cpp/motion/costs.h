@@ -6,6 +6,7 @@
 #include <vector>
 
 #include <ceres/ceres.h>
+#include <ceres/rotation.h>
 #include <Eigen/Core>
 
 #include "body/body_model.h"
@@ -82,6 +83,37 @@ class UprightCost : public ceres::CostFunction {
   body::KeypointRegressor spine_;  // one point: upper joint minus lower joint
   Eigen::Matrix<double, 2, 3, Eigen::RowMajor> across_;
   double sqrt_weight_, sigma_;
+};
+
+// Heading anchor: the body's facing direction about the world's up direction u (unit; the person's ground
+// normal) held to a reference heading, r = sqrt(weight) atan2(u . (f0 x f), f0 . f), f = R(root) z and f0 the
+// reference facing direction (the body model's forward axis z), both projected onto the plane normal to u.
+// The camera-local fit sees which way a person faces where the keypoints alone hold it weakly (a person half
+// hidden, only one side visible), and a heading leaves the lean to the keypoints and "upright". Block: root.
+class HeadingAnchorCost {
+ public:
+  // Nullptr where the reference faces within 15 degrees of u (lying down: no heading to hold).
+  static ceres::CostFunction* Create(const Eigen::Vector3d& up_in_world, const Eigen::Vector3d& reference_root,
+                                     double weight);
+
+  template <typename T>
+  bool operator()(const T* root, T* residual) const {
+    const T forward[3] = {T(0), T(0), T(1)};
+    T f[3];
+    ceres::AngleAxisRotatePoint(root, forward, f);
+    const T along = T(up_[0]) * f[0] + T(up_[1]) * f[1] + T(up_[2]) * f[2];
+    T p[3];  // f across u: the heading's plane
+    for (int k = 0; k < 3; ++k) p[k] = f[k] - along * T(up_[k]);
+    const T cross_up = T(side_[0]) * p[0] + T(side_[1]) * p[1] + T(side_[2]) * p[2];  // (f0 x p) . u = (u x f0) . p
+    const T dot = T(reference_[0]) * p[0] + T(reference_[1]) * p[1] + T(reference_[2]) * p[2];
+    residual[0] = T(sqrt_weight_) * atan2(cross_up, dot);
+    return true;
+  }
+
+ private:
+  HeadingAnchorCost(const Eigen::Vector3d& up, const Eigen::Vector3d& reference, double weight);
+  Eigen::Vector3d up_, reference_, side_;  // u, f0 across u (both unit), u x f0
+  double sqrt_weight_;
 };
 
 // Contact height against the person's ground plane, given in the frame's camera coordinates (metric, as a

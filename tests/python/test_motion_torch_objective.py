@@ -223,6 +223,28 @@ def test_pose_terms_after_ceres_steps(model, scene, tmp_path, version):
     assert stage.objective_after == pytest.approx(sum(end.values()), rel=1e-8)
 
 
+def test_heading_anchor_after_ceres_steps(model, scene):
+    """heading_anchor holds each frame's facing direction about the ground normal to the tracks' own: zero at the
+    start, so both sides are compared at the state Ceres reaches from perturbed tracks under the scene's keypoints."""
+    weights = {"reprojection": 1e-3, "heading_anchor": 5.0, "upright": 3.0}
+    config = single_stage(StageSpec("heading", ["transl", "root"], weights), 5)
+    config.world_check = {}  # the stage is judged here by its terms, not reverted by the world check
+    tracks = perturbed(scene.init, seed=6, ground_scale=2.5)
+    res = optimize(model, tracks, scene.cameras_vo, config)
+    stage = res.stages[0]
+    assert stage.status == "ok" and stage.iterations > 0, stage.message
+    objective = StageObjective(model, tracks, scene.cameras_vo, config, config.stages[0])
+    start, end = torch_terms(objective, tracks, 1.0), torch_terms(objective, res.tracks, 1.0)
+    assert sorted(stage.terms) == sorted(weights) and start["heading_anchor"] < 1e-20 < end["heading_anchor"]
+    for term, (before, after) in stage.terms.items():
+        assert before == pytest.approx(start[term], rel=RTOL, abs=1e-12), term
+        assert after == pytest.approx(end[term], rel=1e-8), term
+    # A larger weight holds the heading closer to the tracks' own.
+    heavy = single_stage(StageSpec("heading", ["transl", "root"], dict(weights, heading_anchor=500.0)), 5)
+    heavy.world_check = {}
+    held = optimize(model, tracks, scene.cameras_vo, heavy)
+    assert torch_terms(objective, held.tracks, 1.0)["heading_anchor"] < 0.5 * end["heading_anchor"]
+
 def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):
     spec = next(s for s in OptimizerConfig.default().stages if s.name == "root_orientation")
     config = single_stage(spec, 0)
@@ -239,14 +261,16 @@ def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):
     assert torch.equal(run.state.body, start.body) and torch.equal(run.state.betas, start.betas)
     assert float(run.state.scale) == 1.0
     # Its result, handed to the C++ objective, has the same value there. ray_acceleration's lines of sight are
-    # fixed at a stage's start, so both sides start from the handed-over state; they moved little.
+    # fixed at a stage's start, so both sides start from the handed-over state; they moved little. The heading
+    # anchor's reference is the tracks' own heading: zero on the handed-over tracks, so it is left out.
     tracks = run.state.to_tracks(scene.init)
     stage = optimize(model, tracks, scene.cameras_vo, config).stages[0]
     restarted = StageObjective(model, tracks, scene.cameras_vo, config, config.stages[0])
     with torch.no_grad():
         value = float(restarted(TorchState.from_tracks(tracks)))
+        anchored = float(objective.terms(run.state).get("heading_anchor", 0.0))
     assert stage.objective_before == pytest.approx(value, rel=RTOL)
-    assert value == pytest.approx(run.final, rel=1e-4)
+    assert value == pytest.approx(run.final - anchored, rel=1e-4)
 
 
 def test_unknown_terms_are_refused(model, scene):

@@ -11,6 +11,11 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   pose_anchor       |body pose_t - initial body pose_t|^2 per frame (axis-angle): a Gaussian around the
                     regressed pose, which is per-frame evidence; unlike |body pose|^2 it does not pull
                     towards the T-pose
+  heading_anchor    angle^2 per frame: the turn, about the person's ground normal, of the body's facing direction
+                    (its z axis, projected across the normal) from the initial (regressed) one: the camera-local
+                    fit sees which way a person faces where the keypoints barely do (one side hidden); the lean
+                    is left to the keypoints and "upright". No residual where the initial facing direction is
+                    within 15 degrees of the normal (lying down)
   pose_smoothness   |body pose_{t+1} - body pose_t|^2 (axis-angle)
   joint_smoothness  sum_j |J_{t+1} - J_t|^2 over all joints, metres (first order, as SLAHMR and the thesis;
                     it also penalises real motion)

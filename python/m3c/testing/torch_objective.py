@@ -29,7 +29,7 @@ from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness", "joint_acceleration", "root_acceleration", "ray_acceleration", "contact_velocity",
-               "contact_height", "motion_prior", "scale_prior", "upright")
+               "contact_height", "motion_prior", "scale_prior", "upright", "heading_anchor")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -229,6 +229,14 @@ class StageObjective:
         self.height_weights = as_t(on_ground * has_ground[:, None])
         self.has_ground = as_t(has_ground)  # upright's rows: its up direction is the ground's normal
         self.ground_normal = as_t(np.einsum("nij,nj->ni", world_from_cam[rows, :3, :3], normal_cam) / norm[:, None])
+        # heading_anchor's reference: the tracks' own root orientation's facing direction (the body's z axis)
+        # across the ground normal, unit; rows whose reference faces within 15 degrees of it hold no heading.
+        root = torch.as_tensor(np.concatenate([np.asarray(t.root_orient, dtype=np.float64).reshape(-1, 3)
+                                               for t in tracks]), dtype=dtype)
+        facing = axis_angle_to_matrix(root)[:, :, 2]
+        level = facing - (facing * self.ground_normal).sum(-1, keepdim=True) * self.ground_normal
+        self.heading_rows = self.has_ground * (level.norm(dim=-1) >= 0.25)
+        self.heading_reference = level / level.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         self.ground_offset_cam = as_t(offset_cam / norm)
 
         self.tracks = tracks
@@ -354,6 +362,13 @@ class StageObjective:
                 across = ((spine - (spine * up).sum(-1, keepdim=True) * up) ** 2).sum(-1)
                 s2 = self.config.upright_sigma ** 2
                 out[term] = 0.5 * w * (self.has_ground * s2 * across / (s2 + across)).sum()
+            elif term == "heading_anchor":
+                facing = axis_angle_to_matrix(state.root)[:, :, 2]
+                up = self.ground_normal
+                level = facing - (facing * up).sum(-1, keepdim=True) * up
+                turn = torch.atan2((torch.linalg.cross(self.heading_reference, level) * up).sum(-1),
+                                   (self.heading_reference * level).sum(-1))
+                out[term] = 0.5 * w * (self.heading_rows * turn ** 2).sum()
             elif term == "motion_prior":
                 total = joints.new_zeros(())
                 for rows, R, t, levels in self.motion_blocks:

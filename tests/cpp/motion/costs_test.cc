@@ -1,5 +1,7 @@
 #include "motion/costs.h"
 
+#include <memory>
+
 #include <gtest/gtest.h>
 
 #include "body/kinematics.h"
@@ -216,6 +218,42 @@ TEST(Costs, RayAccelerationValueJacobianAndNothingAcrossTheRay) {
   Eigen::Map<Eigen::Vector3d>(moved.data()) += 0.5 * ray;
   ASSERT_TRUE(cost.Evaluate(moved_params, &moved_residual, nullptr));
   EXPECT_NEAR(moved_residual - residual, std::sqrt(weight) * stencil[1] * 0.5, 1e-12);
+}
+
+TEST(Costs, HeadingAnchorMeasuresTheTurnAboutUpOnly) {
+  const Eigen::Vector3d up = Eigen::Vector3d(0.1, -1.0, 0.2).normalized();
+  const Eigen::Vector3d reference(0.4, 2.1, -0.3);  // a root orientation (axis-angle), facing well off up
+  const double weight = 4.0;
+  std::unique_ptr<ceres::CostFunction> cost(HeadingAnchorCost::Create(up, reference, weight));
+  ASSERT_NE(cost, nullptr);
+  const Eigen::Matrix3d r0 = Eigen::AngleAxisd(reference.norm(), reference.normalized()).toRotationMatrix();
+  auto residual_at = [&](const Eigen::Matrix3d& rotation) {
+    const Eigen::AngleAxisd aa(rotation);
+    Eigen::Vector3d root = aa.angle() * aa.axis();
+    const double* params[] = {root.data()};
+    double r = 0.0;
+    EXPECT_TRUE(cost->Evaluate(params, &r, nullptr));
+    // Away from the turn of pi, where the residual wraps to -pi and finite differences straddle the jump.
+    if (std::abs(r) < 2.5 * std::sqrt(weight)) EXPECT_TRUE(CheckGradient(*cost, {root.data()}));
+    return r;
+  };
+  EXPECT_NEAR(residual_at(r0), 0.0, 1e-12);
+  // Turned about up by alpha: the residual is sqrt(weight) alpha, with its sign, up to +-pi.
+  for (double alpha : {-2.9, -0.6, 0.05, 1.3, 3.0}) {
+    EXPECT_NEAR(residual_at(Eigen::AngleAxisd(alpha, up) * r0), std::sqrt(weight) * alpha, 1e-9) << alpha;
+  }
+  // Leaning (about the horizontal axis across the facing direction) or rolling about the facing direction
+  // itself leaves the heading: no residual.
+  const Eigen::Vector3d facing = r0 * Eigen::Vector3d::UnitZ();
+  const Eigen::Vector3d level = (facing - up.dot(facing) * up).normalized();
+  for (double beta : {-0.4, 0.3}) {
+    EXPECT_NEAR(residual_at(Eigen::AngleAxisd(beta, up.cross(level)) * r0), 0.0, 1e-9) << beta;
+    EXPECT_NEAR(residual_at(Eigen::AngleAxisd(beta, facing) * r0), 0.0, 1e-9) << beta;
+  }
+  // A reference facing along up (a person lying face up) has no heading: no cost.
+  const Eigen::Vector3d lying = Eigen::Vector3d::UnitZ().cross(up).normalized() *
+                                std::acos(Eigen::Vector3d::UnitZ().dot(up));
+  EXPECT_EQ(HeadingAnchorCost::Create(up, lying, weight), nullptr);
 }
 
 }  // namespace
