@@ -308,10 +308,9 @@ HeadingAnchorCost::HeadingAnchorCost(const Eigen::Vector3d& up, const Eigen::Vec
 ceres::CostFunction* HeadingAnchorCost::Create(const Eigen::Vector3d& up_in_world, const Eigen::Vector3d& reference_root,
                                                double weight) {
   const Eigen::Vector3d up = up_in_world.normalized();
-  const double angle = reference_root.norm();
-  const Eigen::Vector3d facing =
-      angle > 0 ? Eigen::Vector3d(Eigen::AngleAxisd(angle, reference_root / angle) * Eigen::Vector3d::UnitZ())
-                : Eigen::Vector3d::UnitZ();
+  const double forward[3] = {0.0, 0.0, 1.0};
+  Eigen::Vector3d facing;  // the rotation operator() applies
+  ceres::AngleAxisRotatePoint(reference_root.data(), forward, facing.data());
   const Eigen::Vector3d level = facing - up.dot(facing) * up;
   if (!(level.norm() >= 0.25)) return nullptr;  // within 15 degrees of the up direction (or not finite)
   return new ceres::AutoDiffCostFunction<HeadingAnchorCost, 1, 3>(

@@ -420,6 +420,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                       cameras.intrinsics(t, 3)};
     return cam;
   };
+  // The person's up direction at a track's frame f: its ground normal (camera coordinates) in the world.
+  auto ground_up = [&](const TrackInput& tr, int f) -> Eigen::Vector3d {
+    return frame_camera(tr.first_frame + f).cam_from_world_rotation.transpose() * tr.ground_normal.row(f).transpose();
+  };
 
   // Per-point weights weight * p for contact probabilities p >= threshold at frame f; empty if none is in contact.
   auto contact_weights = [&](const RowMatrixXd& probabilities, int f, double weight) {
@@ -466,9 +470,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         }
       } else if (term == "heading_anchor" && tr.ground_normal.size() > 0) {
         for (int f = 0; f < n; ++f) {
-          const Eigen::Vector3d up =
-              frame_camera(tr.first_frame + f).cam_from_world_rotation.transpose() * tr.ground_normal.row(f).transpose();
-          ceres::CostFunction* cost = HeadingAnchorCost::Create(up, tr.root.row(f).transpose(), weight);
+          ceres::CostFunction* cost = HeadingAnchorCost::Create(ground_up(tr, f), tr.root.row(f).transpose(), weight);
           if (cost != nullptr) problem->AddResidualBlock(cost, nullptr, vars.root[i][f]);
         }
       } else if (term == "pose_anchor") {
@@ -538,10 +540,8 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                      vars.body[i][f + 1], vars.betas[i]});
         }
       } else if (term == "upright" && tr.ground_normal.size() > 0 && J == kSmplJoints) {
-        for (int f = 0; f < n; ++f) {  // the up direction: the person's ground normal, in the world
-          const Eigen::Vector3d up =
-              frame_camera(tr.first_frame + f).cam_from_world_rotation.transpose() * tr.ground_normal.row(f).transpose();
-          add_block(problem, new UprightCost(model_, kPelvis, kNeck, up, weight, config_.upright_sigma),
+        for (int f = 0; f < n; ++f) {
+          add_block(problem, new UprightCost(model_, kPelvis, kNeck, ground_up(tr, f), weight, config_.upright_sigma),
                     {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]});
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {

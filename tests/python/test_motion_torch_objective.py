@@ -245,6 +245,7 @@ def test_heading_anchor_after_ceres_steps(model, scene):
     held = optimize(model, tracks, scene.cameras_vo, heavy)
     assert torch_terms(objective, held.tracks, 1.0)["heading_anchor"] < 0.5 * end["heading_anchor"]
 
+
 def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):
     spec = next(s for s in OptimizerConfig.default().stages if s.name == "root_orientation")
     config = single_stage(spec, 0)
