@@ -23,7 +23,8 @@ void ChainPointJacobian(const Eigen::Ref<const RowMatrixXd>& M, const body::Bloc
   }
 }
 
-// A regressor of one point: joint `upper` minus joint `lower`.
+}  // namespace
+
 body::KeypointRegressor JointDifference(const body::BodyModel& model, int lower, int upper) {
   M3C_CHECK(lower >= 0 && upper >= 0 && lower < model.num_joints() && upper < model.num_joints() && lower != upper)
       << "joints " << lower << " and " << upper << " must be two different joints of the " << model.num_joints();
@@ -32,7 +33,6 @@ body::KeypointRegressor JointDifference(const body::BodyModel& model, int lower,
   joints.insert(0, upper) = 1.0;
   return body::KeypointRegressor(Eigen::SparseMatrix<double, Eigen::RowMajor>(1, model.num_vertices()), joints);
 }
-}  // namespace
 
 ReprojectionCost::ReprojectionCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
                                    FrameCamera camera,

@@ -181,13 +181,44 @@ std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor) {
   return joints;
 }
 
-SplitBodyCost::SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots) : inner_(inner) {
+std::vector<int> MovingJoints(const body::BodyModel& model, const body::KeypointRegressor& regressor) {
+  const int J = model.num_joints();
+  std::vector<bool> moves(J, false);
+  if (regressor.vertex_weights().nonZeros() != 0) {
+    std::fill(moves.begin() + 1, moves.end(), true);
+  } else {
+    const auto& w = regressor.joint_weights();
+    for (int k = 0; k < w.outerSize(); ++k) {
+      for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(w, k); it; ++it) {
+        if (it.value() == 0.0) continue;
+        for (int a = model.parents()[it.col()]; a > 0; a = model.parents()[a]) moves[a] = true;
+      }
+    }
+  }
+  std::vector<int> joints;
+  for (int j = 1; j < J; ++j) {
+    if (moves[j]) joints.push_back(j);
+  }
+  return joints;
+}
+
+SplitBodyCost::SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots, std::vector<int> joints)
+    : inner_(inner), joints_(std::move(joints)) {
   set_num_residuals(inner_->num_residuals());
   const std::vector<int32_t>& inner_sizes = inner_->parameter_block_sizes();
   split_.assign(inner_sizes.size(), false);
   for (int slot : slots) {
     M3C_CHECK(slot >= 0 && slot < static_cast<int>(inner_sizes.size())) << "no parameter block " << slot;
+    M3C_CHECK(inner_sizes[slot] % 3 == 0) << "a body block has 3 values per joint";
     split_[slot] = true;
+  }
+  const int body_joints = slots.empty() ? 0 : inner_sizes[slots[0]] / 3;
+  if (joints_.empty()) {
+    for (int j = 1; j <= body_joints; ++j) joints_.push_back(j);
+  }
+  for (size_t k = 0; k < joints_.size(); ++k) {
+    M3C_CHECK(joints_[k] >= 1 && joints_[k] <= body_joints && (k == 0 || joints_[k] > joints_[k - 1]))
+        << "joints must be increasing body joints 1.." << body_joints;
   }
   auto* sizes = mutable_parameter_block_sizes();
   for (size_t b = 0; b < inner_sizes.size(); ++b) {
@@ -196,29 +227,29 @@ SplitBodyCost::SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>&
       sizes->push_back(inner_sizes[b]);
       continue;
     }
-    M3C_CHECK(inner_sizes[b] % 3 == 0) << "a body block has 3 values per joint";
-    sizes->insert(sizes->end(), inner_sizes[b] / 3, 3);
+    M3C_CHECK(inner_sizes[b] / 3 == body_joints) << "every split block must be a whole body pose";
+    sizes->insert(sizes->end(), joints_.size(), 3);
   }
 }
 
 bool SplitBodyCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const std::vector<int32_t>& inner_sizes = inner_->parameter_block_sizes();
-  const int n = static_cast<int>(inner_sizes.size()), rows = num_residuals();
+  const int n = static_cast<int>(inner_sizes.size()), rows = num_residuals(), m = static_cast<int>(joints_.size());
   thread_local std::vector<std::vector<double>> bodies, body_jacobians;
   thread_local std::vector<const double*> params;
   thread_local std::vector<double*> jacs;
   bodies.resize(n), body_jacobians.resize(n), params.assign(n, nullptr), jacs.assign(n, nullptr);
   for (int b = 0; b < n; ++b) {
-    const int first = first_[b], joints = inner_sizes[b] / 3;
+    const int first = first_[b];
     if (!split_[b]) {
       params[b] = parameters[first];
       if (jacobians) jacs[b] = jacobians[first];
       continue;
     }
-    bodies[b].resize(inner_sizes[b]);
+    bodies[b].assign(inner_sizes[b], 0.0);  // joints without a block: zero (they do not move the cost)
     bool wanted = false;
-    for (int k = 0; k < joints; ++k) {
-      std::copy(parameters[first + k], parameters[first + k] + 3, bodies[b].begin() + 3 * k);
+    for (int k = 0; k < m; ++k) {
+      std::copy(parameters[first + k], parameters[first + k] + 3, bodies[b].begin() + 3 * (joints_[k] - 1));
       wanted = wanted || (jacobians && jacobians[first + k]);
     }
     params[b] = bodies[b].data();
@@ -233,10 +264,11 @@ bool SplitBodyCost::Evaluate(double const* const* parameters, double* residuals,
   for (int b = 0; b < n; ++b) {
     if (!split_[b] || jacs[b] == nullptr) continue;
     const int first = first_[b], size = inner_sizes[b];
-    for (int k = 0; k < size / 3; ++k) {
+    for (int k = 0; k < m; ++k) {
       double* out = jacobians[first + k];
       if (!out) continue;
-      for (int r = 0; r < rows; ++r) std::copy(jacs[b] + r * size + 3 * k, jacs[b] + r * size + 3 * k + 3, out + 3 * r);
+      const int column = 3 * (joints_[k] - 1);
+      for (int r = 0; r < rows; ++r) std::copy(jacs[b] + r * size + column, jacs[b] + r * size + column + 3, out + 3 * r);
     }
   }
   return true;

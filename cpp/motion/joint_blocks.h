@@ -86,17 +86,24 @@ class JointStencilCost : public ceres::CostFunction {
 // else empty.
 std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor);
 
+// The body joints (1..J-1) whose rotation moves a point of `regressor`: every one when it reads vertices (skinning
+// and the pose blend shapes), else the strict ancestors of its joints, in joint order.
+std::vector<int> MovingJoints(const body::BodyModel& model, const body::KeypointRegressor& regressor);
+
 // A cost written for whole body-pose blocks (3(J-1) values) on per-joint blocks: each of the `slots` of `inner`
-// (owned) becomes J-1 blocks of 3 in its place, in joint order.
+// (owned) becomes a block of 3 per body joint of `joints` (1..J-1, increasing; empty: all J-1) in its place, in
+// joint order. The joints left out must not move the cost (MovingJoints): the inner cost reads them as zero, and
+// Ceres forms J^T J over every pair of a residual block's parameter blocks, zero ones included.
 class SplitBodyCost : public ceres::CostFunction {
  public:
-  SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots);
+  SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots, std::vector<int> joints = {});
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
   std::vector<bool> split_;  // per inner block, whether it is a body block split per joint
   std::vector<int> first_;   // per inner block, its first block here
+  std::vector<int> joints_;  // the body joints given a block, in joint order
 };
 
 }  // namespace m3c::motion

@@ -339,8 +339,9 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   std::unordered_set<const double*> body_blocks;  // the whole body blocks
   for (const auto& track : vars.body) body_blocks.insert(track.begin(), track.end());
   // Adds a residual block whose cost takes whole body blocks (vars.body): with latent poses it is wrapped to
-  // take the latents instead, with split_body to take the per-joint blocks.
-  auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
+  // take the latents instead, with split_body to take the per-joint blocks of `movers` (MovingJoints; empty: all).
+  auto add_moved_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks,
+                             const std::vector<int>& movers) {
     std::vector<int> slots, frames;
     std::vector<double*> split;
     for (size_t k = 0; k < blocks.size(); ++k) {
@@ -361,11 +362,23 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         split.push_back(blocks[k]);
         continue;
       }
-      for (int j = 0; j + 1 < J; ++j) split.push_back(blocks[k] + 3 * j);
+      if (movers.empty()) {
+        for (int j = 1; j < J; ++j) split.push_back(blocks[k] + 3 * (j - 1));
+      } else {
+        for (int j : movers) split.push_back(blocks[k] + 3 * (j - 1));
+      }
     }
-    return problem->AddResidualBlock(new SplitBodyCost(cost, slots), nullptr, split);
+    return problem->AddResidualBlock(new SplitBodyCost(cost, slots, movers), nullptr, split);
+  };
+  auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
+    return add_moved_block(problem, cost, std::move(blocks), {});
   };
   vars.add_block = add_block;
+  // The body joints that move the upright term's spine and the contact points: their terms' only body blocks.
+  const std::vector<int> spine_movers =
+      J == kSmplJoints ? MovingJoints(*model_, JointDifference(*model_, kPelvis, kNeck)) : std::vector<int>();
+  const std::vector<int> contact_movers =
+      contact_regressor_ ? MovingJoints(*model_, *contact_regressor_) : std::vector<int>();
   // The contact points as body joints (empty if the contact regressor is not a joint selection).
   const std::vector<int> contact_joints = contact_regressor_ ? SelectedJoints(*contact_regressor_) : std::vector<int>();
   // The world joints of every person and frame, evaluated once per evaluation point for the joint stencils.
@@ -541,19 +554,22 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
         }
       } else if (term == "upright" && tr.ground_normal.size() > 0 && J == kSmplJoints) {
         for (int f = 0; f < n; ++f) {
-          add_block(problem, new UprightCost(model_, kPelvis, kNeck, ground_up(tr, f), weight, config_.upright_sigma),
-                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]});
+          add_moved_block(problem,
+                          new UprightCost(model_, kPelvis, kNeck, ground_up(tr, f), weight, config_.upright_sigma),
+                          {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]}, spine_movers);
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
         const RowMatrixXd& on_ground = tr.ground_contacts.size() > 0 ? tr.ground_contacts : tr.contacts;
         for (int f = 0; f < n; ++f) {
           const std::vector<double> w = contact_weights(on_ground, f, weight);
           if (w.empty()) continue;
-          add_block(problem,
-                    new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
-                                          tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
-                                          config_.contact_height_tolerance),
-                    {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale, vars.offset});
+          add_moved_block(problem,
+                          new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
+                                                tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
+                                                config_.contact_height_tolerance),
+                          {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale,
+                           vars.offset},
+                          contact_movers);
         }
       }
     }

@@ -166,6 +166,69 @@ TEST(JointBlocks, SplitBodyCostEqualsTheWholeBlockCost) {
   EXPECT_TRUE(CheckGradient(split, params));
 }
 
+TEST(JointBlocks, MovingJoints) {
+  const body::BodyModel model = MakeTestModel();
+  const int J = model.num_joints();
+  Eigen::SparseMatrix<double, Eigen::RowMajor> vw(2, model.num_vertices()), jw(2, J);
+  jw.insert(0, 7) = 1.0;   // left ankle: moved by the hip and the knee
+  jw.insert(1, 13) = 0.5;  // left collar: moved by the spine
+  EXPECT_EQ(MovingJoints(model, body::KeypointRegressor(vw, jw)), (std::vector<int>{1, 3, 4, 6, 9}));
+  EXPECT_EQ(MovingJoints(model, JointDifference(model, 0, 12)), (std::vector<int>{3, 6, 9}));  // pelvis to neck
+  std::vector<int> all;
+  for (int j = 1; j < J; ++j) all.push_back(j);
+  EXPECT_EQ(MovingJoints(model, ThreePointRegressor(model)), all);  // vertices: skinning and pose blend shapes
+}
+
+// A cost given blocks only for the joints that move it (the upright term: the spine) against the same cost on every
+// joint's block: the same residuals, the same Jacobian on the joints it keeps, exact zeros on the others.
+TEST(JointBlocks, SplitBodyCostOnTheMovingJointsEqualsTheWholeSplit) {
+  const body::BodyModel model = MakeTestModel();
+  const int J = model.num_joints();
+  const std::vector<int> movers = MovingJoints(model, JointDifference(model, 0, 12));
+  const Eigen::Vector3d up(0.1, 1.0, -0.2);
+  SplitBodyCost all(new UprightCost(&model, 0, 12, up, 3.0, 0.2), {2});
+  SplitBodyCost moved(new UprightCost(&model, 0, 12, up, 3.0, 0.2), {2}, movers);
+  ASSERT_EQ(moved.parameter_block_sizes().size(), 3u + movers.size());
+  Frame f(model, 11);
+  std::vector<const double*> all_params = {f.transl.data(), f.root.data()}, params = all_params;
+  for (int j = 1; j < J; ++j) all_params.push_back(f.body.data() + 3 * (j - 1));
+  for (int j : movers) params.push_back(f.body.data() + 3 * (j - 1));
+  all_params.push_back(f.betas.data());
+  params.push_back(f.betas.data());
+  const int rows = all.num_residuals();
+  auto evaluate = [&](const ceres::CostFunction& cost, const std::vector<const double*>& p,
+                      std::vector<double>* res, std::vector<std::vector<double>>* jac) {
+    res->assign(rows, 0.0);
+    jac->assign(p.size(), {});
+    std::vector<double*> ptr;
+    for (size_t b = 0; b < p.size(); ++b) {
+      (*jac)[b].assign(rows * cost.parameter_block_sizes()[b], std::nan(""));
+      ptr.push_back((*jac)[b].data());
+    }
+    return cost.Evaluate(p.data(), res->data(), ptr.data());
+  };
+  std::vector<double> all_res, res;
+  std::vector<std::vector<double>> all_jac, jac;
+  ASSERT_TRUE(evaluate(all, all_params, &all_res, &all_jac));
+  ASSERT_TRUE(evaluate(moved, params, &res, &jac));
+  EXPECT_EQ(res, all_res);
+  EXPECT_GT(std::abs(res[0]) + std::abs(res[1]), 0.0);
+  EXPECT_EQ(jac[0], all_jac[0]);  // transl
+  EXPECT_EQ(jac[1], all_jac[1]);  // root
+  EXPECT_EQ(jac.back(), all_jac.back());  // betas
+  size_t k = 0;
+  for (int j = 1; j < J; ++j) {
+    const std::vector<double>& whole = all_jac[2 + (j - 1)];
+    if (k < movers.size() && movers[k] == j) {
+      EXPECT_EQ(jac[2 + k], whole) << "joint " << j;
+      ++k;
+    } else {
+      for (double v : whole) EXPECT_EQ(v, 0.0) << "joint " << j << " does not move the spine";
+    }
+  }
+  EXPECT_TRUE(CheckGradient(moved, params));
+}
+
 TEST(BlasThreads, FixedInsideTheScopeAndRestoredAfter) {
   void* lib = dlopen("libopenblas.so.0", RTLD_LAZY);  // loaded here as the optimizer's CHOLMOD loads it
   if (lib == nullptr) GTEST_SKIP() << "OpenBLAS is not installed: nothing to fix";
