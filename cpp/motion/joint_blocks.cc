@@ -184,14 +184,27 @@ std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor) {
 std::vector<int> MovingJoints(const body::BodyModel& model, const body::KeypointRegressor& regressor) {
   const int J = model.num_joints();
   std::vector<bool> moves(J, false);
-  if (regressor.vertex_weights().nonZeros() != 0) {
-    std::fill(moves.begin() + 1, moves.end(), true);
-  } else {
-    const auto& w = regressor.joint_weights();
-    for (int k = 0; k < w.outerSize(); ++k) {
-      for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(w, k); it; ++it) {
-        if (it.value() == 0.0) continue;
-        for (int a = model.parents()[it.col()]; a > 0; a = model.parents()[a]) moves[a] = true;
+  // A joint is where its strict ancestors put it (rest joints do not depend on the pose).
+  const auto& jw = regressor.joint_weights();
+  for (int k = 0; k < jw.outerSize(); ++k) {
+    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(jw, k); it; ++it) {
+      if (it.value() == 0.0) continue;
+      for (int a = model.parents()[it.col()]; a > 0; a = model.parents()[a]) moves[a] = true;
+    }
+  }
+  // A vertex moves with its skinning joints and their ancestors, and with every joint whose pose blend shapes
+  // move it.
+  const auto& vw = regressor.vertex_weights();
+  const auto& posedirs = model.arrays_d().posedirs;
+  for (int k = 0; k < vw.outerSize(); ++k) {
+    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(vw, k); it; ++it) {
+      if (it.value() == 0.0) continue;
+      const int v = static_cast<int>(it.col());
+      for (int i = model.weight_offsets()[v]; i < model.weight_offsets()[v + 1]; ++i) {
+        for (int a : model.ancestors(model.weight_joints()[i])) moves[a] = moves[a] || a > 0;
+      }
+      for (int a = 1; a < J; ++a) {
+        moves[a] = moves[a] || posedirs.block(3 * v, 9 * (a - 1), 3, 9).cwiseAbs().maxCoeff() > 0.0;
       }
     }
   }

@@ -86,8 +86,9 @@ class JointStencilCost : public ceres::CostFunction {
 // else empty.
 std::vector<int> SelectedJoints(const body::KeypointRegressor& regressor);
 
-// The body joints (1..J-1) whose rotation moves a point of `regressor`: every one when it reads vertices (skinning
-// and the pose blend shapes), else the strict ancestors of its joints, in joint order.
+// The body joints (1..J-1) whose rotation moves a point of `regressor`, in joint order: for its joints their strict
+// ancestors; for its vertices their skinning joints with those joints' ancestors, and the joints whose pose blend
+// shapes move them (SMPL's move every vertex a little; a model without them, none).
 std::vector<int> MovingJoints(const body::BodyModel& model, const body::KeypointRegressor& regressor);
 
 // A cost written for whole body-pose blocks (3(J-1) values) on per-joint blocks: each of the `slots` of `inner`

@@ -176,7 +176,48 @@ TEST(JointBlocks, MovingJoints) {
   EXPECT_EQ(MovingJoints(model, JointDifference(model, 0, 12)), (std::vector<int>{3, 6, 9}));  // pelvis to neck
   std::vector<int> all;
   for (int j = 1; j < J; ++j) all.push_back(j);
-  EXPECT_EQ(MovingJoints(model, ThreePointRegressor(model)), all);  // vertices: skinning and pose blend shapes
+  EXPECT_EQ(MovingJoints(model, ThreePointRegressor(model)), all);  // vertices: the test model's pose blend shapes
+}
+
+// MovingJoints against the points' own Jacobian at a random pose: a body joint moves a point exactly when its
+// Jacobian columns are nonzero. For vertices on a model with pose blend shapes (every joint) and on the same model
+// without them (skinning only), and for joints.
+TEST(JointBlocks, MovingJointsAreTheJointsWithANonzeroJacobian) {
+  const body::BodyModel with_blend = MakeTestModel();
+  const int J = with_blend.num_joints(), V = with_blend.num_vertices();
+  const body::ModelArrays<double>& a = with_blend.arrays_d();
+  body::RowMatrixXd v_template(V, 3), weights = body::RowMatrixXd::Zero(V, J);
+  for (int v = 0; v < V; ++v) {
+    v_template.row(v) = a.v_template.segment<3>(3 * v).transpose();
+    for (int i = with_blend.weight_offsets()[v]; i < with_blend.weight_offsets()[v + 1]; ++i) {
+      weights(v, with_blend.weight_joints()[i]) = a.weight_values[i];
+    }
+  }
+  const body::BodyModel no_blend(v_template, a.shapedirs, Eigen::MatrixXd::Zero(a.posedirs.rows(), a.posedirs.cols()),
+                                 with_blend.j_regressor(), weights, with_blend.parents(), with_blend.faces());
+  Eigen::SparseMatrix<double, Eigen::RowMajor> one_vertex(1, V), no_joints(1, J), no_vertices(1, V), two_joints(1, J);
+  one_vertex.insert(0, V / 3) = 1.0;
+  two_joints.insert(0, 20) = 0.5;
+  two_joints.insert(0, 5) = 0.5;
+  int checked = 0;
+  for (const body::BodyModel* model : {&with_blend, &no_blend}) {
+    for (const body::KeypointRegressor& reg : {body::KeypointRegressor(one_vertex, no_joints),
+                                               body::KeypointRegressor(no_vertices, two_joints)}) {
+      Frame f(*model, 17);
+      body::BlockPoints points;
+      points.Evaluate(*model, reg, {f.transl.data(), f.root.data(), f.body.data(), f.betas.data()}, true);
+      std::vector<int> nonzero;
+      for (int j = 1; j < J; ++j) {
+        if (points.jacobian(0, 2).middleCols<3>(3 * (j - 1)).cwiseAbs().maxCoeff() > 0.0) nonzero.push_back(j);
+      }
+      EXPECT_EQ(MovingJoints(*model, reg), nonzero);
+      EXPECT_FALSE(nonzero.empty());
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 4);
+  // Without blend shapes a vertex is not moved by every joint.
+  EXPECT_LT(MovingJoints(no_blend, body::KeypointRegressor(one_vertex, no_joints)).size(), static_cast<size_t>(J - 1));
 }
 
 // A cost given blocks only for the joints that move it (the upright term: the spine) against the same cost on every
