@@ -11,6 +11,7 @@ Compare builds by running it with each build's m3c first on the path (PYTHONPATH
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import re
 import shutil
@@ -51,7 +52,7 @@ def main() -> None:
         shutil.rmtree(args.run / "cache" / "optimize", ignore_errors=True)
         with_node = count(args.run, args.video, Path(tmp) / "node.out")
         cached = count(args.run, args.video, Path(tmp) / "cached.out")
-    print(f"m3c from {subprocess.run([sys.executable, '-c', 'import m3c; print(m3c.__file__)'], capture_output=True, text=True).stdout.strip()}")
+    print(f"m3c from {importlib.util.find_spec('m3c').origin}")
     print(f"instructions: run with the optimize node {with_node / 1e9:.3f} G, with it cached {cached / 1e9:.3f} G, "
           f"the node {(with_node - cached) / 1e9:.3f} G")
 

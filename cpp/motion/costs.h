@@ -25,13 +25,13 @@ struct FrameCamera {
   Intrinsics intrinsics;
 };
 
+// A regressor of one point: joint `upper` minus joint `lower` (the upright term's spine).
+body::KeypointRegressor JointDifference(const body::BodyModel& model, int lower, int upper);
+
 // 2D keypoint reprojection, SLAHMR's robust form: cost = weight * sum_k conf_k^2 GM(|r_k|^2), with the
 // Geman-McClure GM(s) = sigma^2 s / (sigma^2 + s) and r_k = pi(x_k) - u_k in pixels. The residual of keypoint k
 // is conf_k sqrt(weight) sigma r_k / sqrt(sigma^2 + |r_k|^2): its squared norm is exactly the cost, smooth at 0.
 // Blocks: transl, root, body, betas, scale, offset. Residuals: 2K.
-// A regressor of one point: joint `upper` minus joint `lower` (the upright term's spine).
-body::KeypointRegressor JointDifference(const body::BodyModel& model, int lower, int upper);
-
 class ReprojectionCost : public ceres::CostFunction {
  public:
   ReprojectionCost(const body::BodyModel* model, const body::KeypointRegressor* regressor, FrameCamera camera,

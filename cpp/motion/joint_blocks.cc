@@ -201,7 +201,9 @@ std::vector<int> MovingJoints(const body::BodyModel& model, const body::Keypoint
       if (it.value() == 0.0) continue;
       const int v = static_cast<int>(it.col());
       for (int i = model.weight_offsets()[v]; i < model.weight_offsets()[v + 1]; ++i) {
-        for (int a : model.ancestors(model.weight_joints()[i])) moves[a] = moves[a] || a > 0;
+        for (int a : model.ancestors(model.weight_joints()[i])) {
+          if (a > 0) moves[a] = true;
+        }
       }
       for (int a = 1; a < J; ++a) {
         moves[a] = moves[a] || posedirs.block(3 * v, 9 * (a - 1), 3, 9).cwiseAbs().maxCoeff() > 0.0;

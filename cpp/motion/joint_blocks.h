@@ -99,12 +99,14 @@ class SplitBodyCost : public ceres::CostFunction {
  public:
   SplitBodyCost(ceres::CostFunction* inner, const std::vector<int>& slots, std::vector<int> joints = {});
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
+  // The body joints given a block, in joint order (all J-1 when constructed with none).
+  const std::vector<int>& joints() const { return joints_; }
 
  private:
   std::unique_ptr<ceres::CostFunction> inner_;
   std::vector<bool> split_;  // per inner block, whether it is a body block split per joint
   std::vector<int> first_;   // per inner block, its first block here
-  std::vector<int> joints_;  // the body joints given a block, in joint order
+  std::vector<int> joints_;
 };
 
 }  // namespace m3c::motion

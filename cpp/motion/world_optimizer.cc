@@ -357,18 +357,15 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
     if (slots.empty()) return problem->AddResidualBlock(cost, nullptr, blocks);
     if (decoder) return problem->AddResidualBlock(new LatentBodyCost(cost, decoder.get(), std::move(slots), std::move(frames)), nullptr, blocks);
+    auto* split_cost = new SplitBodyCost(cost, slots, movers);
     for (size_t k = 0; k < blocks.size(); ++k) {
       if (!body_blocks.count(blocks[k])) {
         split.push_back(blocks[k]);
         continue;
       }
-      if (movers.empty()) {
-        for (int j = 1; j < J; ++j) split.push_back(blocks[k] + 3 * (j - 1));
-      } else {
-        for (int j : movers) split.push_back(blocks[k] + 3 * (j - 1));
-      }
+      for (int j : split_cost->joints()) split.push_back(blocks[k] + 3 * (j - 1));
     }
-    return problem->AddResidualBlock(new SplitBodyCost(cost, slots, movers), nullptr, split);
+    return problem->AddResidualBlock(split_cost, nullptr, split);
   };
   auto add_block = [&](ceres::Problem* problem, ceres::CostFunction* cost, std::vector<double*> blocks) {
     return add_moved_block(problem, cost, std::move(blocks), {});
