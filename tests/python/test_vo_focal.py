@@ -12,7 +12,7 @@ from m3c.nodes.focal import FocalNode
 from m3c.pipeline import InputError
 from m3c.pipeline.progress import Progress
 from m3c.vo.focal import FocalSearchConfig, estimate_focal, focal_windows
-from m3c.vo.synthetic import RoomRenderer, look_rotation
+from m3c.vo.synthetic import RoomRenderer, built_scene_edges, look_rotation
 
 W, H = 192, 144
 DIAGONAL = float(np.hypot(W, H))
@@ -149,12 +149,51 @@ def test_focal_node_estimates_and_moves_the_bodies(tmp_path, rng):
 
 
 def test_focal_node_keeps_given_intrinsics_and_can_be_switched_off(rng):
-    for source, config in (("given", FocalNode.Config()), ("default", FocalNode.Config(enabled=False))):
+    for source, config in (("given", FocalNode.Config(scene_lines=False)),
+                           ("default", FocalNode.Config(enabled=False))):
         inputs = _node_inputs(source, rng)
         out = FocalNode("focal", config).run(None, inputs)  # reads no frames
         assert out["camera"]["source"] == source and out["camera"]["focal_estimate"] is None
+        assert out["camera"]["scene"] is None
         np.testing.assert_array_equal(out["camera"]["intrinsics"], inputs["camera"]["intrinsics"])
         assert out["tracks"] is inputs["tracks"]
+
+
+def _still_scene_video(path, focal, width=640, height=360, frames=12):
+    """A still camera (pitched 11 degrees down) over a built scene's edges: its motion cannot tell the focal length,
+    its lines can."""
+    pose = np.eye(4)
+    pose[:3, :3] = look_rotation(0.2, -0.2, 0.03)
+    image = built_scene_edges(width, height, [focal, focal, width / 2, height / 2], pose, seed=1)
+    with VideoWriter(path, 30.0, (width, height)) as writer:
+        for _ in range(frames):
+            writer.write(np.repeat(image[..., None], 3, axis=2))
+    return pose[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+
+
+def test_focal_node_takes_the_scene_where_the_motion_cannot_tell(tmp_path, rng):
+    width, height, focal = 640, 360, 560.0
+    up = _still_scene_video(tmp_path / "still.mp4", focal, width, height)
+    inputs = _node_inputs("default", rng)
+    inputs["video"] = {"num_frames": 12, "width": width, "height": height, "frame_ids": np.arange(12), "start": 0,
+                       "stop": 12, "step": 1}
+    inputs["camera"] = {"intrinsics": np.array([np.hypot(width, height)] * 2 + [width / 2, height / 2]),
+                        "source": "default"}
+    out = FocalNode("focal", FocalNode.Config(search=FAST)).run(_Context(tmp_path / "still.mp4"), inputs)
+    camera = out["camera"]
+    assert not camera["focal_estimate"]["informative"]  # a still camera: the motion search cannot tell
+    assert camera["source"] == "scene" and camera["scene"]["informative"]
+    assert camera["intrinsics"][0] == pytest.approx(focal, rel=0.03)
+    factor = camera["intrinsics"][0] / inputs["camera"]["intrinsics"][0]
+    for track, given in zip(out["tracks"]["tracks"], inputs["tracks"]["tracks"], strict=True):
+        np.testing.assert_allclose(track["transl"][:, 2], given["transl"][:, 2] * factor)
+    for frame in camera["scene"]["frames"]:  # each sampled frame's up direction, at the chosen focal length
+        assert np.degrees(np.arccos(np.clip(np.dot(frame["up"], up), -1, 1))) < 1.0
+    # Given intrinsics stay, and the scene's up direction is still measured at them.
+    inputs["camera"] = {"intrinsics": np.array([500.0, 500.0, width / 2, height / 2]), "source": "given"}
+    out = FocalNode("focal", FocalNode.Config()).run(_Context(tmp_path / "still.mp4"), inputs)
+    assert out["camera"]["source"] == "given" and out["camera"]["intrinsics"][0] == 500.0
+    assert out["camera"]["scene"]["frames"] and out["tracks"] is inputs["tracks"]
 
 
 def test_textureless_video_is_uninformative_not_an_error():
@@ -182,3 +221,16 @@ def test_recovered_solver_steps_leave_no_warnings_on_stderr():
     assert quiet.returncode == 0 and loud.returncode == 0, quiet.stderr[-2000:] + loud.stderr[-2000:]
     assert "Linear solver failure" in loud.stderr  # the steps do fail: the check below can fail
     assert "levenberg_marquardt" not in quiet.stderr and "InitGoogleLogging" not in quiet.stderr
+
+
+def test_static_camera_skips_the_search_not_the_scene():
+    """`m3c run --static-camera`: the odometry's focal search is skipped (a still camera's motion cannot tell the
+    focal length), the scene's lines are still read."""
+    from types import SimpleNamespace
+
+    from m3c.cli.pipeline import pipeline_config
+
+    config = pipeline_config(SimpleNamespace(config=None, static_camera=True))
+    focal = config.nodes["focal"].config
+    assert focal.get("motion") is False and focal.get("enabled", True) is True
+    assert focal.get("scene_lines", True) is True and config.nodes["vo"].config.get("static") is True

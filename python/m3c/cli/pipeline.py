@@ -23,7 +23,7 @@ def pipeline_config(args):
         overrides["vo.static"] = True
         for name, entry in config.nodes.items():
             if entry.type == "focal":
-                overrides[f"{name}.enabled"] = False  # a still camera's motion cannot tell its focal length
+                overrides[f"{name}.motion"] = False  # a still camera's motion cannot tell its focal length
     if getattr(args, "frames", None):
         start, stop, step = args.frames
         overrides.update({"frames.start": start, "frames.stop": stop, "frames.step": step})

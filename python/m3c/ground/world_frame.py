@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -73,7 +74,8 @@ MAX_MAP_GROUND_GAP = 0.3
 
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
                     up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
-                    map_plane: np.ndarray | None = None, ray_params: RayGroundParams = RayGroundParams()
+                    map_plane: np.ndarray | None = None, ray_params: RayGroundParams = RayGroundParams(),
+                    scene_up: tuple[np.ndarray, float] | None = None
                     ) -> tuple[PlaneFit | None, str | None, np.ndarray, list[list[np.ndarray]]]:
     """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), where it came from
     ("odometry map", "contacts" or None), all contact points there, and per track per frame its contact points
@@ -82,7 +84,9 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
     map_plane: the odometry map's ground in the metric VO frame (normal (3,), offset), taken when the contacts
     lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
     feet whose monocular depth swings by metres within a second; otherwise the contacts' ground
-    (m3c.ground.planes.fit_ground_along_rays: one point per person and frame, its error along the camera ray)."""
+    (m3c.ground.planes.fit_ground_along_rays: one point per person and frame, its error along the camera ray).
+    scene_up: (up direction in the VO frame, its sigma in degrees) from the scene's vertical edges (scene_up_prior):
+    the contacts' ground's tilt prior instead of the people's upright direction, at that sigma both ways."""
     raw, frame_points, frame_centers = [], [], []
     for track, points in zip(tracks, in_camera):
         world = []
@@ -109,6 +113,9 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
                  "from the contacts", gap)
     if len(pooled) >= params.min_support:
         prior = up_direction if level and np.linalg.norm(up_direction) > 0 else cameras[0, :3, :3] @ CAMERA_UP
+        if scene_up is not None:
+            prior = scene_up[0]
+            ray_params = replace(ray_params, roll_sigma=scene_up[1], pitch_sigma=scene_up[1])
         try:
             dominant = fit_ground_along_rays(np.array(frame_points), np.array(frame_centers), prior,
                                              cameras[0, :3, 0], ray_params)
@@ -117,15 +124,47 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
     return dominant, "contacts" if dominant is not None else None, pooled, raw
 
 
+# The scene's up direction counts when its frames agree within this (RMS degrees, in the VO frame), and is trusted
+# to no better than MIN_SCENE_UP_SIGMA.
+MAX_SCENE_UP_SPREAD = 3.0
+MIN_SCENE_UP_SIGMA = 2.0
+
+
+def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, log=LOG) -> tuple[np.ndarray, float] | None:
+    """(up direction in the VO frame, sigma in degrees) from the focal node's scene record (m3c.vo.vanishing:
+    each sampled frame's up direction in its camera), or None: without a record, where the scene's focal length
+    was not informative (its vertical and horizontal edges did not agree over the frames: a scene without the
+    built structure the estimate assumes), or where the frames' up directions, rotated into the VO frame,
+    scatter more than MAX_SCENE_UP_SPREAD degrees."""
+    if not scene or not scene.get("informative"):
+        return None
+    ups = [np.asarray(vo_cameras[f["frame"], :3, :3], dtype=np.float64) @ np.asarray(f["up"], dtype=np.float64)
+           for f in scene.get("frames", []) if "up" in f and 0 <= f["frame"] < len(vo_cameras)]
+    if len(ups) < 2:
+        return None
+    ups = np.array(ups)
+    mean = ups.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(ups @ mean, -1.0, 1.0)) ** 2))))
+    if spread > MAX_SCENE_UP_SPREAD:
+        log.info("the scene's vertical edges give up directions %.1f degrees apart (RMS over %d frames): not used",
+                 spread, len(ups))
+        return None
+    return mean, max(spread, MIN_SCENE_UP_SIGMA)
+
+
 def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale: float, params: GroundParams, *,
                     planes: str = "shared", contact_threshold: float = 0.5, window: int = 15,
-                    max_tilt: float = 10.0, level: bool = True, log=LOG, map_plane=None) -> dict:
+                    max_tilt: float = 10.0, level: bool = True, log=LOG, map_plane=None,
+                    scene: dict | None = None) -> dict:
     """The ground and the gravity-aligned world frame of camera-frame tracks seen by VO cameras at `scale`.
 
     Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
     are placed in the metric VO frame. The dominant ground is the odometry map's ground plane when one is given
     (map_plane: (nx, ny, nz, d) in the VO frame and VO units, the scale estimate's ground_plane) and the contacts
-    lie on it, else a robust plane fit to the contacts; it defines the world (y up, ground y = 0). Each person's
+    lie on it, else a robust plane fit to the contacts, its tilt held by the scene's vertical edges where the
+    focal node measured them (scene: its camera's scene record; scene_up_prior), else by the people's upright
+    direction; it defines the world (y up, ground y = 0). Each person's
     plane per frame is then either that ground (planes "shared", SLAHMR's single floor) or the thesis's
     per-person planes (planes "per_person": DBSCAN on contact points, plane fits, association and filling over
     time, each frame pooling the contacts of `window` frames around it; planes tilted more than max_tilt degrees
@@ -147,8 +186,11 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
             raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, "
                              f"got {plane}")
         map_plane = (plane[:3] / norm, scale * plane[3] / norm)
+    scene_up = scene_up_prior(scene, vo_cameras, log)
+    if scene_up is not None:
+        log.info("ground tilt prior: the scene's vertical edges (+-%.1f degrees)", scene_up[1])
     dominant, ground_source, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log,
-                                                           map_plane)
+                                                           map_plane, scene_up=scene_up)
     up_vo = cameras[0, :3, :3] @ CAMERA_UP
     per_person = planes == "per_person" or dominant is None
     contact_tracks = []

@@ -60,6 +60,9 @@ def _scale_uncertainty(camera: dict) -> str:
 
 def _focal_uncertainty(camera: dict) -> str:
     estimate = camera.get("focal_estimate")
+    scene = camera.get("scene")
+    if camera.get("intrinsics_source") == "scene" and scene:
+        return f" (from the scene's lines: {scene['reason']})"
     if not estimate:
         return ""
     if not estimate["informative"]:

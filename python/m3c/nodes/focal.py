@@ -1,4 +1,5 @@
-"""The focal length of a camera nobody calibrated, found from the camera's own motion (m3c.vo.focal)."""
+"""The focal length of a camera nobody calibrated, found from the camera's own motion (m3c.vo.focal) or, where
+the motion cannot tell, from the scene's vanishing points (m3c.vo.vanishing)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,10 @@ class FocalNode(Node):
     """Estimates the focal length when the camera node has only its default (no --intrinsics), by the search of
     m3c.vo.focal: the patch odometry's first bundle adjustment over windows of frames (people's masks hidden
     from it, as in the vo node) at candidate focal lengths; the least cost wins. A camera that only translates or
-    stands still leaves the cost flat: the default is kept and the log says so.
+    stands still leaves the cost flat: then the scene's lines decide where they can (m3c.vo.vanishing: vertical
+    edges and perpendicular horizontal ones, agreeing over frames sampled through the video), else the default is
+    kept; the log says which. The scene's up direction per sampled frame is measured either way (given
+    intrinsics included) for the ground node.
 
     It runs after perception because the odometry needs the people's masks, and perception fitted the bodies at
     the camera node's focal: a body's camera-local depth scales with the focal (its root keeps its pixel when x, y
@@ -25,11 +29,13 @@ class FocalNode(Node):
     re-expressed at the estimated focal (a weak-perspective crop_cam needs nothing: local_tracks converts it with
     this camera).
 
-    Output camera: intrinsics (4,), source ("given", "default" or "estimated"), focal_estimate (the search's
-    summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran). Output tracks: perception's tracks
-    ({"tracks": [...]}, m3c.perception.handover), re-expressed.
-    Config: enabled (false: pass the camera node's intrinsics through), search: m3c.vo.focal.FocalSearchConfig
-    settings."""
+    Output camera: intrinsics (4,), source ("given", "default", "estimated" (the motion) or "scene"),
+    focal_estimate (the search's summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran), scene
+    (m3c.vo.vanishing.SceneCamera.summary() at the final focal length: per sampled frame its focal length and up
+    direction; None when scene_lines is off). Output tracks: perception's tracks ({"tracks": [...]},
+    m3c.perception.handover), re-expressed.
+    Config: enabled (false: pass the camera node's intrinsics through), motion (false: no odometry search, for a
+    camera known to stand still), search: m3c.vo.focal.FocalSearchConfig settings, scene_lines (false: no scene estimate), scene: m3c.vo.vanishing.SceneLineConfig settings."""
 
     type_name = "focal"
     level = "patch"
@@ -38,12 +44,16 @@ class FocalNode(Node):
     outputs = ("camera", "tracks")
     # 2: re-expresses perception's tracks (it re-expressed the per-detection body table)
     # 3: the search goes on past an end of its range where the least cost lies near it (max_extension)
-    version = "3"
+    # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction)
+    version = "4"
 
     @dataclass
     class Config:
         enabled: bool = True
+        motion: bool = True  # the odometry's search (false for a camera known to stand still: --static-camera)
         search: dict[str, Any] = field(default_factory=dict)
+        scene_lines: bool = True  # the scene's vanishing points where the motion cannot tell (m3c.vo.vanishing)
+        scene: dict[str, Any] = field(default_factory=dict)
 
     def _search_config(self):
         from m3c.vo.focal import FocalSearchConfig
@@ -56,48 +66,86 @@ class FocalNode(Node):
 
     def check(self, ctx) -> None:
         self._search_config()
+        self._scene_config()
+
+    def _scene_config(self):
+        from m3c.vo.vanishing import SceneLineConfig
+
+        try:
+            return SceneLineConfig(**self.config.scene)
+        except (TypeError, ValueError) as err:
+            raise InputError(f"node {self.name!r}: bad setting in focal.scene ({err}); settings are "
+                             "m3c.vo.vanishing.SceneLineConfig fields") from None
 
     def run(self, ctx, inputs):
+        import cv2
+
         from m3c.vo.focal import estimate_focal_windows, focal_windows, reduce_frame
+        from m3c.vo.vanishing import estimate_scene_camera
 
         camera, tracks = dict(inputs["camera"]), inputs["tracks"]
         camera["focal_estimate"] = None
-        if camera.get("source") != "default" or not self.config.enabled:
+        camera["scene"] = None
+        if not self.config.enabled:
             return {"camera": camera, "tracks": tracks}
         video, masks, detections = inputs["video"], inputs["masks"], inputs["detections"]
         if (masks is None) != (detections is None):
             raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
                                 "odometry) or neither")
         config = self._search_config()
+        scene_config = self._scene_config() if self.config.scene_lines else None
+        search = camera.get("source") == "default" and self.config.motion
+        if not search and scene_config is None:
+            return {"camera": camera, "tracks": tracks}
         T, width, height = int(video["num_frames"]), int(video["width"]), int(video["height"])
-        windows = focal_windows(T, config)
+        windows = focal_windows(T, config) if search else []
         wanted = {i: k for k, (a, b) in enumerate(windows) for i in range(a, b)}
+        scene_frames = sorted(set(np.linspace(0, T - 1, scene_config.frames).round().astype(int).tolist())) \
+            if scene_config else []
         rows = rows_by_frame(detections) if masks is not None else {}
         clips: list[tuple[list, list]] = [([], []) for _ in windows]
-        with ctx.progress("frames", len(wanted)) as bar:
+        scene_gray, scene_masks = [], []
+        last = max(list(wanted) + scene_frames, default=-1)
+        with ctx.progress("frames", len(set(wanted) | set(scene_frames))) as bar:
             for i, frame in stream_frames(ctx, video):
-                if i in wanted:
+                if i in wanted or i in scene_frames:
                     mask = None if masks is None else people_mask(masks, rows.get(i, []), width, height)
-                    gray, small = reduce_frame(frame, mask, config.max_image_side)
-                    clips[wanted[i]][0].append(gray)
-                    clips[wanted[i]][1].append(small)
+                    if i in wanted:
+                        gray, small = reduce_frame(frame, mask, config.max_image_side)
+                        clips[wanted[i]][0].append(gray)
+                        clips[wanted[i]][1].append(small)
+                    if i in scene_frames:
+                        scene_gray.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
+                        scene_masks.append(mask)
                     bar.update()
-                if i >= windows[-1][1] - 1:
+                if i >= last:
                     break
-        clips = [(np.stack(f), None if masks is None else np.stack(m)) for f, m in clips]
-        estimate = estimate_focal_windows(clips, width, height, config, log=ctx.log.debug)
-        estimate.windows = windows
-        ctx.log.info("focal search over frames %s: %s", ", ".join(f"{a}..{b - 1}" for a, b in windows),
-                     estimate.message)
-        camera["focal_estimate"] = estimate.summary()
-        if not estimate.informative:
-            return {"camera": camera, "tracks": tracks}
+        focal = None
+        if search:
+            clips = [(np.stack(f), None if masks is None else np.stack(m)) for f, m in clips]
+            estimate = estimate_focal_windows(clips, width, height, config, log=ctx.log.debug)
+            estimate.windows = windows
+            ctx.log.info("focal search over frames %s: %s", ", ".join(f"{a}..{b - 1}" for a, b in windows),
+                         estimate.message)
+            camera["focal_estimate"] = estimate.summary()
+            if estimate.informative:
+                focal, source = estimate.focal, "estimated"
+        scene = None
+        if scene_config is not None:
+            scene = estimate_scene_camera(scene_gray, scene_masks if masks is not None else None, scene_config,
+                                          scene_frames)
+            ctx.log.info("focal length from the scene's lines: %s", scene.reason)
+            if camera.get("source") == "default" and focal is None and scene.informative:
+                focal, source = scene.focal, "scene"
         old = np.asarray(camera["intrinsics"], dtype=np.float64)
-        camera["intrinsics"] = np.array([estimate.focal, estimate.focal, old[2], old[3]])
-        camera["source"] = "estimated"
-        if tracks is not None:
-            factor = estimate.focal / float(np.mean(old[:2]))
-            tracks = dict(tracks, tracks=[refocused(track, factor) for track in tracks["tracks"]])
+        if focal is not None:
+            camera["intrinsics"] = np.array([focal, focal, old[2], old[3]])
+            camera["source"] = source
+            if tracks is not None:
+                factor = focal / float(np.mean(old[:2]))
+                tracks = dict(tracks, tracks=[refocused(track, factor) for track in tracks["tracks"]])
+        if scene is not None:
+            camera["scene"] = scene.summary(float(np.mean(np.asarray(camera["intrinsics"], dtype=np.float64)[:2])))
         return {"camera": camera, "tracks": tracks}
 
 

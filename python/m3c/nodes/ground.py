@@ -16,7 +16,8 @@ from m3c.pipeline import Node, register_node
 class GroundNode(Node):
     """The ground and the gravity-aligned world frame (thesis 4.1.3, "Ground Estimation"): m3c.ground.world_frame.
     estimate_ground at the scale node's scale, on the odometry map's ground plane that the scale measured against
-    when the people's contacts lie on it (map_ground) (planes: shared, SLAHMR's single floor, the default; or
+    when the people's contacts lie on it (map_ground), the contacts' ground tilted as the scene's vertical edges
+    say where the focal node measured them (camera: its output; scene_up) (planes: shared, SLAHMR's single floor, the default; or
     per_person, the thesis's planes, each frame pooling the contacts of `window` frames around it).
 
     Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), cameras (the fields of
@@ -27,11 +28,13 @@ class GroundNode(Node):
     """
 
     # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree; 4: the
-    # contacts' ground fitted along the camera rays, with the people's upright direction as the tilt's prior
-    version = "4"
+    # contacts' ground fitted along the camera rays, with the people's upright direction as the tilt's prior;
+    # 5: the scene's vertical edges as that prior where the focal node measured them (scene_up)
+    version = "5"
     type_name = "ground"
     level = "smpl"
-    inputs = ("tracks", "cameras", "scale")
+    inputs = ("tracks", "cameras", "scale", "camera")
+    optional_inputs = ("camera",)
     outputs = ("ground", "scale")
     settings = ("body_model",)
 
@@ -54,10 +57,12 @@ class GroundNode(Node):
         fill: Literal["hold", "linear"] = GroundParams.fill
         level_with_body_up: bool = True  # the contacts' ground's tilt prior: the people's upright (else the camera's)
         map_ground: bool = True  # the odometry map's ground plane (the scale's) when the contacts lie on it
+        scene_up: bool = True  # the scene's vertical edges (the focal node's scene record) as the tilt's prior
 
     def params(self) -> GroundParams:
         c = asdict(self.config)
-        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up", "map_ground"):
+        for key in ("planes", "contact_threshold", "window", "max_tilt", "level_with_body_up", "map_ground",
+                    "scene_up"):
             c.pop(key)
         return GroundParams(**c)
 
@@ -68,6 +73,7 @@ class GroundNode(Node):
                                  self.params(), planes=self.config.planes,
                                  contact_threshold=self.config.contact_threshold, window=self.config.window,
                                  max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log,
-                                 map_plane=scale.get("ground_plane") if self.config.map_ground else None)
+                                 map_plane=scale.get("ground_plane") if self.config.map_ground else None,
+                                 scene=(inputs.get("camera") or {}).get("scene") if self.config.scene_up else None)
         ground["cameras"] = ground["cameras"].as_dict()
         return {"ground": ground, "scale": scale}

@@ -126,7 +126,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    # m3c.vo.scale's estimate: value, sigma (standard deviation of log(value)), every observation
                    "scale_estimate": json_ready(scale),
                    # m3c.vo.focal's search when the focal node ran one: focal, log_sigma, informative, costs
-                   "focal_estimate": json_ready(camera.get("focal_estimate"))},
+                   "focal_estimate": json_ready(camera.get("focal_estimate")),
+                   # m3c.vo.vanishing's estimate from the scene's lines: focal, informative, per frame up direction
+                   "scene": json_ready(camera.get("scene"))},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"], "windows": result.get("windows", [])},
@@ -140,8 +142,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 
 @register_node
 class ResultsNode(Node):
-    # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate
-    version = "3"
+    # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
+    # 4: camera.scene
+    version = "4"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")

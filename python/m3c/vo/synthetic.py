@@ -204,3 +204,42 @@ def render_sequence(world_from_cam: np.ndarray, width: int = 320, height: int = 
             gray = np.clip(np.rint(gray + rng.normal(0.0, noise_sigma, gray.shape)), 0, 255).astype(np.uint8)
         frames[i], masks[i], depths[i] = gray, mask, depth
     return SyntheticSequence(frames, masks, depths, world_from_cam.copy(), renderer.intrinsics.copy())
+
+
+def built_scene_edges(width: int, height: int, intrinsics, world_from_cam: np.ndarray, seed: int = 0,
+                      camera_height: float = 1.6) -> np.ndarray:
+    """A gray uint8 image of a built scene's straight edges (m3c.vo.vanishing's test scene): poles standing on
+    the ground, kerbs and wall lines along the world's x and z axes on and above it, drawn anti-aliased with
+    OpenCV. World y points down (as above), the ground is y = camera_height, the camera at world_from_cam."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    ground, top = camera_height, camera_height - 3.0
+    edges = []
+    for x, z in zip(rng.uniform(-6, 6, 14), rng.uniform(4, 14, 14)):  # poles
+        edges.append(((x, ground, z), (x, top, z)))
+    for z in (5.0, 7.5, 10.0, 12.5):  # lines across the view, on the ground and 3 m up
+        for y in (ground, top):
+            edges.append(((-6.0, y, z), (6.0, y, z)))
+    for x in (-5.0, -3.0, -1.5, 1.5, 3.0, 5.0):  # lines along the view, on the ground
+        edges.append(((x, ground, 3.0), (x, ground, 15.0)))
+    fx, fy, cx, cy = np.asarray(intrinsics, dtype=np.float64)
+    cam_from_world = np.linalg.inv(world_from_cam)
+    image = np.full((height, width), 60, np.uint8)
+    for a, b in edges:
+        p, q = (cam_from_world[:3, :3] @ np.asarray(e) + cam_from_world[:3, 3] for e in (a, b))
+        near = 0.2
+        if p[2] < near and q[2] < near:
+            continue
+        if p[2] < near or q[2] < near:  # clip at the near plane
+            s = (near - p[2]) / (q[2] - p[2])
+            cut = p + s * (q - p)
+            p, q = (cut, q) if p[2] < near else (p, cut)
+        u0, v0 = fx * p[0] / p[2] + cx, fy * p[1] / p[2] + cy
+        u1, v1 = fx * q[0] / q[2] + cx, fy * q[1] / q[2] + cy
+        ok, start, end = cv2.clipLine((0, 0, width, height), (int(round(u0)), int(round(v0))),
+                                      (int(round(u1)), int(round(v1))))
+        if ok:
+            cv2.line(image, start, end, 230, 2, cv2.LINE_AA)
+    noise = rng.normal(0, 3, image.shape)
+    return np.clip(image + noise, 0, 255).astype(np.uint8)

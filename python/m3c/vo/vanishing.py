@@ -1,0 +1,300 @@
+"""The focal length and the up direction of a camera from the scene's straight lines (vanishing points).
+
+A still or translating camera cannot tell its focal length from its motion (m3c.vo.focal), but a built scene
+can: its vertical edges meet at the vertical vanishing point v and each family of parallel horizontal edges
+(court lines, a table, a window sill) at a vanishing point h on the horizon, and the two directions are
+perpendicular. With the principal point c at the image centre, (v - c) . (h - c) = -f^2 in pixels (Caprile and
+Torre's orthocentre relation for two vanishing points), so one well-supported pair gives f; the vertical
+vanishing point then gives the up direction in the camera at any focal length (K^-1 v), which is the ground's
+tilt without a single contact point.
+
+Per frame: OpenCV's line segment detector (people's pixels removed), the vertical vanishing point by RANSAC over
+the segments within max_vertical_tilt of the image's vertical (a camera held about upright), then the horizontal
+one by RANSAC over the other segments, each hypothesis taken only where it is perpendicular to the vertical one
+for a focal length within [low, high] x the image diagonal; inliers are segments whose direction points at the
+vanishing point within inlier_degrees; the supports are refined by least squares over their lines. Over a video:
+the frames' estimates are pooled by the median, and the estimate is informative when enough frames gave one and
+they agree (relative half-interquartile range within max_spread). A camera held level (vertical edges parallel in
+the image) leaves the focal length unobservable from this pair (v at infinity): no estimate.
+
+    estimate = estimate_scene_camera(frames, masks)   # gray uint8 frames, people True in masks (or None)
+    estimate.focal, estimate.informative, estimate.up(focal)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from m3c.vo.odometry import check_settings
+
+
+@dataclass
+class SceneLineConfig:
+    """Settings of estimate_scene_camera (lengths as fractions of the image diagonal).
+
+    min_length: shortest segment used; max_vertical_tilt: degrees from the image's vertical within which a
+    segment may be a vertical edge (horizontal edges are taken between min_horizontal_tilt and max_horizontal_tilt:
+    an edge nearly level in the image is parallel to it, and its vanishing point too far off to tell a focal
+    length); min_vertical_distance: the vertical vanishing point lies at least this far from the image centre
+    (x the diagonal; nearer, the lines are rather a horizontal direction receding from a camera looking down
+    along it, e.g. a table's long edges in a portrait view); min_camera_tilt: degrees the camera must look up or
+    down for the pair to give a focal length (a level camera's vertical vanishing point lies at infinity and the
+    focal length's error grows as 1 / tan(tilt)); inlier_degrees: a
+    segment supports a vanishing point when its direction points at it within this angle; min_vertical,
+    min_horizontal: inliers each vanishing point needs; low, high: the focal lengths a pair may imply (x the
+    diagonal); iterations: RANSAC draws per vanishing point; frames: frames sampled evenly over the video;
+    min_frames: frames that must give an estimate; max_spread: half the interquartile range of the frames' focal
+    lengths over their median above which the estimate is not informative; max_image_side: frames are searched
+    for segments at most this large (longer sides are scaled down; the geometry stays in the frame's pixels);
+    seed: the RANSAC draws."""
+
+    min_length: float = 0.02
+    max_vertical_tilt: float = 25.0
+    min_horizontal_tilt: float = 10.0
+    max_horizontal_tilt: float = 75.0
+    min_vertical_distance: float = 1.0
+    min_camera_tilt: float = 2.0
+    inlier_degrees: float = 1.5
+    min_vertical: int = 6
+    min_horizontal: int = 6
+    low: float = 0.3
+    high: float = 2.0
+    iterations: int = 500
+    frames: int = 9
+    min_frames: int = 5
+    max_image_side: int = 1280
+    max_spread: float = 0.05
+    seed: int = 0
+
+    def __post_init__(self):
+        check_settings(self, {"min_vertical": 2, "min_horizontal": 2, "iterations": 1, "frames": 1, "min_frames": 1,
+                              "max_image_side": 64},
+                       ("min_length", "max_vertical_tilt", "inlier_degrees", "low", "high", "max_spread",
+                        "min_camera_tilt"),
+                       strictly_positive=True, what="scene lines: ")
+        if not self.low < self.high:
+            raise ValueError(f"scene lines: low ({self.low}) must be below high ({self.high})")
+        if not 0 <= self.min_horizontal_tilt < self.max_horizontal_tilt <= 90 or not self.max_vertical_tilt < 90:
+            raise ValueError("scene lines: the tilts must lie in [0, 90) degrees")
+
+
+@dataclass
+class FrameLines:
+    """One frame's vanishing points, homogeneous in centred pixels over the diagonal ((x - cx) / d, (y - cy) / d,
+    w), unit length; horizontal None when no supported one is perpendicular to the vertical one."""
+
+    frame: int
+    vertical: np.ndarray
+    vertical_inliers: int
+    horizontal: np.ndarray | None = None
+    horizontal_inliers: int = 0
+    focal: float | None = None  # pixels, from the pair
+
+
+@dataclass
+class SceneCamera:
+    """The pooled estimate: focal (pixels, the median of the frames' or None), informative, the frames' own
+    estimates (FrameLines) and why it is or is not informative."""
+
+    width: int
+    height: int
+    frames: list[FrameLines] = field(default_factory=list)
+    focal: float | None = None
+    spread: float | None = None
+    informative: bool = False
+    reason: str = ""
+
+    def up(self, focal: float, frame: int | None = None) -> np.ndarray | None:
+        """The up direction (unit, OpenCV camera axes: y down) in frame `frame`'s camera (default: every frame's,
+        averaged) at focal length `focal`; None without a vertical vanishing point."""
+        ups = [_up_from_vertical(f.vertical, focal, self.diagonal) for f in self.frames
+               if frame is None or f.frame == frame]
+        if not ups:
+            return None
+        mean = np.mean(ups, axis=0)
+        return mean / np.linalg.norm(mean)
+
+    @property
+    def diagonal(self) -> float:
+        return float(np.hypot(self.width, self.height))
+
+    def summary(self, focal: float | None = None) -> dict:
+        """JSON-able record; with `focal`, each frame's up direction in its camera at that focal length too."""
+        out = {"focal": self.focal, "informative": self.informative, "spread": self.spread, "reason": self.reason,
+               "frames": [{"frame": f.frame, "focal": f.focal, "vertical_inliers": f.vertical_inliers,
+                           "horizontal_inliers": f.horizontal_inliers} for f in self.frames]}
+        if focal is not None:
+            for entry, f in zip(out["frames"], self.frames):
+                entry["up"] = _up_from_vertical(f.vertical, focal, self.diagonal).tolist()
+        return out
+
+
+def _up_from_vertical(vertical: np.ndarray, focal: float, diagonal: float) -> np.ndarray:
+    x, y, w = vertical
+    up = np.array([diagonal * x, diagonal * y, focal * w])
+    up /= np.linalg.norm(up)
+    return up if up[1] < 0 else -up  # the camera's y axis points down
+
+
+def line_segments(gray: np.ndarray, mask: np.ndarray | None = None, min_length: float = 0.02) -> np.ndarray:
+    """(N, 4) segments x0, y0, x1, y1 of a gray uint8 image (OpenCV's line segment detector), at least
+    min_length x the diagonal long, none with its midpoint or an end on a True pixel of `mask`."""
+    import cv2
+
+    gray = np.asarray(gray)
+    if gray.ndim != 2 or gray.dtype != np.uint8:
+        raise ValueError(f"line_segments needs a gray uint8 image (H, W), got {gray.dtype} {gray.shape}")
+    found = cv2.createLineSegmentDetector().detect(gray)[0]
+    if found is None:
+        return np.zeros((0, 4))
+    segments = found.reshape(-1, 4).astype(np.float64)
+    delta = segments[:, 2:] - segments[:, :2]
+    keep = np.hypot(delta[:, 0], delta[:, 1]) >= min_length * np.hypot(*gray.shape)
+    if mask is not None:
+        if mask.shape != gray.shape:
+            raise ValueError(f"mask {mask.shape} and image {gray.shape} differ in size")
+        h, w = gray.shape
+        for t in (0.0, 0.5, 1.0):
+            p = segments[:, :2] + t * delta
+            keep &= ~mask[np.clip(p[:, 1].astype(int), 0, h - 1), np.clip(p[:, 0].astype(int), 0, w - 1)]
+    return segments[keep]
+
+
+def _lines(segments: np.ndarray, centre: np.ndarray, scale: float) -> np.ndarray:
+    """Unit homogeneous lines through each segment, in centred pixels over `scale`."""
+    p = np.c_[(segments[:, :2] - centre) / scale, np.ones(len(segments))]
+    q = np.c_[(segments[:, 2:] - centre) / scale, np.ones(len(segments))]
+    lines = np.cross(p, q)
+    return lines / np.linalg.norm(lines, axis=1, keepdims=True)
+
+
+def _pointing(segments: np.ndarray, point: np.ndarray, centre: np.ndarray, scale: float, degrees: float
+              ) -> np.ndarray:
+    """Which segments point at the homogeneous `point` (centred over `scale`) within `degrees`: the sine of the
+    angle between each segment and the line from its midpoint to the point."""
+    mid = 0.5 * (segments[:, :2] + segments[:, 2:])
+    direction = segments[:, 2:] - segments[:, :2]
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    x, y, w = point
+    towards = np.c_[x * scale + centre[0] * w, y * scale + centre[1] * w] - mid * w
+    norm = np.linalg.norm(towards, axis=1)
+    sine = np.abs(direction[:, 0] * towards[:, 1] - direction[:, 1] * towards[:, 0]) / np.maximum(norm, 1e-12)
+    return sine < np.sin(np.radians(degrees))
+
+
+def _refine(lines: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The point nearest to all the lines (weighted least squares on l . v = 0, |v| = 1)."""
+    point = np.linalg.svd(lines * np.sqrt(weights)[:, None], full_matrices=False)[2][-1]
+    return point / np.linalg.norm(point)
+
+
+def _focal_squared(vertical: np.ndarray, horizontal: np.ndarray) -> float:
+    """f^2 over the diagonal^2 from two perpendicular directions' vanishing points (negative: not perpendicular
+    for any focal length)."""
+    return float(-(vertical[0] * horizontal[0] + vertical[1] * horizontal[1]) / (vertical[2] * horizontal[2]))
+
+
+def frame_vanishing_points(gray: np.ndarray, mask: np.ndarray | None = None,
+                           config: SceneLineConfig | None = None, frame: int = 0) -> FrameLines | None:
+    """One frame's vertical and (when one is perpendicular to it) horizontal vanishing point, or None when the
+    vertical one lacks support."""
+    config = config or SceneLineConfig()
+    rng = np.random.default_rng(config.seed)
+    h, w = np.asarray(gray).shape[:2]
+    centre, scale = np.array([w / 2.0, h / 2.0]), float(np.hypot(w, h))
+    factor = min(1.0, config.max_image_side / max(h, w))
+    if factor < 1.0:  # the detector's time grows with the pixels; its segments are scaled back
+        import cv2
+
+        size = (max(1, round(w * factor)), max(1, round(h * factor)))
+        small = cv2.resize(np.asarray(gray), size, interpolation=cv2.INTER_AREA)
+        small_mask = None if mask is None else cv2.resize(mask.astype(np.uint8), size,
+                                                          interpolation=cv2.INTER_NEAREST).astype(bool)
+        segments = line_segments(small, small_mask, config.min_length)
+        segments *= np.tile([w / size[0], h / size[1]], 2)
+    else:
+        segments = line_segments(gray, mask, config.min_length)
+    if len(segments) < config.min_vertical:
+        return None
+    delta = segments[:, 2:] - segments[:, :2]
+    tilt = np.degrees(np.arctan2(np.abs(delta[:, 0]), np.abs(delta[:, 1])))  # 0: the image's vertical
+    length = np.hypot(delta[:, 0], delta[:, 1])
+    lines = _lines(segments, centre, scale)
+
+    def ransac(candidates: np.ndarray, accept) -> tuple[np.ndarray | None, np.ndarray]:
+        index = np.flatnonzero(candidates)
+        best, best_support = None, 0.0
+        if len(index) < 2:
+            return None, np.zeros(len(segments), bool)
+        for _ in range(config.iterations):
+            i, j = rng.choice(index, 2, replace=False)
+            point = np.cross(lines[i], lines[j])
+            if np.linalg.norm(point) < 1e-12 or not accept(point / np.linalg.norm(point)):
+                continue
+            inliers = candidates & _pointing(segments, point / np.linalg.norm(point), centre, scale,
+                                             config.inlier_degrees)
+            support = length[inliers].sum()
+            if support > best_support:
+                best, best_support = point / np.linalg.norm(point), support
+        if best is None:
+            return None, np.zeros(len(segments), bool)
+        inliers = candidates & _pointing(segments, best, centre, scale, config.inlier_degrees)
+        return _refine(lines[inliers], length[inliers]), inliers
+
+    def far(point):
+        return abs(point[2]) * config.min_vertical_distance <= np.hypot(point[0], point[1])
+
+    vertical, v_inliers = ransac(tilt <= config.max_vertical_tilt, far)
+    if vertical is None or v_inliers.sum() < config.min_vertical or not far(vertical):
+        return None
+    out = FrameLines(frame, vertical, int(v_inliers.sum()))
+    if abs(vertical[2]) < 1e-9:
+        return out  # vertical edges parallel in the image: no focal length from this pair
+
+    def perpendicular(point):
+        if abs(point[2]) < 1e-12:
+            return False
+        f2 = _focal_squared(vertical, point)
+        return config.low ** 2 <= f2 <= config.high ** 2
+
+    receding = (tilt > config.min_horizontal_tilt) & (tilt < config.max_horizontal_tilt)
+    horizontal, h_inliers = ransac(~v_inliers & receding, perpendicular)
+    if horizontal is None or h_inliers.sum() < config.min_horizontal or not perpendicular(horizontal):
+        return out
+    out.horizontal, out.horizontal_inliers = horizontal, int(h_inliers.sum())
+    focal = float(np.sqrt(_focal_squared(vertical, horizontal)))
+    tilt = np.degrees(np.arctan2(focal * abs(vertical[2]), np.hypot(vertical[0], vertical[1])))
+    if tilt >= config.min_camera_tilt:
+        out.focal = focal * scale
+    return out
+
+
+def estimate_scene_camera(frames, masks=None, config: SceneLineConfig | None = None,
+                          frame_ids: list[int] | None = None) -> SceneCamera:
+    """The pooled estimate over gray uint8 frames (a sequence of (H, W)), with optional people masks (True where
+    a person is) of the same size; frame_ids name the frames in the result (default 0, 1, ...)."""
+    config = config or SceneLineConfig()
+    frames = list(frames)
+    if not frames:
+        raise ValueError("estimate_scene_camera needs at least one frame")
+    h, w = np.asarray(frames[0]).shape[:2]
+    masks = [None] * len(frames) if masks is None else list(masks)
+    ids = list(range(len(frames))) if frame_ids is None else list(frame_ids)
+    if len(masks) != len(frames) or len(ids) != len(frames):
+        raise ValueError(f"{len(frames)} frames, {len(masks)} masks and {len(ids)} frame ids: give one of each")
+    found = [r for r in (frame_vanishing_points(g, m, config, i) for g, m, i in zip(frames, masks, ids))
+             if r is not None]
+    out = SceneCamera(int(w), int(h), found)
+    focals = np.array([f.focal for f in found if f.focal is not None])
+    if len(focals) < config.min_frames:
+        out.reason = (f"{len(focals)} of {len(frames)} frames gave a focal length (vertical and perpendicular "
+                      f"horizontal edges), {config.min_frames} needed")
+        return out
+    q25, median, q75 = np.percentile(focals, [25, 50, 75])
+    out.focal, out.spread = float(median), float(0.5 * (q75 - q25) / median)
+    out.informative = out.spread <= config.max_spread
+    out.reason = (f"{len(focals)} of {len(frames)} frames, focal {median:.0f} px, spread {100 * out.spread:.1f}% "
+                  f"({'within' if out.informative else 'over'} {100 * config.max_spread:.0f}%)")
+    return out

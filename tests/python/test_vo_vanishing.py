@@ -1,0 +1,129 @@
+"""The focal length and the up direction from a scene's straight lines (m3c.vo.vanishing): a built scene of poles
+and kerbs drawn at a known focal length and tilt (m3c.vo.synthetic.built_scene_edges, projected with the camera
+it is compared with) is measured within 2% and half a degree; a level camera gives the up direction but no focal
+length; a textureless frame, a frame under a people mask and frames that disagree give no estimate; the ground's
+tilt prior reads the frames' up directions in the odometry's frame."""
+
+import numpy as np
+import pytest
+
+from m3c.ground import GroundParams
+from m3c.ground.world_frame import dominant_ground, scene_up_prior
+from m3c.vo.synthetic import built_scene_edges, look_rotation
+from m3c.vo.vanishing import SceneLineConfig, estimate_scene_camera, frame_vanishing_points, line_segments
+
+W, H = 960, 540
+DIAGONAL = float(np.hypot(W, H))
+
+
+def _view(focal, pitch, roll=0.0, yaw=0.2, seed=1):
+    """(image, true up in the camera (OpenCV axes)); world y points down in the synthetic scene."""
+    pose = np.eye(4)
+    pose[:3, :3] = look_rotation(yaw, pitch, roll)
+    image = built_scene_edges(W, H, [focal, focal, W / 2, H / 2], pose, seed=seed)
+    return image, pose[:3, :3].T @ np.array([0.0, -1.0, 0.0])
+
+
+def _angle(a, b):
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+@pytest.mark.parametrize("focal, pitch, roll", [(800.0, -0.2, 0.05), (1400.0, -0.14, -0.03), (900.0, 0.15, 0.02)])
+def test_focal_and_up_of_a_built_scene(focal, pitch, roll):
+    image, up = _view(focal, pitch, roll)
+    found = frame_vanishing_points(image)
+    assert found is not None and found.vertical_inliers >= 10 and found.horizontal_inliers >= 6
+    assert found.focal == pytest.approx(focal, rel=0.02)
+    estimate = estimate_scene_camera([image], config=SceneLineConfig(min_frames=1))
+    assert _angle(estimate.up(focal), up) < 0.5
+    # The up direction at another focal length is the same vanishing point seen through another camera.
+    wrong = estimate.up(1.5 * focal)
+    assert _angle(wrong, up) > 0.5 * abs(np.degrees(np.arctan(np.tan(pitch) * 1.5)) - np.degrees(pitch))
+
+
+def test_level_camera_has_an_up_direction_but_no_focal_length():
+    image, up = _view(1100.0, 0.0)
+    found = frame_vanishing_points(image)
+    assert found is not None and found.focal is None  # vertical edges parallel in the image
+    estimate = estimate_scene_camera([image], config=SceneLineConfig(min_frames=1))
+    assert _angle(estimate.up(1100.0), up) < 0.3
+    assert not estimate.informative and "0 of 1 frames" in estimate.reason
+
+
+def test_textureless_and_masked_frames_give_nothing():
+    assert frame_vanishing_points(np.full((H, W), 128, np.uint8)) is None
+    image, _ = _view(800.0, -0.2)
+    everyone = np.ones((H, W), bool)  # a person's mask over the whole frame hides every edge
+    assert len(line_segments(image)) > 20 and len(line_segments(image, everyone)) == 0
+    assert frame_vanishing_points(image, everyone) is None
+
+
+def test_frames_are_pooled_and_must_agree():
+    views = [_view(800.0, -0.2, yaw=yaw, seed=seed)[0] for yaw, seed in ((0.0, 1), (0.1, 2), (0.2, 3), (0.3, 4),
+                                                                          (0.15, 5))]
+    estimate = estimate_scene_camera(views, config=SceneLineConfig(min_frames=5), frame_ids=[0, 10, 20, 30, 40])
+    assert estimate.informative and estimate.focal == pytest.approx(800.0, rel=0.02)
+    summary = estimate.summary(800.0)
+    assert [f["frame"] for f in summary["frames"]] == [0, 10, 20, 30, 40]
+    assert all(len(f["up"]) == 3 for f in summary["frames"])
+    # Frames of two different cameras do not agree: no estimate, and the reason says so.
+    mixed = views[:3] + [_view(1300.0, -0.15, yaw=0.1, seed=s)[0] for s in (6, 7)]
+    estimate = estimate_scene_camera(mixed, config=SceneLineConfig(min_frames=5))
+    assert estimate.focal is not None and not estimate.informative and "over" in estimate.reason
+
+
+def test_bad_settings_and_input_are_named():
+    with pytest.raises(ValueError, match="low"):
+        SceneLineConfig(low=2.0, high=1.0)
+    with pytest.raises(ValueError, match="frames"):
+        SceneLineConfig(frames=0)
+    with pytest.raises(ValueError, match="tilts"):
+        SceneLineConfig(min_horizontal_tilt=80.0, max_horizontal_tilt=70.0)
+    with pytest.raises(ValueError, match="at least one frame"):
+        estimate_scene_camera([])
+    with pytest.raises(ValueError, match="differ in size"):
+        line_segments(np.zeros((H, W), np.uint8), np.zeros((10, 10), bool))
+    with pytest.raises(ValueError, match="gray uint8"):
+        line_segments(np.zeros((H, W, 3), np.uint8))
+
+
+def _rotation(axis, degrees):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis, dtype=np.float64)).as_matrix()
+
+
+def test_scene_up_prior_reads_every_frame_in_the_odometry_frame():
+    true_up = np.array([0.1, -0.99, -0.05])
+    true_up /= np.linalg.norm(true_up)
+    cameras = np.tile(np.eye(4), (30, 1, 1))
+    for t in range(30):  # a panning camera: VO frame from camera t
+        cameras[t, :3, :3] = _rotation([0, 1, 0], 2.0 * t)
+    frames = [{"frame": t, "up": (cameras[t, :3, :3].T @ true_up).tolist()} for t in (0, 10, 20, 29)]
+    up, sigma = scene_up_prior({"informative": True, "frames": frames}, cameras)
+    assert _angle(up, true_up) < 1e-6 and sigma == 2.0  # no spread: the floor of the prior's sigma
+    assert scene_up_prior({"informative": False, "frames": frames}, cameras) is None
+    assert scene_up_prior(None, cameras) is None
+    # Frames whose ups disagree (one rotated 12 degrees) are not a prior.
+    frames[1]["up"] = (_rotation([1, 0, 0], 12.0) @ np.asarray(frames[1]["up"])).tolist()
+    assert scene_up_prior({"informative": True, "frames": frames}, cameras) is None
+
+
+def test_the_scene_up_holds_the_contacts_ground_where_the_feet_cannot():
+    """People standing at one distance leave the ground's forward tilt free: the prior decides it."""
+    rng = np.random.default_rng(0)
+    normal = _rotation([1, 0, 0], 6.0) @ np.array([0.0, -1.0, 0.0])  # the ground's up, in camera 0 (y down)
+    height = 1.8
+    points = []
+    for _ in range(60):  # feet 8 m away (+- 0.3 m), across the view, on the plane n . x + height = 0
+        x, z = rng.uniform(-2, 2), 8.0 + rng.uniform(-0.3, 0.3)
+        y = -(height + normal[0] * x + normal[2] * z) / normal[1]
+        points.append(np.array([[x, y, z]]) * (1 + 0.05 * rng.normal()))  # depth error along the ray
+    cameras = np.tile(np.eye(4), (60, 1, 1))
+    tracks = [{"first_frame": 0}]
+    params = GroundParams()
+    with_scene, source, _, _ = dominant_ground([points], tracks, cameras, np.zeros(3), params, level=False,
+                                               scene_up=(normal, 2.0))
+    assert source == "contacts" and _angle(with_scene.normal, normal) < 1.0
+    camera_up, _, _, _ = dominant_ground([points], tracks, cameras, np.zeros(3), params, level=False)
+    assert _angle(camera_up.normal, normal) > 2.0  # the camera's own up (the other prior) is 6 degrees off
