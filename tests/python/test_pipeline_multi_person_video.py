@@ -46,6 +46,13 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
         assert lifted.max() < 40.0
         final = np.linalg.norm(arrays["world_joints"][p][valid][:, 0] - cams[valid, :3, 3], axis=1)
         assert 4.0 < np.median(final) < 20.0
+    # The camera's height, within 0.5 m of what the scene says (the issue's goal). Read off the first frame, not
+    # from M3C: the court lines meet at a horizon 60 px above the image centre; against it the standing man's eyes
+    # and ankles put the camera 2.05-2.25 m up (eye height 1.55-1.70 m) and the back wall's hoop (rim 3.05 m)
+    # 2.35 m. The focal length and the ground's tilt come from the gym's straight edges (m3c.vo.vanishing).
+    assert summary["camera"]["intrinsics_source"] == "scene"
+    assert 900 < summary["camera"]["intrinsics"][0] < 1100  # the edges' orthogonality: about 1000 px
+    assert abs(cams[0, 1, 3] - 2.2) < 0.5
 
 
 def test_two_people_keep_one_identity_each_over_the_whole_clip():
