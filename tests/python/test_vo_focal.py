@@ -234,3 +234,10 @@ def test_static_camera_skips_the_search_not_the_scene():
     focal = config.nodes["focal"].config
     assert focal.get("motion") is False and focal.get("enabled", True) is True
     assert focal.get("scene_lines", True) is True and config.nodes["vo"].config.get("static") is True
+
+
+def test_bad_scene_setting_is_named():
+    with pytest.raises(InputError, match="focal.scene .*SceneLineConfig"):
+        FocalNode("focal", FocalNode.Config(scene={"frames": 0})).check(None)
+    with pytest.raises(InputError, match="focal.scene"):
+        FocalNode("focal", FocalNode.Config(scene={"no_such_setting": 1})).check(None)

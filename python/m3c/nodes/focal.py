@@ -55,27 +55,21 @@ class FocalNode(Node):
         scene_lines: bool = True  # the scene's vanishing points where the motion cannot tell (m3c.vo.vanishing)
         scene: dict[str, Any] = field(default_factory=dict)
 
-    def _search_config(self):
+    def _settings(self, key: str):
+        """The settings dataclass of focal.<key> ("search" or "scene"), or an InputError naming the bad one."""
         from m3c.vo.focal import FocalSearchConfig
-
-        try:
-            return FocalSearchConfig(**self.config.search)
-        except (TypeError, ValueError) as err:
-            raise InputError(f"node {self.name!r}: bad setting in focal.search ({err}); settings are "
-                             "m3c.vo.focal.FocalSearchConfig fields") from None
-
-    def check(self, ctx) -> None:
-        self._search_config()
-        self._scene_config()
-
-    def _scene_config(self):
         from m3c.vo.vanishing import SceneLineConfig
 
+        cls = {"search": FocalSearchConfig, "scene": SceneLineConfig}[key]
         try:
-            return SceneLineConfig(**self.config.scene)
+            return cls(**getattr(self.config, key))
         except (TypeError, ValueError) as err:
-            raise InputError(f"node {self.name!r}: bad setting in focal.scene ({err}); settings are "
-                             "m3c.vo.vanishing.SceneLineConfig fields") from None
+            raise InputError(f"node {self.name!r}: bad setting in focal.{key} ({err}); settings are "
+                             f"{cls.__module__}.{cls.__name__} fields") from None
+
+    def check(self, ctx) -> None:
+        self._settings("search")
+        self._settings("scene")
 
     def run(self, ctx, inputs):
         import cv2
@@ -92,8 +86,8 @@ class FocalNode(Node):
         if (masks is None) != (detections is None):
             raise PipelineError(f"node {self.name!r}: wire both masks and detections (to hide people from the "
                                 "odometry) or neither")
-        config = self._search_config()
-        scene_config = self._scene_config() if self.config.scene_lines else None
+        config = self._settings("search")
+        scene_config = self._settings("scene") if self.config.scene_lines else None
         search = camera.get("source") == "default" and self.config.motion
         if not search and scene_config is None:
             return {"camera": camera, "tracks": tracks}
