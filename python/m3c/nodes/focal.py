@@ -35,7 +35,8 @@ class FocalNode(Node):
     direction; None when scene_lines is off). Output tracks: perception's tracks ({"tracks": [...]},
     m3c.perception.handover), re-expressed.
     Config: enabled (false: pass the camera node's intrinsics through), motion (false: no odometry search, for a
-    camera known to stand still), search: m3c.vo.focal.FocalSearchConfig settings, scene_lines (false: no scene estimate), scene: m3c.vo.vanishing.SceneLineConfig settings."""
+    camera known to stand still), search: m3c.vo.focal.FocalSearchConfig settings, scene_lines (false: no scene
+    estimate), scene: m3c.vo.vanishing.SceneLineConfig settings."""
 
     type_name = "focal"
     level = "patch"

@@ -41,14 +41,13 @@ class SceneLineConfig:
     (x the diagonal; nearer, the lines are rather a horizontal direction receding from a camera looking down
     along it, e.g. a table's long edges in a portrait view); min_camera_tilt: degrees the camera must look up or
     down for the pair to give a focal length (a level camera's vertical vanishing point lies at infinity and the
-    focal length's error grows as 1 / tan(tilt)); inlier_degrees: a
-    segment supports a vanishing point when its direction points at it within this angle; min_vertical,
-    min_horizontal: inliers each vanishing point needs; low, high: the focal lengths a pair may imply (x the
-    diagonal); iterations: RANSAC draws per vanishing point; frames: frames sampled evenly over the video;
-    min_frames: frames that must give an estimate; max_spread: half the interquartile range of the frames' focal
-    lengths over their median above which the estimate is not informative; max_image_side: frames are searched
-    for segments at most this large (longer sides are scaled down; the geometry stays in the frame's pixels);
-    seed: the RANSAC draws."""
+    focal length's error grows as 1 / tan(tilt)); inlier_degrees: a segment supports a vanishing point when its
+    direction points at it within this angle; min_vertical, min_horizontal: inliers each vanishing point needs;
+    low, high: the focal lengths a pair may imply (x the diagonal); iterations: RANSAC draws per vanishing point;
+    frames: frames sampled evenly over the video; min_frames: frames that must give an estimate; max_spread: half
+    the interquartile range of the frames' focal lengths over their median above which the estimate is not
+    informative; max_image_side: frames are searched for segments at most this large (longer sides are scaled
+    down; the geometry stays in the frame's pixels); seed: the RANSAC draws."""
 
     min_length: float = 0.02
     max_vertical_tilt: float = 25.0
@@ -108,7 +107,7 @@ class SceneCamera:
 
     def up(self, focal: float, frame: int | None = None) -> np.ndarray | None:
         """The up direction (unit, OpenCV camera axes: y down) in frame `frame`'s camera (default: every frame's,
-        averaged) at focal length `focal`; None without a vertical vanishing point."""
+        averaged, which is a still camera's) at focal length `focal`; None without a vertical vanishing point."""
         ups = [_up_from_vertical(f.vertical, focal, self.diagonal) for f in self.frames
                if frame is None or f.frame == frame]
         if not ups:
