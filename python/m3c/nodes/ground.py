@@ -17,8 +17,9 @@ class GroundNode(Node):
     """The ground and the gravity-aligned world frame (thesis 4.1.3, "Ground Estimation"): m3c.ground.world_frame.
     estimate_ground at the scale node's scale, on the odometry map's ground plane that the scale measured against
     when the people's contacts lie on it (map_ground), the contacts' ground tilted as the scene's vertical edges
-    say where the focal node measured them (camera: its output; scene_up) (planes: shared, SLAHMR's single floor, the default; or
-    per_person, the thesis's planes, each frame pooling the contacts of `window` frames around it).
+    say where the focal node measured them (camera: its output; scene_up) (planes: shared, SLAHMR's single floor,
+    the default; or per_person, the thesis's planes, each frame pooling the contacts of `window` frames around
+    it).
 
     Output ground: world_from_vo (4, 4) (metric VO frame at the estimated scale -> world), cameras (the fields of
     m3c.camera.WorldCameras: the VO cameras in the world at the estimated scale, offset 0), up_source
