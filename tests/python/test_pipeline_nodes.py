@@ -279,6 +279,12 @@ def test_the_ground_is_the_odometry_maps_when_the_contacts_lie_on_it():
     assert errors(away) == pytest.approx(tilted) and away["ground_source"] == "contacts"
     with pytest.raises(ValueError, match="map_plane must be 4 finite numbers"):
         estimate_ground(model, drifting, vo, 2.5, GroundParams(), map_plane=[0.0, 0.0, 0.0, 1.0])
+    # The scene's vertical edges (the focal node's record: each sampled frame's up in its camera) hold the tilt
+    # the drifting contacts lose; results say which prior held it.
+    frames = [{"frame": t, "up": (vo[t, :3, :3].T @ R[1]).tolist()} for t in range(0, 40, 8)]
+    held = estimate_ground(model, drifting, vo, 2.5, GroundParams(), scene={"informative": True, "frames": frames})
+    assert held["ground_source"] == "contacts" and errors(held)[0] < 0.35 * tilted[0]  # 3.5 -> 1.0 degrees
+    assert (held["tilt_prior"], contacts["tilt_prior"], mapped["tilt_prior"]) == ("scene", "people", None)
 
 
 def test_patches_node_isolates_the_focused_person(tmp_path):

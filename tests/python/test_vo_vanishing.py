@@ -127,3 +127,4 @@ def test_the_scene_up_holds_the_contacts_ground_where_the_feet_cannot():
     assert source == "contacts" and _angle(with_scene.normal, normal) < 1.0
     camera_up, _, _, _ = dominant_ground([points], tracks, cameras, np.zeros(3), params, level=False)
     assert _angle(camera_up.normal, normal) > 2.0  # the camera's own up (the other prior) is 6 degrees off
+

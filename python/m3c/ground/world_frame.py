@@ -172,6 +172,7 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
 
     Returns {world_from_vo (4, 4) (metric VO frame -> world), cameras (m3c.camera.WorldCameras: the cameras in
     the world at `scale`), up_source ("ground" or "camera"), ground_source ("odometry map", "contacts" or None),
+    tilt_prior (what held the contacts' ground's tilt: "scene", "people", "camera"; None for another source),
     plane (normal (3,), offset) the dominant plane in the world (y = 0) or None, contact_points, tracks: per track
     normal (n, 3), offset (n,) in the world, observed (n,), valid (n,)}.
     """
@@ -240,5 +241,7 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
                       for track, points in zip(tracks, raw)]
     return {"world_from_vo": world_from_vo, "cameras": WorldCameras.from_vo(vo_cameras, scale, world_from_vo),
             "up_source": "ground" if dominant else "camera", "ground_source": ground_source,
+            "tilt_prior": (None if ground_source != "contacts" else "scene" if scene_up is not None
+                           else "people" if level and np.linalg.norm(up) > 0 else "camera"),
             "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
             "contact_points": int(len(pooled)), "tracks": out_tracks}

@@ -53,6 +53,11 @@ ARRAYS: dict[str, tuple[str, str, str]] = {
 }
 
 
+# What held the contacts' ground's tilt (results.json world.ground_tilt_prior), as `m3c info` says it.
+TILT_PRIORS = {"scene": "the scene's vertical edges", "people": "the people's upright direction",
+               "camera": "the first camera's up direction"}
+
+
 def _scale_uncertainty(camera: dict) -> str:
     sigma = (camera.get("scale_estimate") or {}).get("sigma")
     return f", +-{100 * sigma:.1f}%" if sigma else ""
@@ -151,7 +156,9 @@ def describe(folder: str | Path) -> str:
              f"{camera['odometry']}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
              f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}"
-             + (f" (from the {summary['world']['ground_source']})" if summary["world"].get("ground_source") else ""),
+             + (f" (from the {summary['world']['ground_source']})" if summary["world"].get("ground_source") else "")
+             + (f"; its tilt held by {TILT_PRIORS[summary['world']['ground_tilt_prior']]}"
+                if summary["world"].get("ground_tilt_prior") in TILT_PRIORS else ""),
              f"lift        {summary['lift']['method']}; optimization: "
              f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"
              if summary["optimization"]["optimized"] else f"lift        {summary['lift']['method']}; no optimization",

@@ -30,8 +30,8 @@ class GroundNode(Node):
 
     # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree; 4: the
     # contacts' ground fitted along the camera rays, with the people's upright direction as the tilt's prior;
-    # 5: the scene's vertical edges as that prior where the focal node measured them (scene_up)
-    version = "5"
+    # 5: the scene's vertical edges as that prior where the focal node measured them (scene_up); 6: tilt_prior
+    version = "6"
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale", "camera")

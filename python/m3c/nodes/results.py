@@ -117,6 +117,7 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
                            "viewing direction", "ground": "y = 0" if ground["up_source"] == "ground" else
                   "not found (up from the first camera)", "ground_source": ground.get("ground_source"),
+                  "ground_tilt_prior": ground.get("tilt_prior"),
                   "contact_points": int(ground["contact_points"])},
         "body_model": {"name": model.data.name, "gender": model.data.gender, "num_betas": int(B),
                        "num_joints": int(J)},
@@ -143,8 +144,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 @register_node
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
-    # 4: camera.scene
-    version = "4"
+    # 4: camera.scene; 5: world.ground_tilt_prior
+    version = "5"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")
