@@ -72,6 +72,19 @@ def gravity_frame(up: np.ndarray, first_camera: np.ndarray, height: float | None
 MAX_MAP_GROUND_GAP = 0.3
 
 
+def tilt_prior(up_direction: np.ndarray, level: bool, first_camera: np.ndarray,
+               scene_up: tuple[np.ndarray, float] | None, ray_params: RayGroundParams = RayGroundParams()
+               ) -> tuple[str, np.ndarray, RayGroundParams]:
+    """(name, up direction, the fit's noise model) of the contacts' ground's tilt prior: the scene's vertical edges
+    ("scene", at their sigma both ways) when scene_up is given, else the people's upright direction ("people") when
+    `level` and known, else the first camera's up ("camera")."""
+    if scene_up is not None:
+        return "scene", scene_up[0], replace(ray_params, roll_sigma=scene_up[1], pitch_sigma=scene_up[1])
+    if level and np.linalg.norm(up_direction) > 0:
+        return "people", up_direction, ray_params
+    return "camera", first_camera[:3, :3] @ CAMERA_UP, ray_params
+
+
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
                     up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
                     map_plane: np.ndarray | None = None, ray_params: RayGroundParams = RayGroundParams(),
@@ -112,10 +125,7 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
         log.info("the odometry map's ground plane lies %.2f m from the people's contacts (median): the ground "
                  "from the contacts", gap)
     if len(pooled) >= params.min_support:
-        prior = up_direction if level and np.linalg.norm(up_direction) > 0 else cameras[0, :3, :3] @ CAMERA_UP
-        if scene_up is not None:
-            prior = scene_up[0]
-            ray_params = replace(ray_params, roll_sigma=scene_up[1], pitch_sigma=scene_up[1])
+        _, prior, ray_params = tilt_prior(up_direction, level, cameras[0], scene_up, ray_params)
         try:
             dominant = fit_ground_along_rays(np.array(frame_points), np.array(frame_centers), prior,
                                              cameras[0, :3, 0], ray_params)
@@ -241,7 +251,6 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
                       for track, points in zip(tracks, raw)]
     return {"world_from_vo": world_from_vo, "cameras": WorldCameras.from_vo(vo_cameras, scale, world_from_vo),
             "up_source": "ground" if dominant else "camera", "ground_source": ground_source,
-            "tilt_prior": (None if ground_source != "contacts" else "scene" if scene_up is not None
-                           else "people" if level and np.linalg.norm(up) > 0 else "camera"),
+            "tilt_prior": tilt_prior(up, level, cameras[0], scene_up)[0] if ground_source == "contacts" else None,
             "plane": {"normal": np.array([0.0, 1.0, 0.0]), "offset": 0.0} if dominant else None,
             "contact_points": int(len(pooled)), "tracks": out_tracks}

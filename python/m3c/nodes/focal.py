@@ -139,8 +139,8 @@ class FocalNode(Node):
             if tracks is not None:
                 factor = focal / float(np.mean(old[:2]))
                 tracks = dict(tracks, tracks=[refocused(track, factor) for track in tracks["tracks"]])
-        if scene is not None:
-            camera["scene"] = scene.summary(float(np.mean(np.asarray(camera["intrinsics"], dtype=np.float64)[:2])))
+        if scene is not None:  # each frame's up direction at the focal length the run goes on with
+            camera["scene"] = scene.summary(focal if focal is not None else float(np.mean(old[:2])))
         return {"camera": camera, "tracks": tracks}
 
 
