@@ -1,6 +1,7 @@
 """Plausibility of the world motion on real clips, where there is no ground truth (m3c.eval.plausibility): runs
 the pipeline (until results; cached in --out) on each video and prints, per track, the mean and peak speed, the
-path against the displacement, the slower foot's median speed and the time below the ground. Beside each clip,
+path against the displacement, the slower foot's median speed, the time below the ground and the gait (steps a
+minute, step length in metres and in leg lengths). Beside each clip,
 the same figures of a reference motion measured in the same run: retargeted CMU motion capture walking
 (131_01 frames 140-200), what a plausible walker scores.
 
@@ -28,7 +29,9 @@ def figures_line(name: str, f: dict) -> str:
     ratio = "-" if f["path_ratio"] is None else f"{f['path_ratio']:.1f}"
     return (f"{name:<44}{f['frames']:>6}{f['mean_speed_mps']:>7.2f}{f['peak_speed_mps']:>7.2f}"
             f"{f['path_length_m']:>7.2f}{f['displacement_m']:>7.2f}{ratio:>6}{f['slow_foot_speed_mps']:>7.2f}"
-            f"{100 * f['below_ground_fraction']:>7.0f}{100 * f['penetration_m']:>7.1f}")
+            f"{100 * f['below_ground_fraction']:>7.0f}{100 * f['penetration_m']:>7.1f}"
+            + "".join("      -" if f[key] is None else f"{f[key]:>7.{digits}f}"
+                      for key, digits in (("step_rate_spm", 0), ("step_length_m", 2), ("step_length_legs", 2))))
 
 
 def main() -> None:
@@ -47,7 +50,7 @@ def main() -> None:
     walk = slice(140, 200)
     reference = track_plausibility(model.joints(clip.pose()[walk], clip.betas, clip.transl[walk]), clip.fps)
     head = (f"{'clip / track':<44}{'frames':>6}{'mean':>7}{'peak':>7}{'path':>7}{'disp':>7}{'ratio':>6}"
-            f"{'foot':>7}{'below%':>7}{'cm':>7}")
+            f"{'foot':>7}{'below%':>7}{'cm':>7}{'steps':>7}{'step':>7}{'legs':>7}")
     rows = [head, "-" * len(head), figures_line("reference: CMU 131_01 walking (mocap)", reference)]
     for video, static in [(v, False) for v in videos] + [(Path(v), True) for v in args.static]:
         config = PipelineConfig.default()

@@ -71,3 +71,79 @@ def test_results_arrays_take_the_longest_valid_run():
     out = results_plausibility(arrays)
     assert out[1] is None and out[0]["frames"] == 90
     assert out[0]["mean_speed_mps"] == pytest.approx(track_plausibility(joints, 30.0)["mean_speed_mps"])
+
+
+def _gait(model, strides_per_s, speed=1.2, seconds=5.0, fps=30.0, phase=0.4):
+    """The procedural walker of m3c.eval.scenes (hips swinging +-0.45 rad, knees bending in the forward swing) at
+    a known stride frequency, gliding along +z (the way the body faces) at `speed`."""
+    from m3c.eval.scenes import walking_pose
+
+    t = np.arange(round(seconds * fps)) / fps
+    pose = np.zeros((len(t), 24, 3))
+    pose[:, 1:] = walking_pose(2 * np.pi * strides_per_s * t + phase)
+    transl = np.zeros((len(t), 3))
+    transl[:, 2] = speed * t
+    return model.joints(pose, np.zeros(model.num_betas), transl)
+
+
+def _leg_length(model) -> float:
+    rest = model.joints(np.zeros((1, 24, 3)), np.zeros(model.num_betas), np.zeros((1, 3)))[0]
+    return float(np.linalg.norm(rest[1] - rest[4]) + np.linalg.norm(rest[4] - rest[7]))
+
+
+@pytest.mark.parametrize("strides", [0.45, 0.9, 1.4])  # a slow-motion walk, a walk, a run's rate
+def test_gait_recovers_a_known_step_rate(strides):
+    model = default_body_model()
+    joints = _gait(model, strides)
+    f = track_plausibility(joints, 30.0)
+    assert f["mean_speed_mps"] == pytest.approx(1.2, rel=1e-3)
+    assert f["step_rate_spm"] == pytest.approx(120 * strides, rel=0.01)
+    assert f["step_length_m"] == pytest.approx(1.2 / (2 * strides), rel=0.01)
+    assert f["step_length_legs"] == pytest.approx(f["step_length_m"] / _leg_length(model), rel=0.01)
+    # Noisy joints (2 cm), on a tilted, shifted ground, at another frame rate: the same gait.
+    rng = np.random.default_rng(3)
+    R = Rotation.from_rotvec([0.2, -0.5, 0.1]).as_matrix()
+    fps = 25.0
+    noisy = _gait(model, strides, fps=fps) @ R.T + [1.0, 2.0, -3.0] + rng.normal(0, 0.02, (125, 24, 3))
+    normal = np.tile(R @ [0.0, 1.0, 0.0], (125, 1))
+    offset = -normal @ np.array([1.0, 2.0, -3.0])
+    g = track_plausibility(noisy, fps, normal, offset)
+    assert g["step_rate_spm"] == pytest.approx(120 * strides, rel=0.03)
+
+
+def test_gait_absent_where_the_feet_do_not_alternate():
+    model = default_body_model()
+    walk = _gait(model, 0.9)
+    standing = np.repeat(walk[:1], len(walk), axis=0)
+    assert track_plausibility(standing, 30.0)["step_rate_spm"] is None
+    # Both feet together (a hop): the left ankle never leads the right.
+    hop = walk.copy()
+    hop[:, [8, 11]] = hop[:, [7, 10]] + (walk[0, 8] - walk[0, 7])
+    assert track_plausibility(hop, 30.0)["step_length_m"] is None
+    # One stride only: too short to call a rate.
+    assert track_plausibility(_gait(model, 0.45, seconds=2.0), 30.0)["step_rate_spm"] is None
+    # Feet wandering without a rhythm under a standing body (random steps of 3 cm a frame): no gait.
+    rng = np.random.default_rng(0)
+    wander = standing.copy()
+    for foot in ((7, 10), (8, 11)):
+        wander[:, list(foot)] += np.cumsum(rng.normal(0, 0.03, (len(walk), 1, 3)), axis=0) * [1, 0, 1]
+    assert track_plausibility(wander, 30.0)["step_rate_spm"] is None
+
+
+def test_slow_motion_walk_is_flagged_and_real_time_restores_it():
+    """A walk played 2x slow (a normal step, 0.67 m, at 54 steps a minute) gets m3c info's slow-motion hint; the
+    same frames at the real rate (what --slow-motion 2 gives) double the step rate and the speed and keep the step."""
+    from m3c.io.results import _slow_gait_hint
+
+    model = default_body_model()
+    slow = track_plausibility(_gait(model, 0.45, speed=0.6, seconds=6.0), 30.0)
+    assert slow["step_rate_spm"] == pytest.approx(54, rel=0.01) and 0.6 < slow["step_length_legs"] < 1.1
+    assert "--slow-motion" in _slow_gait_hint(slow)
+    real = track_plausibility(_gait(model, 0.45, speed=0.6, seconds=6.0), 60.0)
+    assert real["step_rate_spm"] == pytest.approx(2 * slow["step_rate_spm"], rel=1e-6)
+    assert real["mean_speed_mps"] == pytest.approx(2 * slow["mean_speed_mps"], rel=1e-6)
+    assert real["step_length_m"] == pytest.approx(slow["step_length_m"], rel=1e-6)
+    assert _slow_gait_hint(real) == ""
+    # A short shuffle at a slow rate (0.2 m steps) is a slow walk, not slow motion: no hint.
+    shuffle = track_plausibility(_gait(model, 0.45, speed=0.18, seconds=6.0), 30.0)
+    assert shuffle["step_length_legs"] < 0.6 and _slow_gait_hint(shuffle) == ""

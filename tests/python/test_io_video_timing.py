@@ -92,6 +92,29 @@ def test_frames_node_reads_times_and_warns_of_a_variable_rate(clips, tmp_path, c
     np.testing.assert_array_equal(video["times"], frame_times(variable)[::3])
 
 
+def test_slow_motion_gives_real_time(clips, tmp_path):
+    """--slow-motion K: the frames' times are the file's divided by K and their rate K times the file's (real time),
+    the playback rate stays the file's; a bad factor is refused naming the setting and the flag."""
+    constant, variable = clips
+    for path in (constant, variable):
+        plain = Runner(PipelineConfig.default(), tmp_path / f"{path.stem}_1", {"video": path}, show_progress=False)
+        plain.run(["frames"])
+        base = plain.cache.load("frames", plain.plan(["frames"])[0][1])["video"]
+        config = PipelineConfig.default().with_overrides({"frames.slow_motion": 4.0})
+        slow = Runner(config, tmp_path / f"{path.stem}_4", {"video": path}, show_progress=False)
+        slow.run(["frames"])
+        video = slow.cache.load("frames", slow.plan(["frames"])[0][1])["video"]
+        np.testing.assert_allclose(video["times"], frame_times(path) / 4.0)
+        assert video["fps"] == pytest.approx(4.0 * base["fps"]) and video["playback_fps"] == pytest.approx(base["fps"])
+        assert video["slow_motion"] == 4.0 and base["slow_motion"] == 1.0
+        np.testing.assert_array_equal(video["frame_ids"], base["frame_ids"])
+    for bad in (0.0, -2.0, float("nan"), float("inf")):
+        config = PipelineConfig.default().with_overrides({"frames.slow_motion": bad})
+        runner = Runner(config, tmp_path / "bad", {"video": constant}, show_progress=False)
+        with pytest.raises(InputError, match="frames.slow_motion must be a number > 0.*--slow-motion"):
+            runner.run(["frames"])
+
+
 @pytest.mark.skipif(not mediapipe_available(), reason="needs mediapipe (pip install 'm3c[perception]')")
 @pytest.mark.slow
 def test_results_carry_each_frames_time(clips, tmp_path):

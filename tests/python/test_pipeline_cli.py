@@ -105,6 +105,19 @@ def test_horizontal_field_of_view_gives_the_focal_length(small_video, tmp_path, 
     assert camera["source"] == "given"
 
 
+def test_slow_motion_flag_sets_real_time(small_video, tmp_path, capsys):
+    """--slow-motion 4 on a 25 fps video: the frames node gives 100 fps of real time, times a quarter of the file's."""
+    from m3c.pipeline.cache import Cache
+
+    code, _, _ = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                         frames_only_config(tmp_path), "--slow-motion", "4")
+    assert code == 0
+    (entry,) = (tmp_path / "out" / "cache" / "frames").iterdir()
+    video = Cache(tmp_path / "out" / "cache").load("frames", entry.name)["video"]
+    assert video["fps"] == pytest.approx(100.0) and video["playback_fps"] == pytest.approx(25.0)
+    np.testing.assert_allclose(video["times"], np.arange(6) / 100.0, atol=1e-6)
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--intrinsics", "0", "50", "32", "24"], "fx, fy > 0"),
     (["--hfov", "0.5"], "hfov must be the horizontal field of view in degrees"),
@@ -112,6 +125,7 @@ def test_horizontal_field_of_view_gives_the_focal_length(small_video, tmp_path, 
     (["--set", "camera.nope=1"], "unknown setting"),
     (["--set", "ghost.x=1"], "no node named 'ghost'"),
     (["--frames", "5:2"], "bad frame range"),
+    (["--slow-motion", "0"], "frames.slow_motion must be a number > 0"),
 ])
 def test_bad_options(small_video, tmp_path, capsys, argv, message):
     code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",

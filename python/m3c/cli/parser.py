@@ -48,6 +48,10 @@ def _add_video_options(parser, many: bool) -> None:
                              "length its motion cannot tell (a phone's main camera: about 60-70)")
     parser.add_argument("--static-camera", action="store_true",
                         help=f"the camera{'s do' if many else ' does'} not move (no visual odometry)")
+    parser.add_argument("--slow-motion", type=float, metavar="FACTOR",
+                        help="the video plays FACTOR times slower than it was filmed (a phone's 120 fps slow motion "
+                             "at 30 fps: 4; 50 fps played at 23.976: 2.085): times, speeds and the exported animation "
+                             "are then real time")
     parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
                         help="process frames START..STOP-1 (every STEP-th)" + (" of each video" if many else ""))
     parser.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "

@@ -24,6 +24,8 @@ def pipeline_config(args):
         for name, entry in config.nodes.items():
             if entry.type == "focal":
                 overrides[f"{name}.motion"] = False  # a still camera's motion cannot tell its focal length
+    if getattr(args, "slow_motion", None) is not None:
+        overrides["frames.slow_motion"] = float(args.slow_motion)
     if getattr(args, "frames", None):
         start, stop, step = args.frames
         overrides.update({"frames.start": start, "frames.stop": stop, "frames.step": step})

@@ -12,6 +12,12 @@ pointing up; y = 0 when none is given):
                                    keep it above zero; sliding feet score several tenths
   below_ground_fraction            share of frames whose lowest foot joint is more than 2 cm below the ground
   penetration_m                    the deepest any foot joint goes below the ground (0 if never)
+  step_rate_spm, step_length_m,    the gait (see gait_figures): steps a minute, metres per step (mean speed /
+  step_length_legs                 step rate) and that step in leg lengths; None where the feet do not
+                                   alternate steadily. Motion capture (Bandai Namco's walks and runs, 5 + 5
+                                   clips): walking 107-118 steps a minute at 0.77-0.98 leg lengths a step,
+                                   running 127-162 at 0.89-1.83. A normal step at half that rate says the video
+                                   plays slower than it was filmed (slow motion), or the speed is wrong
 """
 
 from __future__ import annotations
@@ -23,6 +29,13 @@ PELVIS = (1, 2)              # the hips
 FEET = ((7, 10), (8, 11))    # (ankle, foot) joints of the left and right foot
 SMOOTHING_S = 0.5
 BELOW_GROUND_TOLERANCE = 0.02
+LEGS = ((1, 4, 7), (2, 5, 8))  # (hip, knee, ankle) of the left and right leg
+# The gait's stride frequencies searched (Hz; 30-240 steps a minute), and when a track counts as stepping: the
+# peak holds at least GAIT_MIN_SHARE of the band's power, the feet's fore-aft alternation is at least
+# GAIT_MIN_AMPLITUDE_M, and at least two strides fit in the track.
+GAIT_BAND_HZ = (0.25, 2.0)
+GAIT_MIN_SHARE = 0.5
+GAIT_MIN_AMPLITUDE_M = 0.1
 # Heights are measured to the joints, not the soles: a planted ankle joint sits about 7 cm and a foot joint about
 # 2.5 cm above the ground (the open body model at rest: 0.069-0.076 and 0.023-0.030 m over betas -2..2).
 FOOT_JOINT_HEIGHT = {7: 0.07, 8: 0.07, 10: 0.025, 11: 0.025}
@@ -33,6 +46,66 @@ def _heights(points: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> np.n
     unit = normal / np.linalg.norm(normal, axis=-1, keepdims=True)
     scale = np.linalg.norm(normal, axis=-1)
     return np.einsum("nkd,nd->nk", points, unit) + (offset / scale)[:, None]
+
+
+def _fit_frequency(signal: np.ndarray, t: np.ndarray, guess: float, half_width: float) -> float:
+    """The frequency near `guess` (within +- half_width) of the sinusoid plus line that fits `signal` best in the
+    least-squares sense: a periodogram's peak is biased when only two or three cycles are in view, this fit is not
+    (exact for a pure tone)."""
+    candidates = guess + np.linspace(-half_width, half_width, 81)
+    residual = []
+    for f in candidates:
+        basis = np.stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t), t], axis=1)
+        coef, *_ = np.linalg.lstsq(basis, signal, rcond=None)
+        residual.append(float(np.sum((basis @ coef - signal) ** 2)))
+    i = int(np.clip(np.argmin(residual), 1, len(candidates) - 2))
+    a, b, c = residual[i - 1:i + 2]
+    shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
+    return float(candidates[i] + shift * (candidates[1] - candidates[0]))
+
+
+def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: float) -> dict:
+    """Step rate and length of a walking or running track: joints (n, 24, 3) metres over consecutive frames, up
+    (n, 3) unit ground normals, mean_speed its mean horizontal speed (m/s).
+
+    A gait alternates the feet: the left ankle's lead over the right along the direction the hips face ((left hip
+    - right hip) x up) swings once per stride, two steps. The stride frequency is the peak of that lead's
+    power spectrum (linear trend removed, Hann window, zero-padded 8x) within GAIT_BAND_HZ, refined by the
+    least-squares fit of a sinusoid (_fit_frequency). It counts only where the peak's main lobe (+- 2 / duration) holds at least
+    GAIT_MIN_SHARE of the band's power, the lead swings by at least GAIT_MIN_AMPLITUDE_M (sqrt(2) x its standard
+    deviation) and the track spans two strides; otherwise every figure is None. The step length is mean_speed
+    over the step rate, also in leg lengths (hip-knee-ankle, the median over frames and legs)."""
+    none = {"step_rate_spm": None, "step_length_m": None, "step_length_legs": None}
+    n = len(joints)
+    side = joints[:, 1] - joints[:, 2]
+    forward = np.cross(side, up)
+    norm = np.linalg.norm(forward, axis=1)
+    if n < 8 or not np.all(norm > 1e-9):
+        return none
+    lead = ((joints[:, 7] - joints[:, 8]) * (forward / norm[:, None])).sum(axis=1)
+    t = np.arange(n) / fps
+    lead = lead - np.polyval(np.polyfit(t, lead, 1), t)
+    if np.sqrt(2.0) * lead.std() < GAIT_MIN_AMPLITUDE_M:
+        return none
+    size = max(8 * n, 4096)
+    power = np.abs(np.fft.rfft(lead * np.hanning(n), size)) ** 2
+    freq = np.fft.rfftfreq(size, 1.0 / fps)
+    band = np.flatnonzero((freq >= GAIT_BAND_HZ[0]) & (freq <= GAIT_BAND_HZ[1]))
+    if len(band) < 3:
+        return none
+    peak = band[np.argmax(power[band])]
+    if peak in (band[0], band[-1]):  # rising towards an edge: drift or a rate outside the band, not a gait
+        return none
+    lobe = np.abs(freq[band] - freq[peak]) <= 2.0 * fps / n
+    if power[band][lobe].sum() < GAIT_MIN_SHARE * power[band].sum():
+        return none
+    stride = _fit_frequency(lead, t, freq[peak], fps / n)
+    if n / fps < 2.0 / stride:
+        return none
+    leg = np.median([np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1) +
+                     np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1) for hip, knee, ankle in LEGS])
+    step = mean_speed / (2.0 * stride)
+    return {"step_rate_spm": float(120.0 * stride), "step_length_m": float(step), "step_length_legs": float(step / leg)}
 
 
 def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, ground_offset=None) -> dict:
@@ -84,6 +157,7 @@ def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, groun
         "slow_foot_speed_mps": float(np.median(slow_foot)),
         "below_ground_fraction": float((lowest < -BELOW_GROUND_TOLERANCE).mean()),
         "penetration_m": float(max(0.0, -lowest.min())),
+        **gait_figures(joints, fps, unit, float(speed.mean())),
     }
 
 

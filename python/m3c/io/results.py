@@ -63,6 +63,23 @@ def _scale_uncertainty(camera: dict) -> str:
     return f", +-{100 * sigma:.1f}%" if sigma else ""
 
 
+def _rate(video: dict) -> str:
+    """The processed frames' rate as the file plays them, and in real time when it is slow motion."""
+    slow = video.get("slow_motion", 1.0)
+    if slow == 1.0:
+        return f"{video['fps']:.3f} fps"
+    return f"{video['fps'] / slow:.3f} fps (slow motion x{slow:g}: {video['fps']:.3f} fps of real time)"
+
+
+def _slow_gait_hint(figures: dict) -> str:
+    """A walking step (0.6-1.1 leg lengths) at under 70 steps a minute, where people walk at 100-120: the clip may
+    play slower than it was filmed (slow motion), which only the user can tell."""
+    if figures["step_rate_spm"] < 70 and 0.6 <= figures["step_length_legs"] <= 1.1:
+        return ("; a walking step at a slow rate: if the video is slow motion, give --slow-motion (then speeds are "
+                "real time)")
+    return ""
+
+
 def _focal_uncertainty(camera: dict) -> str:
     estimate = camera.get("focal_estimate")
     scene = camera.get("scene")
@@ -147,7 +164,7 @@ def describe(folder: str | Path) -> str:
              f"state       {state.status}: {state.message}" if not state.complete else
              f"state       complete (run {state.manifest.get('run_key')}, every file checked against "
              f"{MANIFEST})",
-             f"video       {video['name']}: {video['width']} x {video['height']}, {video['fps']:.3f} fps, frames "
+             f"video       {video['name']}: {video['width']} x {video['height']}, {_rate(video)}, frames "
              f"{video['frame_range'][0]}..{video['frame_range'][1] - 1} step {video['frame_range'][2]} "
              f"({video['frames']} processed)",
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
@@ -177,6 +194,9 @@ def describe(folder: str | Path) -> str:
                          f"{figures['slow_foot_speed_mps']:.2f} m/s; below ground "
                          f"{100 * figures['below_ground_fraction']:.0f}% of frames, "
                          f"{100 * figures['penetration_m']:.0f} cm deep")
+            if figures.get("step_rate_spm") is not None:
+                lines.append(f"         gait {figures['step_rate_spm']:.0f} steps/min, {figures['step_length_m']:.2f} m "
+                             f"a step ({figures['step_length_legs']:.2f} leg lengths){_slow_gait_hint(figures)}")
     for stage in summary["optimization"]["stages"]:
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
                      f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")

@@ -23,7 +23,12 @@ class FramesNode(Node):
     metadata is applied to every frame read), rotation (its degrees), num_frames (T), frame_ids (T,) video frame id
     of each processed frame, times (T,) each processed frame's time in seconds (the file's timestamps; frame id /
     source fps when the file has none), variable_rate (the steps between the processed frames differ by more than
-    VARIABLE_RATE_TOLERANCE), start, stop, step.
+    VARIABLE_RATE_TOLERANCE), start, stop, step, slow_motion, playback_fps.
+
+    slow_motion: how many times slower than it was filmed the video plays (a phone's 120 fps slow motion played at
+    30 fps: 4). fps and times are then real time (the file's rate times slow_motion, its timestamps divided by
+    it), so every speed, the optimizer's smoothing and motion prior and the exported animation run in real time;
+    playback_fps stays the rate of the processed frames as the file plays them (the overlay and world videos).
     """
 
     type_name = "frames"
@@ -36,12 +41,17 @@ class FramesNode(Node):
         start: int = 0
         stop: int | None = None  # exclusive; None = to the end
         step: int = 1
+        slow_motion: float = 1.0  # the video plays this many times slower than real time (see the class docstring)
 
     def check(self, ctx) -> None:
         c = self.config
         if c.start < 0 or c.step < 1 or (c.stop is not None and c.stop <= c.start):
             raise InputError(f"bad frame range start={c.start} stop={c.stop} step={c.step}: need 0 <= start < stop "
                              "and step >= 1")
+        if not (np.isfinite(c.slow_motion) and c.slow_motion > 0):
+            raise InputError(f"frames.slow_motion must be a number > 0, got {c.slow_motion!r}: how many times slower "
+                             "than it was filmed the video plays (1: real time; 4: 120 fps slow motion played at 30 "
+                             "fps; --slow-motion FACTOR)")
         try:
             probe_video(ctx.source("video"))
         except VideoError as err:
@@ -73,11 +83,16 @@ class FramesNode(Node):
                      f" (turned {info.rotation} degrees as its metadata says)" if info.rotation else "", info.fps,
                      total, len(frame_ids))
         times, fps, variable = self._times(ctx, Path(path).name, all_times, frame_ids, info.fps)
-        return {"video": {"path": info.path, "name": Path(info.path).name, "fps": fps,
+        slow = float(self.config.slow_motion)
+        if slow != 1.0:
+            ctx.log.info("slow motion x%g: the processed frames' %.3f fps of playback are %.3f fps of real time; "
+                         "times, speeds and the exported animation are real time", slow, fps, fps * slow)
+        return {"video": {"path": info.path, "name": Path(info.path).name, "fps": fps * slow,
                           "source_fps": info.fps, "width": info.width, "height": info.height,
                           "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total),
-                          "frame_ids": frame_ids, "times": times, "variable_rate": variable,
-                          "start": self.config.start, "stop": int(stop), "step": self.config.step}}
+                          "frame_ids": frame_ids, "times": times / slow, "variable_rate": variable,
+                          "start": self.config.start, "stop": int(stop), "step": self.config.step,
+                          "slow_motion": slow, "playback_fps": fps}}
 
     def _times(self, ctx, name: str, all_times: np.ndarray, frame_ids: np.ndarray, source_fps: float) \
             -> tuple[np.ndarray, float, bool]:

@@ -35,7 +35,8 @@ class OverlayNode(Node):
         bodies = BodyFrames(model, result["tracks"])
         intrinsics = np.asarray(inputs["camera"]["intrinsics"])
         world_from_cam = WorldCameras(**result["cameras"]).world_from_cam()
-        with VideoWriter(ctx.work_path("overlay.mp4"), video["fps"], (video["width"], video["height"])) as writer, \
+        playback = video.get("playback_fps", video["fps"])  # as the source plays, slow motion included
+        with VideoWriter(ctx.work_path("overlay.mp4"), playback, (video["width"], video["height"])) as writer, \
                 ctx.progress("rendering overlay", video["num_frames"]) as bar:
             for i, frame in stream_frames(ctx, video):
                 writer.write(overlay_frame(frame, bodies.at(i), model.faces, world_from_cam[i], intrinsics,

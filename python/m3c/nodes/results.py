@@ -113,7 +113,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         "video": {"name": video["name"], "fps": float(video["fps"]),
                   "variable_frame_rate": bool(video.get("variable_rate", False)), "width": int(video["width"]),
                   "height": int(video["height"]), "frames": T,
-                  "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])]},
+                  "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])],
+                  "slow_motion": float(video.get("slow_motion", 1.0))},
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
                            "viewing direction", "ground": "y = 0" if ground["up_source"] == "ground" else
                   "not found (up from the first camera)", "ground_source": ground.get("ground_source"),
@@ -144,8 +145,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 @register_node
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
-    # 4: camera.scene; 5: world.ground_tilt_prior
-    version = "5"
+    # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*)
+    version = "6"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")

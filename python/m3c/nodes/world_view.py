@@ -50,7 +50,8 @@ class WorldViewNode(Node):
         bodies = BodyFrames(model, result["tracks"])
         depth = 0.15 * view.tile * 4
         intrinsics = np.asarray(inputs["camera"]["intrinsics"])
-        with VideoWriter(ctx.work_path("world.mp4"), video["fps"], (self.config.width, self.config.height)) as writer, \
+        playback = video.get("playback_fps", video["fps"])  # as the source plays, slow motion included
+        with VideoWriter(ctx.work_path("world.mp4"), playback, (self.config.width, self.config.height)) as writer, \
                 ctx.progress("rendering world view", video["num_frames"]) as bar:
             for i in range(int(video["num_frames"])):
                 writer.write(view.frame(bodies.at(i), model.faces, world_from_cam[:i + 1, :3, 3], world_from_cam[i],
