@@ -40,6 +40,32 @@ def to_motion_track(track: dict, metric_world_from_cam: np.ndarray) -> Track:
                  np.asarray(track["betas"]), normal, offset, track.get("contacts"), track.get("ground_contacts"))
 
 
+def walking_heading_config(settings: dict):
+    """optimize.walking_heading as m3c.motion.heading.WalkingHeadingConfig, or a PipelineError naming the bad one."""
+    from m3c.motion.heading import WalkingHeadingConfig
+
+    try:
+        config = WalkingHeadingConfig(**settings)
+        config.validate()
+    except (TypeError, ValueError) as err:
+        raise PipelineError(f"optimize.walking_heading: {err} (settings: m3c.motion.heading.WalkingHeadingConfig "
+                            "fields)") from None
+    return config
+
+
+def with_walking_heading(model, track: dict, times: np.ndarray, config) -> tuple[dict, np.ndarray]:
+    """The track with its walking frames turned to face their direction of travel (m3c.motion.heading), and the
+    turn per frame (radians); up is the track's mean ground normal (y where it has none)."""
+    from m3c.motion.heading import turn_to_walking_direction
+
+    normal = track.get("ground_normal")
+    up = np.mean(np.asarray(normal, dtype=np.float64), axis=0) if normal is not None else np.array([0.0, 1.0, 0.0])
+    first, n = int(track["first_frame"]), len(track["root_orient"])
+    root, turn = turn_to_walking_direction(model, track["root_orient"], track["body_pose"], track["betas"],
+                                           track["transl"], up, times[first:first + n], config)
+    return {**track, "root_orient": root}, turn
+
+
 def unusable_reason(model, track: Track, metric_world_from_cam: np.ndarray, config: OptimizerConfig) -> str | None:
     """Why the optimizer cannot use a track (None when it can): no keypoint it would score (confidence >=
     config.min_confidence), or a scored keypoint of the starting body at or behind its camera (closer than
@@ -68,8 +94,8 @@ class OptimizeNode(Node):
     stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
     after]}), stopped_early, optimized (False when disabled)."""
 
-    version = "4"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on
-    # ground_contacts; 4: the default recipe's joint_acceleration 10 -> 30
+    version = "5"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on
+    # ground_contacts; 4: the default recipe's joint_acceleration 10 -> 30; 5: walking_heading
     type_name = "optimize"
     level = "track"
     inputs = ("video", "camera", "world")
@@ -93,6 +119,10 @@ class OptimizeNode(Node):
         # (m3c.motion.windows): memory stays that of one window. 0 = one problem however long the video.
         window: int = 900
         window_overlap: int = 60
+        # Walkers face where they walk: the start (and heading_anchor's reference) of each walking frame turned to
+        # its direction of travel (m3c.motion.heading.WalkingHeadingConfig: enabled, min_speed, max_turn_deg,
+        # half_window_s).
+        walking_heading: dict[str, Any] = field(default_factory=dict)
 
     def _weights(self, ctx, setting: str, file_name: str) -> Path | None:
         value = getattr(self.config, setting)
@@ -114,10 +144,12 @@ class OptimizeNode(Node):
                   for name, net in (("motion_prior", "humor"), ("pose_prior", "vposer"))}
         return {"enabled": self.config.enabled, "optimizer": asdict(optimizer_config(self.config.optimizer)),
                 "scale": self.config.scale, "window": self.config.window, "window_overlap": self.config.window_overlap,
+                "walking_heading": asdict(walking_heading_config(self.config.walking_heading)),
                 **{name: file_digest(p) if p is not None else None for name, p in priors.items()}}
 
     def check(self, ctx) -> None:
         optimizer_config(self.config.optimizer)
+        walking_heading_config(self.config.walking_heading)
         try:
             check_windows(self.config.window, self.config.window_overlap)
         except ValueError as err:
@@ -144,9 +176,16 @@ class OptimizeNode(Node):
             for stage in config.stages:
                 stage.free = [v for v in stage.free if v != "scale"]
         metric = lifted.world_from_cam()
+        heading = walking_heading_config(self.config.walking_heading)
+        times = np.asarray(video["times"], dtype=np.float64)
         motion_tracks, usable = [], []
         for track in tracks:
-            motion = to_motion_track(track, metric)
+            walker, turn = with_walking_heading(ctx.loaded("body_model"), track, times, heading)
+            if turn.any():
+                ctx.log.info("track %s: %d of %d frames walking, turned to face their direction of travel (median "
+                             "%.1f degrees)", track["track_id"], np.count_nonzero(turn), len(turn),
+                             np.degrees(np.median(np.abs(turn[turn != 0]))))
+            motion = to_motion_track(walker, metric)
             reason = unusable_reason(ctx.loaded("body_model"), motion, metric, config)
             if reason is not None:
                 ctx.log.warning("track %s dropped: the optimizer cannot use it: %s", track["track_id"], reason)
