@@ -120,6 +120,12 @@ def test_gait_absent_where_the_feet_do_not_alternate():
     hop = walk.copy()
     hop[:, [8, 11]] = hop[:, [7, 10]] + (walk[0, 8] - walk[0, 7])
     assert track_plausibility(hop, 30.0)["step_length_m"] is None
+    # Stepping in place while the whole body sways back and forth (a standing person's fit, its depth swinging): the
+    # feet alternate and the pelvis moves, but the body goes nowhere.
+    t = np.arange(len(walk)) / 30.0
+    in_place = _gait(model, 0.9, speed=0.0) + (0.3 * np.sin(2 * np.pi * 0.3 * t))[:, None, None] * [0, 0, 1]
+    figures = track_plausibility(in_place, 30.0)
+    assert figures["mean_speed_mps"] > 0.2 and figures["step_rate_spm"] is None
     # One stride only: too short to call a rate.
     assert track_plausibility(_gait(model, 0.45, seconds=2.0), 30.0)["step_rate_spm"] is None
     # Feet wandering without a rhythm under a standing body (random steps of 3 cm a frame): no gait.
@@ -144,6 +150,6 @@ def test_slow_motion_walk_is_flagged_and_real_time_restores_it():
     assert real["mean_speed_mps"] == pytest.approx(2 * slow["mean_speed_mps"], rel=1e-6)
     assert real["step_length_m"] == pytest.approx(slow["step_length_m"], rel=1e-6)
     assert _slow_gait_hint(real) == ""
-    # A short shuffle at a slow rate (0.2 m steps) is a slow walk, not slow motion: no hint.
-    shuffle = track_plausibility(_gait(model, 0.45, speed=0.18, seconds=6.0), 30.0)
+    # A short shuffle at a slow rate (0.28 m steps) is a slow walk, not slow motion: no hint.
+    shuffle = track_plausibility(_gait(model, 0.45, speed=0.25, seconds=6.0), 30.0)
     assert shuffle["step_length_legs"] < 0.6 and _slow_gait_hint(shuffle) == ""

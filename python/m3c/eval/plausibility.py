@@ -36,6 +36,10 @@ LEGS = ((1, 4, 7), (2, 5, 8))  # (hip, knee, ankle) of the left and right leg
 GAIT_BAND_HZ = (0.25, 2.0)
 GAIT_MIN_SHARE = 0.5
 GAIT_MIN_AMPLITUDE_M = 0.1
+# ... and the track gets somewhere: its pelvis ends at least this far (m/s over its duration) from where it began.
+# A standing person's fitted feet can swing rhythmically in depth while his pelvis jitters (the basketball clip's
+# standing man: a 0.26 m/s "speed" from jitter, 0.06 m/s of travel).
+GAIT_MIN_TRAVEL_MPS = 0.2
 # Heights are measured to the joints, not the soles: a planted ankle joint sits about 7 cm and a foot joint about
 # 2.5 cm above the ground (the open body model at rest: 0.069-0.076 and 0.023-0.030 m over betas -2..2).
 FOOT_JOINT_HEIGHT = {7: 0.07, 8: 0.07, 10: 0.025, 11: 0.025}
@@ -73,7 +77,8 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     power spectrum (linear trend removed, Hann window, zero-padded 8x) within GAIT_BAND_HZ, refined by the
     least-squares fit of a sinusoid (_fit_frequency). It counts only where the peak's main lobe (+- 2 / duration) holds at least
     GAIT_MIN_SHARE of the band's power, the lead swings by at least GAIT_MIN_AMPLITUDE_M (sqrt(2) x its standard
-    deviation) and the track spans two strides; otherwise every figure is None. The step length is mean_speed
+    deviation), the track spans two strides and its pelvis travels at least GAIT_MIN_TRAVEL_MPS from start to end;
+    otherwise every figure is None. The step length is mean_speed
     over the step rate, also in leg lengths (hip-knee-ankle, the median over frames and legs)."""
     none = {"step_rate_spm": None, "step_length_m": None, "step_length_legs": None}
     n = len(joints)
@@ -84,6 +89,10 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
         return none
     lead = ((joints[:, 7] - joints[:, 8]) * (forward / norm[:, None])).sum(axis=1)
     t = np.arange(n) / fps
+    travel = joints[-1, list(PELVIS)].mean(axis=0) - joints[0, list(PELVIS)].mean(axis=0)
+    travel -= (travel @ up[-1]) * up[-1]
+    if np.linalg.norm(travel) < GAIT_MIN_TRAVEL_MPS * t[-1]:
+        return none
     lead = lead - np.polyval(np.polyfit(t, lead, 1), t)
     if np.sqrt(2.0) * lead.std() < GAIT_MIN_AMPLITUDE_M:
         return none

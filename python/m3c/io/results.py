@@ -74,7 +74,8 @@ def _rate(video: dict) -> str:
 def _slow_gait_hint(figures: dict) -> str:
     """A walking step (0.6-1.1 leg lengths) at under 70 steps a minute, where people walk at 100-120: the clip may
     play slower than it was filmed (slow motion), which only the user can tell."""
-    if figures["step_rate_spm"] < 70 and 0.6 <= figures["step_length_legs"] <= 1.1:
+    if figures.get("step_rate_spm") is not None and figures["step_rate_spm"] < 70 \
+            and 0.6 <= figures["step_length_legs"] <= 1.1:
         return ("; a walking step at a slow rate: if the video is slow motion, give --slow-motion (then speeds are "
                 "real time)")
     return ""

@@ -145,8 +145,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 @register_node
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
-    # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*)
-    version = "6"
+    # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
+    # video.slow_motion; 7: a gait needs the track to travel
+    version = "7"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")
