@@ -73,13 +73,13 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     (n, 3) unit ground normals, mean_speed its mean horizontal speed (m/s).
 
     A gait alternates the feet: the left ankle's lead over the right along the direction the hips face ((left hip
-    - right hip) x up) swings once per stride, two steps. The stride frequency is the peak of that lead's
-    power spectrum (linear trend removed, Hann window, zero-padded 8x) within GAIT_BAND_HZ, refined by the
-    least-squares fit of a sinusoid (_fit_frequency). It counts only where the peak's main lobe (+- 2 / duration) holds at least
+    - right hip) x up) swings once per stride, two steps. The stride frequency is the peak of that lead's power
+    spectrum (linear trend removed, Hann window, zero-padded 8x) within GAIT_BAND_HZ, refined by the least-squares
+    fit of a sinusoid (_fit_frequency). It counts only where the peak's main lobe (+- 2 / duration) holds at least
     GAIT_MIN_SHARE of the band's power, the lead swings by at least GAIT_MIN_AMPLITUDE_M (sqrt(2) x its standard
     deviation), the track spans two strides and its pelvis travels at least GAIT_MIN_TRAVEL_MPS from start to end;
-    otherwise every figure is None. The step length is mean_speed
-    over the step rate, also in leg lengths (hip-knee-ankle, the median over frames and legs)."""
+    otherwise every figure is None. The step length is mean_speed over the step rate, also in leg lengths
+    (hip-knee-ankle, the median over frames and legs)."""
     none = {"step_rate_spm": None, "step_length_m": None, "step_length_legs": None}
     n = len(joints)
     side = joints[:, 1] - joints[:, 2]
@@ -114,7 +114,8 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     leg = np.median([np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1) +
                      np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1) for hip, knee, ankle in LEGS])
     step = mean_speed / (2.0 * stride)
-    return {"step_rate_spm": float(120.0 * stride), "step_length_m": float(step), "step_length_legs": float(step / leg)}
+    return {"step_rate_spm": float(120.0 * stride), "step_length_m": float(step),
+            "step_length_legs": float(step / leg)}
 
 
 def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, ground_offset=None) -> dict:

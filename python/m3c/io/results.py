@@ -196,8 +196,9 @@ def describe(folder: str | Path) -> str:
                          f"{100 * figures['below_ground_fraction']:.0f}% of frames, "
                          f"{100 * figures['penetration_m']:.0f} cm deep")
             if figures.get("step_rate_spm") is not None:
-                lines.append(f"         gait {figures['step_rate_spm']:.0f} steps/min, {figures['step_length_m']:.2f} m "
-                             f"a step ({figures['step_length_legs']:.2f} leg lengths){_slow_gait_hint(figures)}")
+                lines.append(f"         gait {figures['step_rate_spm']:.0f} steps/min, "
+                             f"{figures['step_length_m']:.2f} m a step ({figures['step_length_legs']:.2f} leg "
+                             f"lengths){_slow_gait_hint(figures)}")
     for stage in summary["optimization"]["stages"]:
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
                      f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")

@@ -20,10 +20,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from m3c.body.transform import facing_directions
-from m3c.eval.plausibility import gait_figures
+from m3c.eval.plausibility import PELVIS, gait_figures
 from m3c.perception.contacts import local_velocities
-
-PELVIS = (1, 2)  # the hips: their midpoint travels with the body
 
 
 @dataclass
