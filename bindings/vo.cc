@@ -128,6 +128,7 @@ py::dict ResultToDict(const PatchVOResult& r) {
   stats["final_ba_seconds"] = s.final_ba_seconds;
   stats["front_end_seconds"] = s.front_end_seconds;
   stats["total_seconds"] = s.total_seconds;
+  stats["keyframe_fit_rms_px"] = s.keyframe_fit_rms_px;
   const py::ssize_t M = static_cast<py::ssize_t>(r.points.size());
   py::array_t<double> points({M, py::ssize_t{3}}), pixels({M, py::ssize_t{2}});
   py::array_t<int32_t> point_frames(M), point_inliers(M);
@@ -255,6 +256,7 @@ class PyPatchVO {
   }
 
   int num_frames() const { return vo_.num_frames(); }
+  double fit_rms() const { return vo_.FitRms(); }
 
  private:
   PatchVO vo_;
@@ -397,6 +399,9 @@ Args:
            py::arg("depth") = py::none(),
            "Adds one frame: uint8 (H, W) or (H, W, 3); mask None or bool/uint8 (H, W); depth None or float (H, W).")
       .def("finish", &PyPatchVO::Finish, "Final optimisation; returns the result dict (see run_patch_vo).")
+      .def("fit_rms", &PyPatchVO::fit_rms,
+           "Reprojection rms (px, processing resolution) of the inlier measurements into the keyframes at the "
+           "current estimate; inf before the map exists (vo::PatchVO::FitRms).")
       .def_property_readonly("num_frames", &PyPatchVO::num_frames);
 
   m.def("run_patch_vo", &RunPatchVO, py::arg("frames"), py::arg("masks") = py::none(),

@@ -360,6 +360,23 @@ struct PatchVO::Impl {
     return (uv - o.uv).norm();
   }
 
+  double FitRms() const {
+    if (!initialized) return std::numeric_limits<double>::infinity();
+    double sum = 0.0;
+    int inliers = 0;
+    for (int f : keyframes) {
+      for (int o : frames[f].observations) {
+        if (patches[observations[o].patch].dead) continue;
+        const double e = ObservationError(observations[o]);
+        if (e < options.outlier_threshold_px) {
+          sum += e * e;
+          ++inliers;
+        }
+      }
+    }
+    return inliers > 0 ? std::sqrt(sum / inliers) : std::numeric_limits<double>::infinity();
+  }
+
   // Re-flags outliers among the observations (in keyframes) of patches hosted at keyframe index >= first_host.
   int UpdateOutliers(int first_host) {
     int changed = 0;
@@ -750,6 +767,7 @@ struct PatchVO::Impl {
     stats.num_keyframes = static_cast<int>(keyframes.size());
     stats.num_patches = static_cast<int>(patches.size());
     stats.num_observations = static_cast<int>(observations.size());
+    stats.keyframe_fit_rms_px = FitRms();
     stats.total_seconds = Seconds(start_time);
     result.stats = stats;
     return result;
@@ -875,6 +893,8 @@ void PatchVO::AddFrame(const cv::Mat& image, const cv::Mat& mask, const cv::Mat&
 }
 
 PatchVOResult PatchVO::Finish() { return impl_->Finish(); }
+
+double PatchVO::FitRms() const { return impl_->FitRms(); }
 
 int PatchVO::num_frames() const { return static_cast<int>(impl_->frames.size()); }
 

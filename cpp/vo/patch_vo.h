@@ -101,6 +101,7 @@ struct PatchVOStats {
   double final_ba_seconds = 0.0;
   double front_end_seconds = 0.0;
   double total_seconds = 0.0;
+  double keyframe_fit_rms_px = 0.0;  // PatchVO::FitRms() at the final estimate
 };
 
 // A patch of the final map: a 3D point with an inverse depth along its host pixel's ray.
@@ -137,6 +138,12 @@ class PatchVO {
   // Final optimisation and the trajectory of every frame added. Throws if fewer than 2 frames were added or no
   // frame had texture. Can be called once.
   PatchVOResult Finish();
+
+  // The reprojection rms (pixels, processing resolution) over the inlier measurements into the keyframes (of
+  // patches still in the map) at the current estimate: how well the run explains its own measurements so far
+  // (a run that started on a wrong motion fits them several times worse). Infinity before the map exists.
+  // Finish() reports it at the final estimate (stats.keyframe_fit_rms_px).
+  double FitRms() const;
 
   int num_frames() const;
 

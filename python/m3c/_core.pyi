@@ -731,6 +731,10 @@ class PatchVO:
         """
         Final optimisation; returns the result dict (see run_patch_vo).
         """
+    def fit_rms(self) -> float:
+        """
+        Reprojection rms (px, processing resolution) of the inlier measurements into the keyframes at the current estimate; inf before the map exists (vo::PatchVO::FitRms).
+        """
     @property
     def num_frames(self) -> int:
         ...

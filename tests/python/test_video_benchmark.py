@@ -138,6 +138,15 @@ def test_scores_see_errors(model, follow_video):
     shaken = truth["world_from_cam"].copy()
     shaken[:, :3, 3] += 0.02 * np.random.default_rng(0).standard_normal(shaken[:, :3, 3].shape)
     assert abs(vb.camera_scores(shaken, truth["world_from_cam"])["scale_error_pct"]) < 2.0
+    # A camera held fixed while the truth moved (the odometry's "turned in place") is scored, not a crash: the
+    # best point for a path is its mean, a point has no length.
+    fixed = truth["world_from_cam"].copy()
+    fixed[:, :3, 3] = fixed[0, :3, 3]
+    centres = truth["world_from_cam"][:, :3, 3]
+    held = vb.camera_scores(fixed, truth["world_from_cam"])
+    assert held["scale_error_pct"] == -100.0
+    assert held["ate_mm"] == pytest.approx(1000 * np.sqrt(((centres - centres.mean(0)) ** 2).sum(-1).mean()))
+    assert held["ate_mm"] > 100.0
     half = truth["transl"].copy()
     half[..., [0, 2]] = half[:, :1, [0, 2]] + 0.5 * (half[..., [0, 2]] - half[:, :1, [0, 2]])
     arrays["world_transl"] = half

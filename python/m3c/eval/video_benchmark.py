@@ -259,7 +259,13 @@ def camera_scores(pred_world_from_cam: np.ndarray, true_world_from_cam: np.ndarr
     out = {}
     true_path = float(np.linalg.norm(np.diff(true_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
     pred_path = float(np.linalg.norm(np.diff(pred_world_from_cam[:, :3, 3], axis=0), axis=-1).sum())
-    if true_path >= MIN_CAMERA_PATH:
+    if true_path >= MIN_CAMERA_PATH and np.ptp(pred_world_from_cam[:, :3, 3], axis=0).max() <= 1e-9:
+        # Held fixed (the odometry's camera that turned in place) while the truth moved: no similarity maps a point
+        # onto a path; the best a point does is the path's mean (ATE: the path's spread), its scale is 0.
+        spread = true_world_from_cam[:, :3, 3] - true_world_from_cam[:, :3, 3].mean(axis=0)
+        out["ate_mm"] = float(np.sqrt((spread ** 2).sum(axis=-1).mean())) * M.M_TO_MM
+        out["scale_error_pct"] = -100.0
+    elif true_path >= MIN_CAMERA_PATH:
         out["ate_mm"] = float(np.sqrt((M.camera_ate(pred_world_from_cam, true_world_from_cam) ** 2).mean()))
         align, _, _ = M.umeyama(pred_world_from_cam[:, :3, 3], true_world_from_cam[:, :3, 3], with_scale=True)
         out["scale_error_pct"] = 100.0 * (1.0 / align - 1.0)

@@ -27,6 +27,7 @@ class VisualOdometryNode(Node):
     the camera is taken not to move (identity poses) and no odometry runs."""
 
     type_name = "vo"
+    version = "2"  # 2: m3c.vo runs VOConfig.hypotheses odometries and keeps the best fit
     level = "patch"
     inputs = ("video", "masks", "detections", "depth", "camera")
     optional_inputs = ("masks", "detections", "depth")

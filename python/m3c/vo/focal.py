@@ -111,7 +111,8 @@ def _window_cost(frames: np.ndarray, masks: np.ndarray | None, focal: float, wid
     vo = VOConfig(max_image_side=config.max_image_side, init_frames=config.max_keyframes,
                   init_min_flow_px=config.keyframe_flow_px, init_iterations=config.iterations,
                   init_multi_start=config.multi_start, final_iterations=0,
-                  window_iterations=1, refine_non_keyframes=False, use_depth=False)
+                  window_iterations=1, refine_non_keyframes=False, use_depth=False,
+                  hypotheses=1)  # the first bundle adjustment alone: one run
     k = np.array([focal, focal, width / 2.0, height / 2.0])
     result = run_vo(frames, masks=masks, intrinsics=k, config=vo)
     if result.static_camera:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
 from numbers import Integral, Real
 
@@ -69,7 +71,18 @@ class VOConfig:
     gradient_pool_px: int = _LK.sampling.pool_px
     min_gradient: float = _LK.sampling.min_gradient
     seed: int = _LK.seed
+    # The odometry runs this many times, with patch-sampling seeds seed, seed + 1, ..., and keeps the run that
+    # explains its own measurements best (least keyframe reprojection rms): on rendered video one run in 12-18
+    # starts on a wrong motion that it then keeps (a camera that pans read as one that rolls, 50-130 degrees off
+    # after 5 s), and such a run fits its measurements 2-8x worse than a sound one from its first 30-60 frames
+    # on (docs/vo.md). 1: one run.
+    hypotheses: int = 3
+    # Streaming (VisualOdometry, the vo node), the runs are compared after this many frames and only the best
+    # goes on, so a long video costs one run's time and memory after them; shorter videos, and run_vo (whose
+    # frames are all in memory anyway), compare the finished runs.
+    hypotheses_frames: int = 300
 
+    _PYTHON_FIELDS = ("hypotheses", "hypotheses_frames")  # settings of the Python side, not of the C++ core
     _LK_FIELDS = {"lk_window_px": "window_px", "lk_pyramid_levels": "pyramid_levels",
                   "forward_backward_px": "forward_backward_px", "reject_masked": "reject_masked",
                   "seed": "seed"}
@@ -79,7 +92,8 @@ class VOConfig:
     def __post_init__(self):
         # The C++ core checks the patch-graph sizes; these would otherwise reach OpenCV or Ceres unchecked.
         check_settings(self, {"num_threads": 1, "max_image_side": 1, "lk_window_px": 1, "init_iterations": 0,
-                              "window_iterations": 0, "final_iterations": 0},
+                              "window_iterations": 0, "final_iterations": 0, "hypotheses": 1,
+                              "hypotheses_frames": 1},
                        ("keyframe_threshold_px", "new_keyframe_flow_px", "init_min_flow_px", "loss_scale_px",
                         "outlier_threshold_px", "forward_backward_px", "min_gradient"))
 
@@ -89,6 +103,8 @@ class VOConfig:
         sampling = lk.sampling
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name in self._PYTHON_FIELDS:
+                continue
             if f.name in self._LK_FIELDS:
                 setattr(lk, self._LK_FIELDS[f.name], value)
             elif f.name in self._SAMPLING_FIELDS:
@@ -143,6 +159,13 @@ class VOResult:
         attempted = self.quality["attempted"].astype(np.float64)
         return np.where(attempted > 0, self.quality["tracked"] / np.maximum(attempted, 1), 1.0)
 
+    @property
+    def keyframe_fit_rms(self) -> float:
+        """The reprojection rms (pixels, processing resolution) over every inlier measurement into the final
+        keyframes: how well the final bundle adjustment explains the run's own measurements (the core's
+        PatchVO::FitRms; inf without a map)."""
+        return float(self.stats.get("keyframe_fit_rms_px", math.inf))
+
     @classmethod
     def from_core(cls, d: dict) -> "VOResult":
         return cls(world_from_cam=np.asarray(d["world_from_cam"]), intrinsics=np.asarray(d["intrinsics"]),
@@ -178,26 +201,82 @@ def run_vo(frames: np.ndarray, masks: np.ndarray | None = None, depths: np.ndarr
         depths: None or float (T, H, W) per-pixel depth (any consistent unit) to initialise patch inverse
             depth.
         intrinsics: None, (fx, fy, cx, cy) or a 3x3 K, pixels of the input frames.
-        config: VOConfig.
+        config: VOConfig; its `hypotheses` runs (patch seeds seed, seed + 1, ...) go in parallel threads and the
+            finished one of least keyframe_fit_rms is returned (with all frames in memory, the runs are compared
+            at the end, whatever config.hypotheses_frames says).
     """
     frames = np.asarray(frames)
     if frames.dtype != np.uint8:
         raise ValueError(
             f"frames must be uint8, got {frames.dtype}; convert with np.clip(x, 0, 255).astype(np.uint8)")
     config = config or VOConfig()
-    out = _core.run_patch_vo(frames, masks, depths, _check_intrinsics(intrinsics), config.to_core(), bgr)
-    return VOResult.from_core(out)
+    k = _check_intrinsics(intrinsics)
+    options = _hypothesis_options(config)
+    with ThreadPoolExecutor(max_workers=min(len(options), _workers())) as pool:  # the core releases the GIL
+        outs = list(pool.map(lambda o: _core.run_patch_vo(frames, masks, depths, k, o, bgr), options))
+    return _best_fit([VOResult.from_core(out) for out in outs], [o.lucas_kanade.seed for o in options])
+
+
+def _workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def _hypothesis_options(config: VOConfig) -> list:
+    """The core's options of each run: config's, with patch-sampling seeds seed, seed + 1, ..."""
+    options = []
+    for k in range(config.hypotheses):
+        o = config.to_core()
+        lk = o.lucas_kanade
+        lk.seed = config.seed + k
+        o.lucas_kanade = lk
+        options.append(o)
+    return options
+
+
+def _best_fit(results: list[VOResult], seeds: list[int]) -> VOResult:
+    """The finished run of least keyframe_fit_rms (the first on ties), its message and stats saying so."""
+    best = _least([r.keyframe_fit_rms for r in results])
+    return _note_choice(results[best], seeds, [r.keyframe_fit_rms for r in results], best, None)
+
+
+def _least(rms: list[float]) -> int:
+    return min(range(len(rms)), key=lambda i: (rms[i], i))
+
+
+def _note_choice(result: VOResult, seeds: list[int], rms: list[float], best: int, frames: int | None) -> VOResult:
+    """`result` (run `best` of the runs with patch seeds `seeds` and fit `rms`, compared after `frames` frames or,
+    None, finished) with the choice in its message and stats."""
+    if len(seeds) == 1:
+        return result
+    others = ", ".join(f"{x:.2f}" for i, x in enumerate(rms) if i != best)
+    when = f"after {frames} frames" if frames is not None else "finished"
+    result.message += (f"; kept the best fit of {len(seeds)} runs {when} (patch seed {seeds[best]}: keyframe rms "
+                       f"{rms[best]:.2f} px; the others {others})")
+    result.stats.update(hypotheses=float(len(seeds)), hypothesis_kept=float(best),
+                        hypotheses_compared_at=float(frames if frames is not None else result.stats["num_frames"]),
+                        **{f"hypothesis_{i}_fit_rms_px": float(x) for i, x in enumerate(rms)})
+    return result
 
 
 class VisualOdometry:
-    """Streaming interface: add frames one by one (e.g. while decoding a video), then finish().
+    """Streaming interface: add frames one by one (e.g. while decoding a video), then finish(). Each frame goes to
+    config.hypotheses runs at once (threads); after config.hypotheses_frames frames only the one of least
+    keyframe reprojection rms goes on (in a shorter video finish() compares the finished runs, as run_vo does).
 
     front_end: None (Lucas-Kanade, in C++) or a Python front-end such as m3c.vo.dpvo.DPVOFrontEnd (DPVO's
     networks); one with push_image() also receives each colour frame (the C++ side passes it gray)."""
 
     def __init__(self, intrinsics=None, config: VOConfig | None = None, bgr: bool = False, front_end=None):
+        config = config or VOConfig()
         self._front_end = front_end
-        self._vo = _core.PatchVO((config or VOConfig()).to_core(), _check_intrinsics(intrinsics), bgr, front_end)
+        # A Python front-end keeps state per frame for one run: it gets one run, whatever config.hypotheses says.
+        options = _hypothesis_options(config) if front_end is None else [config.to_core()]
+        k = _check_intrinsics(intrinsics)
+        self._runs = [_core.PatchVO(o, k, bgr, front_end) for o in options]
+        self._seeds = [o.lucas_kanade.seed for o in options]
+        self._pool = ThreadPoolExecutor(max_workers=min(len(options), _workers())) if len(options) > 1 else None
+        self._compare_after = config.hypotheses_frames
+        self._choice = None  # (seeds, rms, best, frames) once the runs were compared while streaming
         self._bgr = bgr
 
     def add_frame(self, frame: np.ndarray, mask: np.ndarray | None = None,
@@ -207,11 +286,33 @@ class VisualOdometry:
         if push is not None:
             colour = frame if frame.ndim == 3 else np.repeat(frame[..., None], 3, axis=2)
             push(colour if self._bgr or frame.ndim == 2 else colour[..., ::-1])  # BGR, as DPVO reads frames
-        self._vo.add_frame(frame, mask, depth)
+        self._each(lambda vo: vo.add_frame(frame, mask, depth))
+        if len(self._runs) > 1 and self._runs[0].num_frames >= self._compare_after:
+            rms = [vo.fit_rms() for vo in self._runs]
+            if not any(math.isfinite(x) for x in rms):
+                return  # no map yet (the camera has not moved): compare later
+            best = _least(rms)
+            self._choice = (self._seeds, rms, best, self._runs[0].num_frames)
+            self._runs, self._seeds = [self._runs[best]], [self._seeds[best]]  # the others' memory is freed
+            self._pool.shutdown()
+            self._pool = None
 
     @property
     def num_frames(self) -> int:
-        return self._vo.num_frames
+        return self._runs[0].num_frames
 
     def finish(self) -> VOResult:
-        return VOResult.from_core(self._vo.finish())
+        try:
+            results = [VOResult.from_core(out) for out in self._each(lambda vo: vo.finish())]
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown()
+        if self._choice is not None:
+            return _note_choice(results[0], *self._choice)
+        return _best_fit(results, self._seeds)
+
+    def _each(self, call) -> list:
+        """call(run) for every run, in parallel threads (the core releases the GIL)."""
+        if self._pool is None:
+            return [call(vo) for vo in self._runs]
+        return list(self._pool.map(call, self._runs))
