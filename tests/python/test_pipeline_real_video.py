@@ -95,3 +95,17 @@ def test_video_without_people(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "no person was found in the video" in err
     assert not (out / "results.npz").exists() and not (out / "overlay.mp4").exists()
+
+
+def test_odometry_fit_is_reported(example_run, capsys):
+    """The odometry ran three times and kept the run that explains its measurements best; results.json and
+    `m3c info` say how well each fitted (a short clip: the finished runs are compared)."""
+    summary, _ = load_results(example_run)
+    fit = summary["camera"]["odometry_fit"]
+    assert fit["runs"] == 3 and fit["compared_after_frames"] == NUM_FRAMES
+    assert fit["keyframe_rms_px"] == fit["runs_rms_px"][fit["kept"]] == min(fit["runs_rms_px"])
+    assert all(0.0 < x < 1.5 for x in fit["runs_rms_px"])
+    assert main(["info", str(example_run)]) == 0
+    line = f"the best fit of 3 runs after {NUM_FRAMES} frames: {fit['keyframe_rms_px']:.2f} px"
+    assert line in capsys.readouterr().out
+

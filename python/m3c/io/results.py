@@ -93,6 +93,18 @@ def _focal_uncertainty(camera: dict) -> str:
     return f" (focal {estimate['ratio']:.2f} x the image diagonal, log-sigma {estimate['log_sigma']:.3f})"
 
 
+def _odometry_fit(camera: dict) -> str:
+    fit = camera.get("odometry_fit")
+    if not fit or fit.get("keyframe_rms_px") is None:
+        return ""
+    if fit.get("runs", 1) > 1 and fit.get("runs_rms_px"):
+        others = ", ".join("-" if x is None else f"{x:.2f}"
+                           for i, x in enumerate(fit["runs_rms_px"]) if i != fit["kept"])
+        return (f" (the best fit of {fit['runs']} runs after {fit['compared_after_frames']} frames: "
+                f"{fit['keyframe_rms_px']:.2f} px; the others {others})")
+    return f" (fit {fit['keyframe_rms_px']:.2f} px)"
+
+
 def json_ready(value):
     """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
     (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
@@ -171,7 +183,7 @@ def describe(folder: str | Path) -> str:
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
              f"camera      {'static' if camera['static'] else 'moving'}, intrinsics {camera['intrinsics_source']} "
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
-             f"{camera['odometry']}, scale "
+             f"{camera['odometry']}{_odometry_fit(camera)}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
              f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}"
              + (f" (from the {summary['world']['ground_source']})" if summary["world"].get("ground_source") else "")

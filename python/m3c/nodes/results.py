@@ -124,6 +124,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                        "num_joints": int(J)},
         "camera": {"intrinsics": [float(v) for v in camera["intrinsics"]], "intrinsics_source": camera["source"],
                    "static": bool(cameras["static"]), "odometry": cameras["source"],
+                   # m3c.nodes.vo.odometry_fit: the kept odometry run's keyframe reprojection rms (px) and the others'
+                   "odometry_fit": json_ready(cameras.get("fit")),
                    "scale": float(result["camera_scale"]), "scale_source": scale["source"],
                    # m3c.vo.scale's estimate: value, sigma (standard deviation of log(value)), every observation
                    "scale_estimate": json_ready(scale),

@@ -13,6 +13,21 @@ from m3c.pipeline import ComponentUnavailable, InputError, Node, PipelineError, 
 from m3c.vo.scale import MAX_WANDER, MIN_BASELINE, translation_baseline, turns_in_place
 
 
+def odometry_fit(result) -> dict:
+    """How well the kept run explains its own measurements (m3c.vo.VOResult.keyframe_fit_rms, pixels at the
+    processing resolution; None without a map) and, when several ran, each run's fit when they were compared, and
+    after how many frames."""
+    def px(value):
+        return float(value) if np.isfinite(value) else None
+
+    stats = result.stats
+    runs = int(stats.get("hypotheses", 1))
+    return {"keyframe_rms_px": px(result.keyframe_fit_rms), "runs": runs,
+            "kept": int(stats.get("hypothesis_kept", 0)),
+            "runs_rms_px": [px(stats[f"hypothesis_{i}_fit_rms_px"]) for i in range(runs)] if runs > 1 else None,
+            "compared_after_frames": int(stats["hypotheses_compared_at"]) if runs > 1 else None}
+
+
 @register_node
 class VisualOdometryNode(Node):
     """Camera poses world_from_cam (T, 4, 4); the world is the first camera's frame, translation up to scale.
@@ -22,7 +37,8 @@ class VisualOdometryNode(Node):
     options: m3c.vo.VOConfig settings. Its front-end (method): "lk" Lucas-Kanade, "dpvo" DPVO's networks
     (m3c.vo.dpvo, the official dpvo.pth from `checkpoint` or the models folder), "auto" dpvo when that file is
     there; backend names the odometry (only "patch" is built in). Output cameras: world_from_cam (T, 4, 4), static,
-    source, and points (M, 3) the odometry's map when it gives one; rotation_only when the camera turned in place
+    source, points (M, 3) the odometry's map when it gives one, fit (odometry_fit: how well the kept run, of
+    vo.options.hypotheses, explains its measurements); rotation_only when the camera turned in place
     (m3c.vo.scale.turns_in_place: translations zeroed). With static: true
     the camera is taken not to move (identity poses) and no odometry runs."""
 
@@ -122,6 +138,8 @@ class VisualOdometryNode(Node):
             raise PipelineError(f"node {self.name!r}: world_from_cam must be ({T}, 4, 4) and finite, got "
                                 f"{poses.shape}")
         cameras = {"world_from_cam": poses, "static": False, "source": str(out.get("source", self.config.backend))}
+        if out.get("fit") is not None:
+            cameras["fit"] = out["fit"]
         points = np.asarray(out.get("points", np.zeros((0, 3))), dtype=np.float32).reshape(-1, 3)
         if np.isfinite(points).all():
             cameras["points"] = points  # the odometry's map (world, VO units), for the scale against the ground
@@ -173,4 +191,5 @@ class VisualOdometryNode(Node):
             ctx.log.warning("the camera barely moved: odometry gives rotation only (pass --static-camera if it "
                             "stood still)")
         source = "patch visual odometry (m3c.vo)" + (" with DPVO's networks" if front_end is not None else "")
-        return {"world_from_cam": result.world_from_cam, "points": result.points, "source": source}
+        return {"world_from_cam": result.world_from_cam, "points": result.points, "source": source,
+                "fit": odometry_fit(result)}
