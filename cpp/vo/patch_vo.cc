@@ -360,20 +360,23 @@ struct PatchVO::Impl {
     return (uv - o.uv).norm();
   }
 
+  // Adds the squared errors and the count of frame f's inlier measurements (of patches still in the map).
+  void AddInlierErrors(int f, double* sum, int* inliers) const {
+    for (int o : frames[f].observations) {
+      if (patches[observations[o].patch].dead) continue;
+      const double e = ObservationError(observations[o]);
+      if (e < options.outlier_threshold_px) {
+        *sum += e * e;
+        ++*inliers;
+      }
+    }
+  }
+
   double FitRms() const {
     if (!initialized) return std::numeric_limits<double>::infinity();
     double sum = 0.0;
     int inliers = 0;
-    for (int f : keyframes) {
-      for (int o : frames[f].observations) {
-        if (patches[observations[o].patch].dead) continue;
-        const double e = ObservationError(observations[o]);
-        if (e < options.outlier_threshold_px) {
-          sum += e * e;
-          ++inliers;
-        }
-      }
-    }
+    for (int f : keyframes) AddInlierErrors(f, &sum, &inliers);
     return inliers > 0 ? std::sqrt(sum / inliers) : std::numeric_limits<double>::infinity();
   }
 
@@ -741,15 +744,7 @@ struct PatchVO::Impl {
       FrameQuality& q = frames[t].quality;
       double sum = 0.0;
       int inliers = 0;
-      for (int o : frames[t].observations) {
-        const Observation& ob = observations[o];
-        if (patches[ob.patch].dead) continue;
-        const double e = ObservationError(ob);
-        if (e < options.outlier_threshold_px) {
-          sum += e * e;
-          ++inliers;
-        }
-      }
+      AddInlierErrors(t, &sum, &inliers);
       q.inliers = inliers;
       q.reprojection_rms_px = inliers > 0 ? std::sqrt(sum / inliers) : 0.0;
     }

@@ -235,8 +235,9 @@ def _hypothesis_options(config: VOConfig) -> list:
 
 def _best_fit(results: list[VOResult], seeds: list[int]) -> VOResult:
     """The finished run of least keyframe_fit_rms (the first on ties), its message and stats saying so."""
-    best = _least([r.keyframe_fit_rms for r in results])
-    return _note_choice(results[best], seeds, [r.keyframe_fit_rms for r in results], best, None)
+    rms = [r.keyframe_fit_rms for r in results]
+    best = _least(rms)
+    return _note_choice(results[best], seeds, rms, best, None)
 
 
 def _least(rms: list[float]) -> int:
