@@ -19,6 +19,7 @@ from m3c.body.transform import spine_directions
 from m3c.camera import WorldCameras
 from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, RayGroundParams, fit_ground_along_rays
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
+from m3c.vo.vanishing import pooled_direction
 
 LOG = logging.getLogger(__name__)
 
@@ -152,10 +153,7 @@ def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, log=LOG) -> tuple
            for f in scene.get("frames", []) if "up" in f and 0 <= f["frame"] < len(vo_cameras)]
     if len(ups) < 2:
         return None
-    ups = np.array(ups)
-    mean = ups.mean(axis=0)
-    mean /= np.linalg.norm(mean)
-    spread = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(ups @ mean, -1.0, 1.0)) ** 2))))
+    mean, spread = pooled_direction(ups)
     if spread > MAX_SCENE_UP_SPREAD:
         log.info("the scene's vertical edges give up directions %.1f degrees apart (RMS over %d frames): not used",
                  spread, len(ups))

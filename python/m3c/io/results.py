@@ -86,6 +86,8 @@ def _focal_uncertainty(camera: dict) -> str:
     scene = camera.get("scene")
     if camera.get("intrinsics_source") == "scene" and scene:
         return f" (from the scene's lines: {scene['reason']})"
+    if camera.get("intrinsics_source") == "people" and camera.get("feet_focal"):
+        return f" ({camera['feet_focal']['message']})"
     if not estimate:
         return ""
     if not estimate["informative"]:

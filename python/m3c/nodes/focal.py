@@ -1,5 +1,6 @@
 """The focal length of a camera nobody calibrated, found from the camera's own motion (m3c.vo.focal) or, where
-the motion cannot tell, from the scene's vanishing points (m3c.vo.vanishing)."""
+the motion cannot tell, from the scene's vanishing points (m3c.vo.vanishing), or for a still camera from the
+people's planted feet against the scene's vertical vanishing point (m3c.vo.ground_focal)."""
 
 from __future__ import annotations
 
@@ -19,9 +20,11 @@ class FocalNode(Node):
     m3c.vo.focal: the patch odometry's first bundle adjustment over windows of frames (people's masks hidden
     from it, as in the vo node) at candidate focal lengths; the least cost wins. A camera that only translates or
     stands still leaves the cost flat: then the scene's lines decide where they can (m3c.vo.vanishing: vertical
-    edges and perpendicular horizontal ones, agreeing over frames sampled through the video), else the default is
-    kept; the log says which. The scene's up direction per sampled frame is measured either way (given
-    intrinsics included) for the ground node.
+    edges and perpendicular horizontal ones, agreeing over frames sampled through the video), else, for a camera
+    that stands still, the people where they can (m3c.vo.ground_focal: their planted feet over time locate the
+    horizon, which with the vertical vanishing point gives the focal length), else the default is kept; the log
+    says which. The scene's up direction per sampled frame is measured either way (given intrinsics included) for
+    the ground node.
 
     It runs after perception because the odometry needs the people's masks, and perception fitted the bodies at
     the camera node's focal: a body's camera-local depth scales with the focal (its root keeps its pixel when x, y
@@ -29,14 +32,15 @@ class FocalNode(Node):
     re-expressed at the estimated focal (a weak-perspective crop_cam needs nothing: local_tracks converts it with
     this camera).
 
-    Output camera: intrinsics (4,), source ("given", "default", "estimated" (the motion) or "scene"),
+    Output camera: intrinsics (4,), source ("given", "default", "estimated" (the motion), "scene" or "people"),
     focal_estimate (the search's summary, m3c.vo.focal.FocalEstimate.summary(); None when no search ran), scene
     (m3c.vo.vanishing.SceneCamera.summary() at the final focal length: per sampled frame its focal length and up
-    direction; None when scene_lines is off). Output tracks: perception's tracks ({"tracks": [...]},
-    m3c.perception.handover), re-expressed.
+    direction; None when scene_lines is off), feet_focal (m3c.vo.ground_focal.GroundFocal.summary(); None when it
+    did not run). Output tracks: perception's tracks ({"tracks": [...]}, m3c.perception.handover), re-expressed.
     Config: enabled (false: pass the camera node's intrinsics through), motion (false: no odometry search, for a
     camera known to stand still), search: m3c.vo.focal.FocalSearchConfig settings, scene_lines (false: no scene
-    estimate), scene: m3c.vo.vanishing.SceneLineConfig settings."""
+    estimate), scene: m3c.vo.vanishing.SceneLineConfig settings, planted_feet (false: no estimate from the
+    people), feet: m3c.vo.ground_focal.GroundFocalConfig settings."""
 
     type_name = "focal"
     level = "patch"
@@ -45,8 +49,10 @@ class FocalNode(Node):
     outputs = ("camera", "tracks")
     # 2: re-expresses perception's tracks (it re-expressed the per-detection body table)
     # 3: the search goes on past an end of its range where the least cost lies near it (max_extension)
-    # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction)
-    version = "4"
+    # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction); 5: the people's
+    # planted feet (a still camera's focal length where the scene's lines cannot tell)
+    version = "5"
+    settings = ("body_model",)
 
     @dataclass
     class Config:
@@ -55,13 +61,17 @@ class FocalNode(Node):
         search: dict[str, Any] = field(default_factory=dict)
         scene_lines: bool = True  # the scene's vanishing points where the motion cannot tell (m3c.vo.vanishing)
         scene: dict[str, Any] = field(default_factory=dict)
+        planted_feet: bool = True  # a still camera's people against the scene's vertical (m3c.vo.ground_focal)
+        feet: dict[str, Any] = field(default_factory=dict)
 
     def _settings(self, key: str):
-        """The settings dataclass of focal.<key> ("search" or "scene"), or an InputError naming the bad one."""
+        """The settings dataclass of focal.<key> ("search", "scene" or "feet"), or an InputError naming the bad
+        one."""
         from m3c.vo.focal import FocalSearchConfig
+        from m3c.vo.ground_focal import GroundFocalConfig
         from m3c.vo.vanishing import SceneLineConfig
 
-        cls = {"search": FocalSearchConfig, "scene": SceneLineConfig}[key]
+        cls = {"search": FocalSearchConfig, "scene": SceneLineConfig, "feet": GroundFocalConfig}[key]
         try:
             return cls(**getattr(self.config, key))
         except (TypeError, ValueError) as err:
@@ -71,6 +81,7 @@ class FocalNode(Node):
     def check(self, ctx) -> None:
         self._settings("search")
         self._settings("scene")
+        self._settings("feet")
 
     def run(self, ctx, inputs):
         import cv2
@@ -81,6 +92,7 @@ class FocalNode(Node):
         camera, tracks = dict(inputs["camera"]), inputs["tracks"]
         camera["focal_estimate"] = None
         camera["scene"] = None
+        camera["feet_focal"] = None
         if not self.config.enabled:
             return {"camera": camera, "tracks": tracks}
         video, masks, detections = inputs["video"], inputs["masks"], inputs["detections"]
@@ -115,7 +127,7 @@ class FocalNode(Node):
                     bar.update()
                 if i >= last:
                     break
-        focal = None
+        focal, estimate = None, None
         if search:
             clips = [(np.stack(f), None if masks is None else np.stack(m)) for f, m in clips]
             estimate = estimate_focal_windows(clips, width, height, config, log=ctx.log.debug)
@@ -133,6 +145,13 @@ class FocalNode(Node):
             if camera.get("source") == "default" and focal is None and scene.informative:
                 focal, source = scene.focal, "scene"
         old = np.asarray(camera["intrinsics"], dtype=np.float64)
+        still = not self.config.motion or (estimate is not None and estimate.still)
+        if (camera.get("source") == "default" and focal is None and still and scene is not None
+                and self.config.planted_feet and tracks is not None):
+            feet = self._feet_focal(ctx, scene, tracks["tracks"], float(np.mean(old[:2])))
+            camera["feet_focal"] = feet.summary()
+            if feet.informative:
+                focal, source = feet.focal, "people"
         if focal is not None:
             camera["intrinsics"] = np.array([focal, focal, old[2], old[3]])
             camera["source"] = source
@@ -142,6 +161,20 @@ class FocalNode(Node):
         if scene is not None:  # each frame's up direction at the focal length the run goes on with
             camera["scene"] = scene.summary(focal if focal is not None else float(np.mean(old[:2])))
         return {"camera": camera, "tracks": tracks}
+
+    def _feet_focal(self, ctx, scene, tracks: list[dict], default: float):
+        """m3c.vo.ground_focal's estimate from the tracks' planted feet and the scene's vertical vanishing point."""
+        from m3c.vo.ground_focal import GroundFocal, focal_from_planted_feet, planted_points, scene_vertical
+
+        config = self._settings("feet")
+        vertical, why = scene_vertical(scene, default)
+        if vertical is None:
+            feet = GroundFocal(default, default, message=f"no vertical vanishing point: {why}")
+        else:
+            people = planted_points(ctx.loaded("body_model"), tracks, default, config.contact_threshold)
+            feet = focal_from_planted_feet(people, vertical, default, config)
+        ctx.log.info("focal length from the people's planted feet: %s", feet.message)
+        return feet
 
 
 def refocused(track: dict, factor: float) -> dict:

@@ -132,7 +132,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    # m3c.vo.focal's search when the focal node ran one: focal, log_sigma, informative, costs
                    "focal_estimate": json_ready(camera.get("focal_estimate")),
                    # m3c.vo.vanishing's estimate from the scene's lines: focal, informative, per frame up direction
-                   "scene": json_ready(camera.get("scene"))},
+                   "scene": json_ready(camera.get("scene")),
+                   # m3c.vo.ground_focal's estimate from a still camera's people: focal, measured, log_sigma, people
+                   "feet_focal": json_ready(camera.get("feet_focal"))},
         "lift": {"method": world["method"]},
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"], "windows": result.get("windows", [])},
@@ -148,8 +150,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
     # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
-    # video.slow_motion; 7: a gait needs the track to travel
-    version = "7"
+    # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal
+    version = "8"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")

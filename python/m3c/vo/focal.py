@@ -71,7 +71,8 @@ class FocalEstimate:
     default focal (image diagonal); ratio: focal / default; log_sigma: the uncertainty of log(focal), the
     half-width of the cost's minimum where it has risen by FocalSearchConfig.width_rise (inf when it does not
     bend upwards); informative: the cost located the focal; ratios, costs: every candidate tried (units of the
-    default) and its summed bundle-adjustment cost; windows: the [start, stop) frames searched; message: why."""
+    default) and its summed bundle-adjustment cost; windows: the [start, stop) frames searched; message: why;
+    still: no window moved the image enough for the odometry to start (a camera standing still)."""
     focal: float
     default: float
     log_sigma: float
@@ -80,6 +81,7 @@ class FocalEstimate:
     costs: np.ndarray = field(default_factory=lambda: np.zeros(0))
     windows: list[tuple[int, int]] = field(default_factory=list)
     message: str = ""
+    still: bool = False
 
     @property
     def ratio(self) -> float:
@@ -93,7 +95,8 @@ class FocalEstimate:
         return {"focal": float(self.focal), "default": float(self.default), "ratio": float(self.ratio),
                 "log_sigma": number(self.log_sigma), "informative": bool(self.informative),
                 "ratios": [float(r) for r in self.ratios], "costs": [number(c) for c in self.costs],
-                "windows": [[int(a), int(b)] for a, b in self.windows], "message": self.message}
+                "windows": [[int(a), int(b)] for a, b in self.windows], "message": self.message,
+                "still": bool(self.still)}
 
 
 def focal_windows(num_frames: int, config: FocalSearchConfig) -> list[tuple[int, int]]:
@@ -209,7 +212,8 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
         why = (f"the odometry could not run ({failures[0]})" if failures else "the camera did not move enough for "
                f"the odometry to start in any window ({config.keyframe_flow_px:g} px of image motion)")
         return FocalEstimate(default, default, math.inf, False, np.array([1.0]), np.array([math.nan]), [],
-                             f"focal not observable: {why}; keeping the default {default:.0f} px")
+                             f"focal not observable: {why}; keeping the default {default:.0f} px",
+                             still=not failures)
     tried: dict[float, float] = {1.0: float(sum(c for c in start if math.isfinite(c)))}
 
     def cost(ratio: float) -> float:

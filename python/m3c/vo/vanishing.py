@@ -130,6 +130,15 @@ class SceneCamera:
         return out
 
 
+def pooled_direction(directions) -> tuple[np.ndarray, float]:
+    """(the mean unit direction, the RMS angle in degrees of the directions (n, 3), unit, from it): how well
+    several frames' up directions agree."""
+    directions = np.asarray(directions, dtype=np.float64)
+    mean = directions.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    return mean, float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(directions @ mean, -1.0, 1.0)) ** 2))))
+
+
 def _up_from_vertical(vertical: np.ndarray, focal: float, diagonal: float) -> np.ndarray:
     x, y, w = vertical
     up = np.array([diagonal * x, diagonal * y, focal * w])
