@@ -67,6 +67,7 @@ def test_translating_camera_is_uninformative():
     assert not estimate.informative
     assert estimate.focal == estimate.default == pytest.approx(DIAGONAL)
     assert "not observable" in estimate.message and "flat" in estimate.message
+    assert not estimate.still  # it moved: a translating camera is no still one
     assert np.ptp(estimate.costs) < 0.1 * estimate.costs.min()  # the cost barely changes with the focal
 
 
@@ -74,7 +75,7 @@ def test_still_camera_is_uninformative():
     frames = np.repeat(_room_frames(1.0, "turn", T=3)[:1], 12, axis=0)
     estimate = estimate_focal(frames, config=FocalSearchConfig(**FAST))
     assert not estimate.informative and estimate.focal == pytest.approx(DIAGONAL)
-    assert "did not move" in estimate.message
+    assert "did not move" in estimate.message and estimate.still and estimate.summary()["still"]
 
 
 def test_bad_input_is_named():
@@ -182,6 +183,7 @@ def test_focal_node_takes_the_scene_where_the_motion_cannot_tell(tmp_path, rng):
     out = FocalNode("focal", FocalNode.Config(search=FAST)).run(_Context(tmp_path / "still.mp4"), inputs)
     camera = out["camera"]
     assert not camera["focal_estimate"]["informative"]  # a still camera: the motion search cannot tell
+    assert camera["focal_estimate"]["still"]  # and says it stood still (the people's estimate may then run)
     assert camera["source"] == "scene" and camera["scene"]["informative"]
     assert camera["intrinsics"][0] == pytest.approx(focal, rel=0.03)
     factor = camera["intrinsics"][0] / inputs["camera"]["intrinsics"][0]
@@ -201,6 +203,7 @@ def test_textureless_video_is_uninformative_not_an_error():
     estimate = estimate_focal(frames, config=FocalSearchConfig(**FAST))
     assert not estimate.informative and estimate.focal == pytest.approx(DIAGONAL)
     assert "could not run" in estimate.message and "no texture" in estimate.message
+    assert not estimate.still  # the odometry failed: whether the camera moved is not known
 
 
 def test_recovered_solver_steps_leave_no_warnings_on_stderr():
