@@ -230,3 +230,14 @@ def test_focal_node_takes_the_planted_feet_for_a_still_camera(tmp_path, rng):
     off = FocalNode("focal", FocalNode.Config(motion=False, planted_feet=False,
                                               scene={"min_horizontal": 100000})).run(_Context(path), inputs)
     assert off["camera"]["source"] == "default" and off["camera"]["feet_focal"] is None
+
+
+def test_m3c_info_names_a_still_camera_and_the_peoples_focal_length():
+    from m3c.io.results import _camera_motion, _focal_uncertainty
+
+    feet = {"message": "the planted feet of 1 person put the focal length at 898 px (log-sigma 0.05)"}
+    still = {"static": False, "focal_estimate": {"still": True, "informative": False}, "intrinsics_source": "people",
+             "feet_focal": feet}
+    assert _camera_motion(still).startswith("still") and feet["message"] in _focal_uncertainty(still)
+    assert _camera_motion({**still, "static": True}) == "static"
+    assert _camera_motion({"static": False, "focal_estimate": None}) == "moving"

@@ -95,6 +95,15 @@ def _focal_uncertainty(camera: dict) -> str:
     return f" (focal {estimate['ratio']:.2f} x the image diagonal, log-sigma {estimate['log_sigma']:.3f})"
 
 
+def _camera_motion(camera: dict) -> str:
+    """static (declared), still (the focal search saw no window move) or moving."""
+    if camera["static"]:
+        return "static"
+    if (camera.get("focal_estimate") or {}).get("still"):
+        return "still (no motion in the focal search's windows)"
+    return "moving"
+
+
 def _odometry_fit(camera: dict) -> str:
     fit = camera.get("odometry_fit")
     if not fit or fit.get("keyframe_rms_px") is None:
@@ -183,7 +192,7 @@ def describe(folder: str | Path) -> str:
              f"{video['frame_range'][0]}..{video['frame_range'][1] - 1} step {video['frame_range'][2]} "
              f"({video['frames']} processed)",
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
-             f"camera      {'static' if camera['static'] else 'moving'}, intrinsics {camera['intrinsics_source']} "
+             f"camera      {_camera_motion(camera)}, intrinsics {camera['intrinsics_source']} "
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
              f"{camera['odometry']}{_odometry_fit(camera)}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
