@@ -19,7 +19,7 @@ from m3c.body.transform import spine_directions
 from m3c.camera import WorldCameras
 from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, RayGroundParams, fit_ground_along_rays
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
-from m3c.vo.vanishing import pooled_direction
+from m3c.vo.vanishing import MAX_UP_SPREAD, pooled_direction
 
 LOG = logging.getLogger(__name__)
 
@@ -135,9 +135,8 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
     return dominant, "contacts" if dominant is not None else None, pooled, raw
 
 
-# The scene's up direction counts when its frames agree within this (RMS degrees, in the VO frame), and is trusted
-# to no better than MIN_SCENE_UP_SIGMA.
-MAX_SCENE_UP_SPREAD = 3.0
+# The scene's up direction counts when its frames agree within MAX_UP_SPREAD (RMS degrees, in the VO frame), and is
+# trusted to no better than this.
 MIN_SCENE_UP_SIGMA = 2.0
 
 
@@ -146,7 +145,7 @@ def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, log=LOG) -> tuple
     each sampled frame's up direction in its camera), or None: without a record, where the scene's focal length
     was not informative (its vertical and horizontal edges did not agree over the frames: a scene without the
     built structure the estimate assumes), or where the frames' up directions, rotated into the VO frame,
-    scatter more than MAX_SCENE_UP_SPREAD degrees."""
+    scatter more than MAX_UP_SPREAD degrees (m3c.vo.vanishing)."""
     if not scene or not scene.get("informative"):
         return None
     ups = [np.asarray(vo_cameras[f["frame"], :3, :3], dtype=np.float64) @ np.asarray(f["up"], dtype=np.float64)
@@ -154,7 +153,7 @@ def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, log=LOG) -> tuple
     if len(ups) < 2:
         return None
     mean, spread = pooled_direction(ups)
-    if spread > MAX_SCENE_UP_SPREAD:
+    if spread > MAX_UP_SPREAD:
         log.info("the scene's vertical edges give up directions %.1f degrees apart (RMS over %d frames): not used",
                  spread, len(ups))
         return None

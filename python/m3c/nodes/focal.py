@@ -145,10 +145,11 @@ class FocalNode(Node):
             if camera.get("source") == "default" and focal is None and scene.informative:
                 focal, source = scene.focal, "scene"
         old = np.asarray(camera["intrinsics"], dtype=np.float64)
+        old_focal = float(np.mean(old[:2]))
         still = not self.config.motion or (estimate is not None and estimate.still)
         if (camera.get("source") == "default" and focal is None and still and scene is not None
                 and self.config.planted_feet and tracks is not None):
-            feet = self._feet_focal(ctx, scene, tracks["tracks"], float(np.mean(old[:2])))
+            feet = self._feet_focal(ctx, scene, tracks["tracks"], old_focal)
             camera["feet_focal"] = feet.summary()
             if feet.informative:
                 focal, source = feet.focal, "people"
@@ -156,10 +157,10 @@ class FocalNode(Node):
             camera["intrinsics"] = np.array([focal, focal, old[2], old[3]])
             camera["source"] = source
             if tracks is not None:
-                factor = focal / float(np.mean(old[:2]))
+                factor = focal / old_focal
                 tracks = dict(tracks, tracks=[refocused(track, factor) for track in tracks["tracks"]])
         if scene is not None:  # each frame's up direction at the focal length the run goes on with
-            camera["scene"] = scene.summary(focal if focal is not None else float(np.mean(old[:2])))
+            camera["scene"] = scene.summary(focal if focal is not None else old_focal)
         return {"camera": camera, "tracks": tracks}
 
     def _feet_focal(self, ctx, scene, tracks: list[dict], default: float):

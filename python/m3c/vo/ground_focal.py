@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from m3c.vo.odometry import check_settings
-from m3c.vo.vanishing import pooled_direction
+from m3c.vo.vanishing import MAX_UP_SPREAD, pooled_direction
 
 
 @dataclass
@@ -118,7 +118,7 @@ def planted_points(model, tracks, focal: float, threshold: float) -> list[tuple[
     return out
 
 
-def scene_vertical(scene, focal: float, max_spread: float = 3.0) -> tuple[np.ndarray | None, str]:
+def scene_vertical(scene, focal: float, max_spread: float = MAX_UP_SPREAD) -> tuple[np.ndarray | None, str]:
     """(the vertical vanishing point (a, b, w) in homogeneous centred pixels, "") of a still camera's scene
     (m3c.vo.vanishing.SceneCamera), or (None, why) where fewer than two sampled frames found one or their up
     directions (at `focal`) scatter more than max_spread degrees (RMS): not one camera pose, or not vertical edges."""

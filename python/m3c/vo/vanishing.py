@@ -130,6 +130,11 @@ class SceneCamera:
         return out
 
 
+# Frames' up directions agree (one camera pose, true vertical edges) within this RMS angle, degrees: the ground's
+# tilt prior (m3c.ground.world_frame.scene_up_prior) and a still camera's vertical (m3c.vo.ground_focal) both ask it.
+MAX_UP_SPREAD = 3.0
+
+
 def pooled_direction(directions) -> tuple[np.ndarray, float]:
     """(the mean unit direction, the RMS angle in degrees of the directions (n, 3), unit, from it): how well
     several frames' up directions agree."""
