@@ -244,3 +244,17 @@ def test_bad_scene_setting_is_named():
         FocalNode("focal", FocalNode.Config(scene={"frames": 0})).check(None)
     with pytest.raises(InputError, match="focal.scene"):
         FocalNode("focal", FocalNode.Config(scene={"no_such_setting": 1})).check(None)
+
+
+def test_camera_focal_log_sigma_per_source():
+    """The focal length's uncertainty that the ground's scene prior widens by, read from the focal node's record."""
+    from m3c.vo.focal import camera_focal_log_sigma
+
+    assert camera_focal_log_sigma({"source": "given"}) == 0.0
+    assert camera_focal_log_sigma({"source": "default"}) == 0.3
+    assert camera_focal_log_sigma({"source": "estimated", "focal_estimate": {"log_sigma": 0.04}}) == 0.04
+    assert camera_focal_log_sigma({"source": "scene", "scene": {"spread": 0.02}}) == pytest.approx(0.02 / 0.674)
+    # The people's measurement (log-sigma 0.05) fused with the default (0.3) after adding the bias (0.1):
+    fused = 1.0 / np.sqrt(1.0 / 0.3 ** 2 + 1.0 / (0.05 ** 2 + 0.1 ** 2))
+    assert camera_focal_log_sigma({"source": "people", "feet_focal": {"log_sigma": 0.05}}) == pytest.approx(fused)
+    assert camera_focal_log_sigma({"source": "estimated", "focal_estimate": None}) == 0.3  # no record: the default's

@@ -2,7 +2,8 @@
 and kerbs drawn at a known focal length and tilt (m3c.vo.synthetic.built_scene_edges, projected with the camera
 it is compared with) is measured within 2% and half a degree; a level camera gives the up direction but no focal
 length; a textureless frame, a frame under a people mask and frames that disagree give no estimate; the ground's
-tilt prior reads the frames' up directions in the odometry's frame."""
+tilt prior reads the frames' up directions in the odometry's frame, a stray frame left out, its forward sigma
+widened by the focal length's uncertainty."""
 
 import numpy as np
 import pytest
@@ -10,7 +11,8 @@ import pytest
 from m3c.ground import GroundParams
 from m3c.ground.world_frame import dominant_ground, scene_up_prior
 from m3c.vo.synthetic import built_scene_edges, look_rotation
-from m3c.vo.vanishing import SceneLineConfig, estimate_scene_camera, frame_vanishing_points, line_segments
+from m3c.vo.vanishing import (SceneLineConfig, agreeing_direction, estimate_scene_camera, frame_vanishing_points,
+                              line_segments)
 
 W, H = 960, 540
 DIAGONAL = float(np.hypot(W, H))
@@ -100,13 +102,54 @@ def test_scene_up_prior_reads_every_frame_in_the_odometry_frame():
     for t in range(30):  # a panning camera: VO frame from camera t
         cameras[t, :3, :3] = _rotation([0, 1, 0], 2.0 * t)
     frames = [{"frame": t, "up": (cameras[t, :3, :3].T @ true_up).tolist()} for t in (0, 10, 20, 29)]
-    up, sigma = scene_up_prior({"informative": True, "frames": frames}, cameras)
-    assert _angle(up, true_up) < 1e-6 and sigma == 2.0  # no spread: the floor of the prior's sigma
-    assert scene_up_prior({"informative": False, "frames": frames}, cameras) is None
+    up, sideways, forward = scene_up_prior({"informative": True, "frames": frames}, cameras)
+    assert _angle(up, true_up) < 1e-6 and sideways == forward == 2.0  # no spread: the floor of the prior's sigma
+    # The scene's own focal length need not be informative: its up directions count at the run's focal length.
+    assert _angle(scene_up_prior({"informative": False, "frames": frames}, cameras)[0], true_up) < 1e-6
     assert scene_up_prior(None, cameras) is None
-    # Frames whose ups disagree (one rotated 12 degrees) are not a prior.
+    # One frame another family of edges (rotated 12 degrees) is left out...
     frames[1]["up"] = (_rotation([1, 0, 0], 12.0) @ np.asarray(frames[1]["up"])).tolist()
-    assert scene_up_prior({"informative": True, "frames": frames}, cameras) is None
+    assert _angle(scene_up_prior({"frames": frames}, cameras)[0], true_up) < 1e-6
+    # ... but frames that disagree by halves are not a prior.
+    frames[2]["up"] = (_rotation([0, 0, 1], -9.0) @ np.asarray(frames[2]["up"])).tolist()
+    assert scene_up_prior({"frames": frames}, cameras) is None
+
+
+def test_agreeing_direction_leaves_out_a_stray_frame_against_numpy():
+    rng = np.random.default_rng(3)
+    base = np.array([0.05, -0.95, -0.3])
+    base /= np.linalg.norm(base)
+    ups = np.array([_rotation(rng.normal(size=3) / np.sqrt(3), 0.8) @ base for _ in range(8)])
+    ups[5] = _rotation([1, 0, 0], 15.0) @ base  # another family of edges
+    mean, spread, kept = agreeing_direction(ups)
+    assert kept.tolist() == [True] * 5 + [False] + [True] * 2
+    expected = ups[kept].mean(axis=0) / np.linalg.norm(ups[kept].mean(axis=0))
+    assert np.allclose(mean, expected, atol=1e-12)
+    rms = np.sqrt(np.mean([np.radians(_angle(u, expected)) ** 2 for u in ups[kept]]))
+    assert spread == pytest.approx(np.degrees(rms), rel=1e-6) and spread < 1.0
+    assert agreeing_direction(ups[:1])[0] is None  # one frame is no agreement
+    wide = np.array([_rotation([1, 0, 0], a) @ base for a in (-4.0, 0.0, 4.0)])  # all within 6 of the medoid
+    mean, spread, kept = agreeing_direction(wide)
+    assert mean is None and kept.all() and spread == pytest.approx(np.sqrt(32 / 3), rel=2e-3)  # RMS over 3
+
+
+@pytest.mark.parametrize("pitch_degrees", [8.0, 35.0])
+def test_scene_up_forward_sigma_follows_the_focal_length_uncertainty(pitch_degrees):
+    """The forward sigma adds how far the up direction tilts when the focal length errs by its log-sigma,
+    checked against the vanishing point re-read at a focal length exp(0.1) longer."""
+    from m3c.vo.vanishing import _up_from_vertical
+
+    focal = 900.0
+    up = _rotation([1, 0, 0], pitch_degrees) @ np.array([0.0, -1.0, 0.0])  # camera looking down
+    assert up[2] < 0
+    vertical = np.array([up[0] / DIAGONAL, up[1] / DIAGONAL, up[2] / focal])  # its vanishing point, as stored
+    assert _angle(_up_from_vertical(vertical, focal, DIAGONAL), up) < 1e-6
+    moved = _angle(_up_from_vertical(vertical, focal * np.exp(0.01), DIAGONAL), up) / 0.01  # degrees per log f
+    cameras = np.tile(np.eye(4), (10, 1, 1))
+    frames = [{"frame": t, "up": up.tolist()} for t in (0, 5, 9)]
+    _, sideways, forward = scene_up_prior({"frames": frames}, cameras, focal_log_sigma=0.1)
+    assert sideways == 2.0 and forward == pytest.approx(np.hypot(2.0, 0.1 * moved), rel=0.02)
+    assert scene_up_prior({"frames": frames}, cameras, focal_log_sigma=0.0)[2] == 2.0
 
 
 def test_the_scene_up_holds_the_contacts_ground_where_the_feet_cannot():
@@ -123,7 +166,7 @@ def test_the_scene_up_holds_the_contacts_ground_where_the_feet_cannot():
     tracks = [{"first_frame": 0}]
     params = GroundParams()
     with_scene, source, _, _ = dominant_ground([points], tracks, cameras, np.zeros(3), params, level=False,
-                                               scene_up=(normal, 2.0))
+                                               scene_up=(normal, 2.0, 2.0))
     assert source == "contacts" and _angle(with_scene.normal, normal) < 1.0
     camera_up, _, _, _ = dominant_ground([points], tracks, cameras, np.zeros(3), params, level=False)
     assert _angle(camera_up.normal, normal) > 2.0  # the camera's own up (the other prior) is 6 degrees off

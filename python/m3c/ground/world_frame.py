@@ -10,6 +10,7 @@ the rigid map world_from_vo.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -19,7 +20,7 @@ from m3c.body.transform import spine_directions
 from m3c.camera import WorldCameras
 from m3c.ground.planes import CAMERA_UP, GroundParams, PlaneFit, RayGroundParams, fit_ground_along_rays
 from m3c.ground.tracks import ContactTrack, contact_vertices, estimate_ground_planes, track_frames, track_poses
-from m3c.vo.vanishing import MAX_UP_SPREAD, pooled_direction
+from m3c.vo.vanishing import agreeing_direction
 
 LOG = logging.getLogger(__name__)
 
@@ -74,13 +75,13 @@ MAX_MAP_GROUND_GAP = 0.3
 
 
 def tilt_prior(up_direction: np.ndarray, level: bool, first_camera: np.ndarray,
-               scene_up: tuple[np.ndarray, float] | None, ray_params: RayGroundParams = RayGroundParams()
+               scene_up: tuple[np.ndarray, float, float] | None, ray_params: RayGroundParams = RayGroundParams()
                ) -> tuple[str, np.ndarray, RayGroundParams]:
     """(name, up direction, the fit's noise model) of the contacts' ground's tilt prior: the scene's vertical edges
-    ("scene", at their sigma both ways) when scene_up is given, else the people's upright direction ("people") when
+    ("scene", at its sigmas sideways and forwards) when scene_up is given, else the people's upright direction ("people") when
     `level` and known, else the first camera's up ("camera")."""
     if scene_up is not None:
-        return "scene", scene_up[0], replace(ray_params, roll_sigma=scene_up[1], pitch_sigma=scene_up[1])
+        return "scene", scene_up[0], replace(ray_params, roll_sigma=scene_up[1], pitch_sigma=scene_up[2])
     if level and np.linalg.norm(up_direction) > 0:
         return "people", up_direction, ray_params
     return "camera", first_camera[:3, :3] @ CAMERA_UP, ray_params
@@ -89,7 +90,7 @@ def tilt_prior(up_direction: np.ndarray, level: bool, first_camera: np.ndarray,
 def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], cameras: np.ndarray,
                     up_direction: np.ndarray, params: GroundParams, level: bool = True, log=LOG,
                     map_plane: np.ndarray | None = None, ray_params: RayGroundParams = RayGroundParams(),
-                    scene_up: tuple[np.ndarray, float] | None = None
+                    scene_up: tuple[np.ndarray, float, float] | None = None
                     ) -> tuple[PlaneFit | None, str | None, np.ndarray, list[list[np.ndarray]]]:
     """The dominant ground (a PlaneFit in the metric VO frame of `cameras`, or None), where it came from
     ("odometry map", "contacts" or None), all contact points there, and per track per frame its contact points
@@ -99,8 +100,8 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
     lie on it (MAX_MAP_GROUND_GAP): thousands of static points spread over the scene fix its tilt better than
     feet whose monocular depth swings by metres within a second; otherwise the contacts' ground
     (m3c.ground.planes.fit_ground_along_rays: one point per person and frame, its error along the camera ray).
-    scene_up: (up direction in the VO frame, its sigma in degrees) from the scene's vertical edges (scene_up_prior):
-    the contacts' ground's tilt prior instead of the people's upright direction, at that sigma both ways."""
+    scene_up: (up direction in the VO frame, its sigmas sideways and forwards in degrees) from the scene's vertical
+    edges (scene_up_prior): the contacts' ground's tilt prior instead of the people's upright direction."""
     raw, frame_points, frame_centers = [], [], []
     for track, points in zip(tracks, in_camera):
         world = []
@@ -140,38 +141,50 @@ def dominant_ground(in_camera: list[list[np.ndarray]], tracks: list[dict], camer
 MIN_SCENE_UP_SIGMA = 2.0
 
 
-def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, log=LOG) -> tuple[np.ndarray, float] | None:
-    """(up direction in the VO frame, sigma in degrees) from the focal node's scene record (m3c.vo.vanishing:
-    each sampled frame's up direction in its camera), or None: without a record, where the scene's focal length
-    was not informative (its vertical and horizontal edges did not agree over the frames: a scene without the
-    built structure the estimate assumes), or where the frames' up directions, rotated into the VO frame,
-    scatter more than MAX_UP_SPREAD degrees (m3c.vo.vanishing)."""
-    if not scene or not scene.get("informative"):
+def scene_up_prior(scene: dict | None, vo_cameras: np.ndarray, focal_log_sigma: float = 0.0, log=LOG
+                   ) -> tuple[np.ndarray, float, float] | None:
+    """(up direction in the VO frame, its sigma sideways and forwards in degrees) from the focal node's scene
+    record (m3c.vo.vanishing: each sampled frame's up direction in its camera, at the focal length the run goes
+    on with), or None: without a record, or where the frames' up directions, rotated into the VO frame, do not
+    agree within MAX_UP_SPREAD degrees (m3c.vo.vanishing.agreeing_direction: not one family of vertical edges).
+
+    A vertical vanishing point gives the up direction's forward tilt only through the focal length (the up ray
+    is (a, b, f w)): an error of d log f tilts it by sin(t) cos(t) d log f radians in a camera looking t off
+    level, so the forward sigma adds focal_log_sigma (the camera record's: 0 for given intrinsics, about 0.3 for
+    the default) at the frames' median tilt. The focal length need not come from the scene's own lines: on the
+    video benchmark the scene's up lay within 0.2-2.3 degrees of the truth (median over sampled frames) on every
+    sequence, with the focal length from the motion, the people or the default."""
+    if not scene:
         return None
-    ups = [np.asarray(vo_cameras[f["frame"], :3, :3], dtype=np.float64) @ np.asarray(f["up"], dtype=np.float64)
-           for f in scene.get("frames", []) if "up" in f and 0 <= f["frame"] < len(vo_cameras)]
+    frames = [f for f in scene.get("frames", []) if f.get("up") is not None and 0 <= f["frame"] < len(vo_cameras)]
+    in_camera = np.array([f["up"] for f in frames], dtype=np.float64).reshape(-1, 3)
+    ups = np.array([np.asarray(vo_cameras[f["frame"], :3, :3], dtype=np.float64) @ up
+                    for f, up in zip(frames, in_camera)]).reshape(-1, 3)
     if len(ups) < 2:
         return None
-    mean, spread = pooled_direction(ups)
-    if spread > MAX_UP_SPREAD:
-        log.info("the scene's vertical edges give up directions %.1f degrees apart (RMS over %d frames): not used",
-                 spread, len(ups))
+    mean, spread, kept = agreeing_direction(ups)
+    if mean is None:
+        log.info("the scene's vertical edges give up directions %.1f degrees apart (RMS over %d of %d frames): "
+                 "not used", spread, int(kept.sum()), len(ups))
         return None
-    return mean, max(spread, MIN_SCENE_UP_SIGMA)
+    sideways = max(spread, MIN_SCENE_UP_SIGMA)
+    tilt = np.abs(in_camera[kept, 2])  # sin of each frame's tilt off level
+    forward = math.hypot(sideways, math.degrees(float(np.median(tilt * np.sqrt(1.0 - tilt ** 2))) * focal_log_sigma))
+    return mean, sideways, forward
 
 
 def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale: float, params: GroundParams, *,
                     planes: str = "shared", contact_threshold: float = 0.5, window: int = 15,
                     max_tilt: float = 10.0, level: bool = True, log=LOG, map_plane=None,
-                    scene: dict | None = None) -> dict:
+                    scene: dict | None = None, focal_log_sigma: float = 0.0) -> dict:
     """The ground and the gravity-aligned world frame of camera-frame tracks seen by VO cameras at `scale`.
 
     Contact vertices (foot vertices whose contact joint has probability > contact_threshold, in detected frames)
     are placed in the metric VO frame. The dominant ground is the odometry map's ground plane when one is given
     (map_plane: (nx, ny, nz, d) in the VO frame and VO units, the scale estimate's ground_plane) and the contacts
     lie on it, else a robust plane fit to the contacts, its tilt held by the scene's vertical edges where the
-    focal node measured them (scene: its camera's scene record; scene_up_prior), else by the people's upright
-    direction; it defines the world (y up, ground y = 0). Each person's
+    focal node measured them (scene: its camera's scene record, focal_log_sigma: its focal length's uncertainty;
+    scene_up_prior), else by the people's upright direction; it defines the world (y up, ground y = 0). Each person's
     plane per frame is then either that ground (planes "shared", SLAHMR's single floor) or the thesis's
     per-person planes (planes "per_person": DBSCAN on contact points, plane fits, association and filling over
     time, each frame pooling the contacts of `window` frames around it; planes tilted more than max_tilt degrees
@@ -194,9 +207,9 @@ def estimate_ground(model, tracks: Sequence[dict], vo_cameras: np.ndarray, scale
             raise ValueError(f"map_plane must be 4 finite numbers (nx, ny, nz, d) with a non-zero normal, "
                              f"got {plane}")
         map_plane = (plane[:3] / norm, scale * plane[3] / norm)
-    scene_up = scene_up_prior(scene, vo_cameras, log)
+    scene_up = scene_up_prior(scene, vo_cameras, focal_log_sigma, log)
     if scene_up is not None:
-        log.info("ground tilt prior: the scene's vertical edges (+-%.1f degrees)", scene_up[1])
+        log.info("ground tilt prior: the scene's vertical edges (+-%.1f degrees sideways, %.1f forwards)", *scene_up[1:])
     dominant, ground_source, pooled, raw = dominant_ground(in_camera, tracks, cameras, up, params, level, log,
                                                            map_plane, scene_up=scene_up)
     up_vo = cameras[0, :3, :3] @ CAMERA_UP

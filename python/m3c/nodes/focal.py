@@ -50,8 +50,9 @@ class FocalNode(Node):
     # 2: re-expresses perception's tracks (it re-expressed the per-detection body table)
     # 3: the search goes on past an end of its range where the least cost lies near it (max_extension)
     # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction); 5: the people's
-    # planted feet (a still camera's focal length where the scene's lines cannot tell)
-    version = "5"
+    # planted feet (a still camera's focal length where the scene's lines cannot tell); 6: a sampled frame whose
+    # vertical vanishing point is another family of edges is left out of a still camera's vertical
+    version = "6"
     settings = ("body_model",)
 
     @dataclass

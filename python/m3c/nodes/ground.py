@@ -10,6 +10,7 @@ import numpy as np
 from m3c.ground import GroundParams
 from m3c.ground.world_frame import estimate_ground
 from m3c.pipeline import Node, register_node
+from m3c.vo.focal import camera_focal_log_sigma
 
 
 @register_node
@@ -30,8 +31,10 @@ class GroundNode(Node):
 
     # 2: the cameras in the world (WorldCameras); 3: the map's ground plane when the contacts agree; 4: the
     # contacts' ground fitted along the camera rays, with the people's upright direction as the tilt's prior;
-    # 5: the scene's vertical edges as that prior where the focal node measured them (scene_up); 6: tilt_prior
-    version = "6"
+    # 5: the scene's vertical edges as that prior where the focal node measured them (scene_up); 6: tilt_prior;
+    # 7: the scene's up wherever its frames agree (not only where its lines gave the focal length), a frame
+    #    another family of edges out, its forward sigma from the focal length's uncertainty
+    version = "7"
     type_name = "ground"
     level = "smpl"
     inputs = ("tracks", "cameras", "scale", "camera")
@@ -69,12 +72,14 @@ class GroundNode(Node):
 
     def run(self, ctx, inputs):
         scale = dict(inputs["scale"])
+        camera = inputs.get("camera") or {}
         ground = estimate_ground(ctx.loaded("body_model"), inputs["tracks"]["tracks"],
                                  np.asarray(inputs["cameras"]["world_from_cam"], dtype=np.float64), scale["value"],
                                  self.params(), planes=self.config.planes,
                                  contact_threshold=self.config.contact_threshold, window=self.config.window,
                                  max_tilt=self.config.max_tilt, level=self.config.level_with_body_up, log=ctx.log,
                                  map_plane=scale.get("ground_plane") if self.config.map_ground else None,
-                                 scene=(inputs.get("camera") or {}).get("scene") if self.config.scene_up else None)
+                                 scene=camera.get("scene") if self.config.scene_up else None,
+                                 focal_log_sigma=camera_focal_log_sigma(camera))
         ground["cameras"] = ground["cameras"].as_dict()
         return {"ground": ground, "scale": scale}

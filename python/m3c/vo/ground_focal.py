@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from m3c.vo.odometry import check_settings
-from m3c.vo.vanishing import MAX_UP_SPREAD, pooled_direction
+from m3c.vo.vanishing import MAX_UP_SPREAD, agreeing_direction
 
 
 @dataclass
@@ -62,6 +62,11 @@ class GroundFocalConfig:
     low: float = 0.4
     high: float = 2.5
     seed: int = 0
+
+    def fusion_weights(self, log_sigma: float) -> tuple[float, float]:
+        """(the default's, the measurement's) inverse variances in log(focal) when a measurement of log-sigma
+        `log_sigma` is fused with the default; 1 / sqrt(their sum) is the fused focal length's log-sigma."""
+        return 1.0 / self.prior_log_sigma ** 2, 1.0 / (log_sigma ** 2 + self.bias_log_sigma ** 2)
 
     def __post_init__(self):
         check_settings(self, {"min_points": 3, "block_frames": 1, "resamples": 10, "seed": 0},
@@ -125,9 +130,10 @@ def scene_vertical(scene, focal: float, max_spread: float = MAX_UP_SPREAD) -> tu
     ups = [scene.up(focal, f.frame) for f in scene.frames]
     if len(ups) < 2:
         return None, f"{len(ups)} sampled frames found a vertical vanishing point, 2 needed"
-    mean, spread = pooled_direction(ups)
-    if spread > max_spread:
-        return None, f"the frames' vertical vanishing points are {spread:.1f} degrees apart (RMS), over {max_spread:g}"
+    mean, spread, kept = agreeing_direction(ups, max_spread)
+    if mean is None:
+        return None, (f"the frames' vertical vanishing points are {spread:.1f} degrees apart (RMS over {kept.sum()} of "
+                      f"{len(ups)} frames), over {max_spread:g}")
     return np.array([mean[0], mean[1], mean[2] / focal]), ""
 
 
@@ -227,7 +233,7 @@ def focal_from_planted_feet(people, vertical, default: float, config: GroundFoca
                        f"{config.max_log_sigma:g} and x{config.low:g}..{config.high:g} needed); keeping the default")
         return out
     # Fused with the default as a prior: a measurement as uncertain as real cameras' spread moves half-way.
-    prior, measured = 1.0 / config.prior_log_sigma ** 2, 1.0 / (out.log_sigma ** 2 + config.bias_log_sigma ** 2)
+    prior, measured = config.fusion_weights(out.log_sigma)
     out.focal = float(math.exp((prior * math.log(default) + measured * log_measured) / (prior + measured)))
     out.informative = True
     who = "1 person" if len(estimates) == 1 else f"{len(estimates)} people"

@@ -23,6 +23,7 @@ the image) leaves the focal length unobservable from this pair (v at infinity): 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -142,6 +143,26 @@ def pooled_direction(directions) -> tuple[np.ndarray, float]:
     mean = directions.mean(axis=0)
     mean /= np.linalg.norm(mean)
     return mean, float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(directions @ mean, -1.0, 1.0)) ** 2))))
+
+
+def agreeing_direction(directions, max_spread: float = MAX_UP_SPREAD) -> tuple[np.ndarray | None, float, np.ndarray]:
+    """(the pooled unit direction or None, its RMS spread in degrees, which of the directions (n, 3) it pools) of
+    several frames' up directions, a frame whose vertical vanishing point is another family of edges left out: the
+    frames within 2 x max_spread degrees of the medoid (the direction nearest all others) are pooled, and the
+    result counts (not None) when they are at least two and more than half of the frames and agree within
+    max_spread.
+    On the video benchmark one sampled frame in ten or so finds a vanishing point 5-20 degrees off (its
+    neighbours within 1-2 degrees of the truth), which alone pushed the RMS spread over 3 degrees."""
+    directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    if len(directions) < 2:
+        return None, math.nan, np.ones(len(directions), dtype=bool)
+    angles = np.degrees(np.arccos(np.clip(directions @ directions.T, -1.0, 1.0)))
+    medoid = directions[np.argmin(angles.sum(axis=1))]
+    kept = np.degrees(np.arccos(np.clip(directions @ medoid, -1.0, 1.0))) <= 2.0 * max_spread
+    mean, spread = pooled_direction(directions[kept])
+    if kept.sum() < 2 or 2 * kept.sum() <= len(directions) or spread > max_spread:
+        return None, spread, kept
+    return mean, spread, kept
 
 
 def _up_from_vertical(vertical: np.ndarray, focal: float, diagonal: float) -> np.ndarray:
