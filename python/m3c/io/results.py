@@ -209,6 +209,10 @@ def describe(folder: str | Path) -> str:
         lines.append(f"  id {track['id']:>3}: frames {track['first_frame']}..{track['last_frame']} "
                      f"({track['visible_frames']}/{track['frames']} detected), reprojection "
                      f"{'n/a' if err is None else f'{err:.1f} px'}, path {track['path_length_m']:.2f} m")
+        lean = track.get("lean")
+        if lean and lean.get("refit"):
+            lines.append(f"         leaned {lean['lean_before']:+.1f} degrees towards the camera against the scene's "
+                         f"vertical: re-fitted to {lean['lean_after']:+.1f} (depth x{lean['depth_ratio']:.3f})")
         figures = track.get("plausibility")
         if figures:
             ratio = figures["path_ratio"]

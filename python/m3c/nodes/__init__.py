@@ -19,7 +19,7 @@ from pathlib import Path
 def register_builtin_nodes() -> None:
     """Registers the built-in node types with m3c.pipeline (importing their modules runs their @register_node) and
     the loader of the body-model setting they read. Idempotent."""
-    from m3c.nodes import (camera, camera_plot, depth, focal, frames, ground, lift, load,  # noqa: F401
+    from m3c.nodes import (camera, camera_plot, depth, focal, frames, ground, lean, lift, load,  # noqa: F401
                            local_tracks, optimize, overlay, patches, perception, results, scale, vo, world_view)
     from m3c.pipeline.node import register_setting_loader
 

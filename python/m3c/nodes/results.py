@@ -19,8 +19,10 @@ MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the opti
 
 
 def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, ground: dict, world: dict,
-                  result: dict, backends: dict) -> tuple[dict, dict]:
-    """(arrays of results.npz, summary of results.json); see m3c.io.results.ARRAYS for the arrays."""
+                  result: dict, backends: dict, lean: dict | None = None) -> tuple[dict, dict]:
+    """(arrays of results.npz, summary of results.json); see m3c.io.results.ARRAYS for the arrays. lean: the lean
+    node's tracks output (its per-track records go into each track's "lean")."""
+    leaned = {r["track_id"]: r for r in (lean or {}).get("lean", [])}
     T = int(video["num_frames"])
     tracks = result["tracks"]
     P, B = len(tracks), model.num_betas
@@ -100,6 +102,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
             "path_length_m": float(np.linalg.norm(np.diff(roots, axis=0), axis=1).sum()),
             "height_m": float(np.ptp(model.forward(np.zeros((1, J, 3)), betas).vertices[0, :, 1])),
             "ground": "per-frame plane" if track.get("ground_normal") is not None else "none",
+            # m3c.perception.lean: the track's median lean towards the camera against the scene's up, and its re-fit
+            "lean": json_ready(leaned.get(int(track["track_id"]))),
         })
     for name, (_, dtype, _) in ARRAYS.items():
         if dtype == "float32":
@@ -150,11 +154,12 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
     # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
-    # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal
-    version = "8"
+    # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean
+    version = "9"
     type_name = "results"
     level = "output"
-    inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result")
+    inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")
+    optional_inputs = ("lean",)
     outputs = ("npz", "json")
     settings = ("body_model",)
     publish = {"npz": "results.npz", "json": "results.json"}
@@ -169,7 +174,7 @@ class ResultsNode(Node):
             backends[name] = entry
         arrays, summary = build_results(ctx.loaded("body_model"), inputs["video"], inputs["camera"], inputs["cameras"],
                                         inputs["scale"], inputs["ground"], inputs["world"], inputs["result"],
-                                        backends)
+                                        backends, inputs.get("lean"))
         write_npz(ctx.work_path("results.npz"), arrays, compress=True)
         ctx.work_path("results.json").write_text(json.dumps(json_ready(summary), indent=1, allow_nan=False) + "\n")
         return {"npz": FileRef("results.npz"), "json": FileRef("results.json")}
