@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict
-
 import numpy as np
 
 from m3c.ground.world_frame import scene_up_prior
@@ -57,13 +55,12 @@ class LeanNode(Node):
             ctx.log.info("people's lean: the scene's up is known to %.1f degrees forwards (%.1f allowed: the focal "
                          "length's uncertainty); the bodies stay as fitted", forward, self.config.max_up_sigma)
             return {"tracks": passed}
-        config = LeanConfig(**asdict(self.config))
         model = ctx.loaded("body_model")
         tracks, records = [], []
         for track in given["tracks"]:
             frames = np.asarray(track["frame"], dtype=np.int64)
             up = np.einsum("nji,j->ni", vo[frames, :3, :3], up_vo)  # the up direction in each frame's camera
-            track, record = releaned_track(model, track, up, camera["intrinsics"], config)
+            track, record = releaned_track(model, track, up, camera["intrinsics"], self.config)
             record = dict(record, track_id=int(track["track_id"]))
             tracks.append(track)
             records.append(record)

@@ -21,6 +21,14 @@ from m3c.perception.types import FOOT_KEYPOINT_NAMES, NUM_COCO, NUM_WITH_FEET
 NAME = "fit"
 HIPS = (11, 12)  # COCO-17 hips: the origin of MediaPipe's metric landmarks
 SHOULDERS = (5, 6)
+RESTART_GAP = 5  # a track's fit starts cold after more than this many frames without it
+
+
+def cold_starts(frame_ids, restart_gap: int = RESTART_GAP) -> np.ndarray:
+    """(n,) bool: the frames of a track (frame_ids, increasing) whose fit starts cold, the first and every one
+    after more than restart_gap frames without the person (fit_bodies' restart)."""
+    frame_ids = np.asarray(frame_ids)
+    return np.concatenate([[True], np.diff(frame_ids) > restart_gap + 1])[:len(frame_ids)]
 
 
 def keypoint_regressor(model: BodyModel, num_keypoints: int = NUM_COCO):

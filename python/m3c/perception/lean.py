@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from m3c.body.transform import spine_directions
-from m3c.perception.body import HIPS, BodyFitConfig, fit_bodies, keypoint_regressor
+from m3c.perception.body import HIPS, RESTART_GAP, BodyFitConfig, cold_starts, fit_bodies, keypoint_regressor
 
 
 @dataclass
@@ -44,7 +44,7 @@ class LeanConfig:
     max_lean: float = 25.0
     max_up_sigma: float = 5.0
     keypoints3d_weight: float = 1000.0
-    restart_gap: int = 5
+    restart_gap: int = RESTART_GAP
 
     def validate(self) -> None:
         if not (0 <= self.min_lean < self.max_lean <= 90):
@@ -102,8 +102,7 @@ def releaned_track(model, track: dict, up: np.ndarray, intrinsics, config: LeanC
         observed[i, :, :3] = turned[i].apply(fitted[i] - hips[i])
     observed[..., 3] = 1.0
     frames = np.asarray(track["frame"], dtype=np.int64)
-    restart = np.concatenate([[True], np.diff(frames) > config.restart_gap + 1])
-    fits = fit_bodies(model, keypoints, intrinsics, observed, restart,
+    fits = fit_bodies(model, keypoints, intrinsics, observed, cold_starts(frames, config.restart_gap),
                       BodyFitConfig(keypoints3d_weight=config.keypoints3d_weight), times=frames)
     ok = fits.valid
     new = dict(track, pose=np.where(ok[:, None, None], fits.pose, pose),

@@ -21,7 +21,7 @@ from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.io import atomic_path, save_npz_atomic
 from m3c.io.video import default_intrinsics, iter_frames, probe_video
 from m3c.perception.appearance import appearance_descriptor
-from m3c.perception.body import BodyFits, rough_location
+from m3c.perception.body import RESTART_GAP, BodyFits, cold_starts, rough_location
 from m3c.perception.contacts import contact_rest_heights, estimate_up, steady_depth
 from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, ground_flow, ground_speeds
 from m3c.perception.boxes import clip_boxes
@@ -66,7 +66,7 @@ class PerceptionConfig:
     intrinsics: tuple | None = None
     detect_every: int = 5
     proposal_margin: float = 0.1
-    restart_gap: int = 5
+    restart_gap: int = RESTART_GAP
     duplicate_iou: float = 0.6
     save_masks: bool = True
     padding: float = 5.0
@@ -433,7 +433,7 @@ def _finish_track(track_id: int, entries: list, est: dict, names: dict, intrinsi
         if p.keypoints3d is not None:
             keypoints3d[i, :len(p.keypoints3d)] = p.keypoints3d
     has3d = bool((keypoints3d[..., 3] > 0).any())
-    restart = np.concatenate([[True], np.diff(frame_ids) > config.restart_gap + 1])
+    restart = cold_starts(frame_ids, config.restart_gap)
     t0 = time.perf_counter()
     if est["body"].reads_images:
         bodies = est["body"].fit_track(keypoints, keypoints3d if has3d else None, intrinsics, restart, frame_ids,
