@@ -253,6 +253,7 @@ def test_camera_focal_log_sigma_per_source():
     assert camera_focal_log_sigma({"source": "given"}) == 0.0
     assert camera_focal_log_sigma({"source": "default"}) == 0.3
     assert camera_focal_log_sigma({"source": "estimated", "focal_estimate": {"log_sigma": 0.04}}) == 0.04
+    assert camera_focal_log_sigma({"source": "scene", "scene": {"spread": 0.02, "log_sigma": 0.06}}) == 0.06
     assert camera_focal_log_sigma({"source": "scene", "scene": {"spread": 0.02}}) == pytest.approx(0.02 / 0.674)
     # The people's measurement (log-sigma 0.05) fused with the default (0.3) after adding the bias (0.1):
     fused = 1.0 / np.sqrt(1.0 / 0.3 ** 2 + 1.0 / (0.05 ** 2 + 0.1 ** 2))

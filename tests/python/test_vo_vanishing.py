@@ -11,8 +11,8 @@ import pytest
 from m3c.ground import GroundParams
 from m3c.ground.world_frame import dominant_ground, scene_up_prior
 from m3c.vo.synthetic import built_scene_edges, look_rotation
-from m3c.vo.vanishing import (SceneLineConfig, agreeing_direction, estimate_scene_camera, frame_vanishing_points,
-                              line_segments)
+from m3c.vo.vanishing import (SceneLineConfig, _focal_squared, _jackknife_log_sigma, _refine, agreeing_direction,
+                              estimate_scene_camera, frame_vanishing_points, line_segments)
 
 W, H = 960, 540
 DIAGONAL = float(np.hypot(W, H))
@@ -41,6 +41,69 @@ def test_focal_and_up_of_a_built_scene(focal, pitch, roll):
     # The up direction at another focal length is the same vanishing point seen through another camera.
     wrong = estimate.up(1.5 * focal)
     assert _angle(wrong, up) > 0.5 * abs(np.degrees(np.arctan(np.tan(pitch) * 1.5)) - np.degrees(pitch))
+
+
+def _segments_towards(point, count, noise, rng):
+    """Unit homogeneous lines (centred, over the diagonal) of `count` segments in the image aimed at the homogeneous
+    vanishing point `point` with `noise` radians of direction error, and their lengths."""
+    lines, lengths = [], []
+    for middle in rng.uniform(-0.35, 0.35, (count, 2)):
+        towards = point[:2] - middle * point[2]
+        angle = np.arctan2(towards[1], towards[0]) + rng.normal(0.0, noise)
+        half = 0.5 * rng.uniform(0.03, 0.15) * np.array([np.cos(angle), np.sin(angle)])
+        line = np.cross(np.r_[middle - half, 1.0], np.r_[middle + half, 1.0])
+        lines.append(line / np.linalg.norm(line))
+        lengths.append(2 * np.linalg.norm(half))
+    return lines, lengths
+
+
+@pytest.mark.parametrize("vertical_count, horizontal_count, noise", [(15, 8, 0.003), (8, 6, 0.005), (30, 20, 0.002)])
+def test_jackknife_sigma_predicts_the_focal_lengths_spread(vertical_count, horizontal_count, noise):
+    """A frame's log-focal sigma (the jackknife over its supporting segments) against the spread of the focal length
+    over 200 independent draws of the segments' direction noise, about the true focal length (0.9 x the diagonal,
+    camera 15 degrees down)."""
+    rng = np.random.default_rng(0)
+    focal, pitch = 0.9, np.radians(-15.0)
+    rotation = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    vanishing = []
+    for direction in (rotation @ [0.0, 1.0, 0.0], rotation @ [1.0, 0.0, 0.6]):
+        point = np.array([focal * direction[0], focal * direction[1], direction[2]])
+        vanishing.append(point / np.linalg.norm(point))
+    assert _focal_squared(*vanishing) == pytest.approx(focal ** 2)
+    logs, sigmas = [], []
+    for _ in range(200):
+        v_lines, v_lengths = _segments_towards(vanishing[0], vertical_count, noise, rng)
+        h_lines, h_lengths = _segments_towards(vanishing[1], horizontal_count, noise, rng)
+        lines, lengths = np.array(v_lines + h_lines), np.array(v_lengths + h_lengths)
+        is_vertical = np.arange(len(lines)) < vertical_count
+        f2 = _focal_squared(_refine(lines[is_vertical], lengths[is_vertical]),
+                            _refine(lines[~is_vertical], lengths[~is_vertical]))
+        logs.append(0.5 * np.log(f2))
+        sigmas.append(_jackknife_log_sigma(lines, lengths, is_vertical, ~is_vertical))
+    spread = np.std(logs)
+    assert abs(np.mean(logs) - np.log(focal)) < 0.3 * spread  # unbiased
+    assert np.median(sigmas) == pytest.approx(spread, rel=0.25)  # measured within 8%
+
+
+def test_a_frame_whose_segments_leave_the_focal_length_loose_is_left_out():
+    """A still camera's frames repeat the same edges: their agreement says nothing, so one frame's own uncertainty
+    is the estimate's, and frames whose segments hold the focal length loosely do not count."""
+    image, _ = _view(900.0, -0.18)
+    found = frame_vanishing_points(image)
+    assert found.focal == pytest.approx(900.0, rel=0.02) and 0 < found.focal_sigma < 0.05
+    still = estimate_scene_camera([image] * 5)
+    assert still.informative and still.spread == 0.0
+    assert still.log_sigma == pytest.approx(found.focal_sigma)
+    assert still.summary()["log_sigma"] == still.log_sigma
+    strict = estimate_scene_camera([image] * 5, config=SceneLineConfig(max_focal_log_sigma=0.5 * found.focal_sigma))
+    assert strict.focal is None and not strict.informative
+    assert "0 of 5 frames" in strict.reason and "5 more whose segments leave it loose" in strict.reason
+    assert strict.summary()["frames"][0]["focal"] == pytest.approx(found.focal)  # still in the record
+    # Two segments on a point: leaving one out leaves a single line, any point of which would do: unbounded.
+    rng = np.random.default_rng(1)
+    lines = rng.normal(size=(5, 3))
+    lines /= np.linalg.norm(lines, axis=1, keepdims=True)
+    assert _jackknife_log_sigma(lines, np.ones(5), np.arange(5) < 3, np.arange(5) >= 3) == np.inf
 
 
 def test_level_camera_has_an_up_direction_but_no_focal_length():
