@@ -93,6 +93,11 @@ def test_noisy_people_give_the_focal_within_a_few_percent(rng):
     assert "3 people" in estimate.message
     summary = estimate.summary()
     assert summary["informative"] and summary["measured"] == estimate.measured
+    # The same people under a gate tighter than their log-sigma: measured alike, the default kept, and said why.
+    strict = focal_from_planted_feet(people, _vertical(up, focal), default=1101.0,
+                                     config=GroundFocalConfig(max_log_sigma=0.5 * estimate.log_sigma))
+    assert not strict.informative and strict.focal == 1101.0 and strict.measured == pytest.approx(estimate.measured)
+    assert "not informative" in strict.message
 
 
 def test_a_level_camera_or_one_distance_tells_nothing(rng):

@@ -52,7 +52,7 @@ class FocalNode(Node):
     # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction); 5: the people's
     # planted feet (a still camera's focal length where the scene's lines cannot tell); 6: a sampled frame whose
     # vertical vanishing point is another family of edges is left out of a still camera's vertical
-    version = "7"
+    version = "8"
     settings = ("body_model",)
 
     @dataclass
