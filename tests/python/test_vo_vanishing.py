@@ -76,10 +76,9 @@ def test_jackknife_sigma_predicts_the_focal_lengths_spread(vertical_count, horiz
         h_lines, h_lengths = _segments_towards(vanishing[1], horizontal_count, noise, rng)
         lines, lengths = np.array(v_lines + h_lines), np.array(v_lengths + h_lengths)
         is_vertical = np.arange(len(lines)) < vertical_count
-        f2 = _focal_squared(_refine(lines[is_vertical], lengths[is_vertical]),
-                            _refine(lines[~is_vertical], lengths[~is_vertical]))
-        logs.append(0.5 * np.log(f2))
-        sigmas.append(_jackknife_log_sigma(lines, lengths, is_vertical, ~is_vertical))
+        points = _refine(lines[is_vertical], lengths[is_vertical]), _refine(lines[~is_vertical], lengths[~is_vertical])
+        logs.append(0.5 * np.log(_focal_squared(*points)))
+        sigmas.append(_jackknife_log_sigma(lines, lengths, is_vertical, ~is_vertical, *points))
     spread = np.std(logs)
     assert abs(np.mean(logs) - np.log(focal)) < 0.3 * spread  # unbiased
     assert np.median(sigmas) == pytest.approx(spread, rel=0.25)  # measured within 8%
@@ -103,7 +102,8 @@ def test_a_frame_whose_segments_leave_the_focal_length_loose_is_left_out():
     rng = np.random.default_rng(1)
     lines = rng.normal(size=(5, 3))
     lines /= np.linalg.norm(lines, axis=1, keepdims=True)
-    assert _jackknife_log_sigma(lines, np.ones(5), np.arange(5) < 3, np.arange(5) >= 3) == np.inf
+    points = _refine(lines[:3], np.ones(3)), _refine(lines[3:], np.ones(2))
+    assert _jackknife_log_sigma(lines, np.ones(5), np.arange(5) < 3, np.arange(5) >= 3, *points) == np.inf
 
 
 def test_level_camera_has_an_up_direction_but_no_focal_length():

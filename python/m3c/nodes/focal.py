@@ -51,7 +51,9 @@ class FocalNode(Node):
     # 3: the search goes on past an end of its range where the least cost lies near it (max_extension)
     # 4: the scene's vanishing points (focal length where the motion cannot tell, up direction); 5: the people's
     # planted feet (a still camera's focal length where the scene's lines cannot tell); 6: a sampled frame whose
-    # vertical vanishing point is another family of edges is left out of a still camera's vertical
+    # vertical vanishing point is another family of edges is left out of a still camera's vertical; 7: a frame's
+    # scene focal length counts only where its own segments hold it (jackknife), camera.scene.log_sigma; 8: the
+    # people's focal length counts within log-sigma 0.2 (was 0.15)
     version = "8"
     settings = ("body_model",)
 

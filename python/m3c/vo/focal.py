@@ -292,8 +292,9 @@ def estimate_focal_windows(clips: list[tuple[np.ndarray, np.ndarray | None]], wi
 def camera_focal_log_sigma(camera: dict) -> float:
     """The uncertainty in log(focal) of the focal length a camera record (the focal node's output) goes on with:
     0 for given intrinsics; the search's, the scene's lines' (their frames' half-interquartile range over 0.674, or
-    one frame's own where larger: SceneCamera.log_sigma) or the people's (fused with the default, at GroundFocalConfig's default weights) where one of them set it; the
-    spread of real cameras' focal lengths around the default (GroundFocalConfig.prior_log_sigma) otherwise."""
+    one frame's own where larger: SceneCamera.log_sigma) or the people's (fused with the default, at
+    GroundFocalConfig's default weights) where one of them set it; the spread of real cameras' focal lengths around
+    the default (GroundFocalConfig.prior_log_sigma) otherwise."""
     from m3c.vo.ground_focal import GroundFocalConfig
 
     source = camera.get("source")
@@ -302,9 +303,7 @@ def camera_focal_log_sigma(camera: dict) -> float:
     feet = GroundFocalConfig()
     record = {"estimated": camera.get("focal_estimate"), "scene": camera.get("scene"),
               "people": camera.get("feet_focal")}.get(source) or {}
-    if source == "estimated" and record.get("log_sigma") is not None:
-        return float(record["log_sigma"])
-    if source == "scene" and record.get("log_sigma") is not None:
+    if source in ("estimated", "scene") and record.get("log_sigma") is not None:
         return float(record["log_sigma"])
     if source == "scene" and record.get("spread") is not None:  # a record written before log_sigma
         return float(record["spread"]) / 0.674

@@ -48,8 +48,9 @@ class SceneLineConfig:
     frames: frames sampled evenly over the video; min_frames: frames that must give an estimate; max_spread: half
     the interquartile range of the frames' focal lengths over their median above which the estimate is not
     informative; max_focal_log_sigma: a frame's focal length counts only where its supporting segments hold it
-    within this (the jackknife's standard deviation of log f: on the video benchmark's seeds 0, 2 and 4 the ten frames above
-    0.1 were 0.49-0.86x or 1.70-2.46x the true focal length, and seed 9's still camera's six segments put it at 2x); max_image_side: frames are searched for segments at most this large (longer sides are scaled
+    within this (the jackknife's standard deviation of log f: on the video benchmark's seeds 0, 2 and 4 the ten
+    frames above 0.1 were 0.49-0.86x or 1.70-2.46x the true focal length, and seed 9's still camera's six segments
+    put it at 2x); max_image_side: frames are searched for segments at most this large (longer sides are scaled
     down; the geometry stays in the frame's pixels); seed: the RANSAC draws."""
 
     min_length: float = 0.02
@@ -314,34 +315,31 @@ def frame_vanishing_points(gray: np.ndarray, mask: np.ndarray | None = None,
     tilt = np.degrees(np.arctan2(focal * abs(vertical[2]), np.hypot(vertical[0], vertical[1])))
     if tilt >= config.min_camera_tilt:
         out.focal = focal * scale
-        out.focal_sigma = _jackknife_log_sigma(lines, length, v_inliers, h_inliers)
+        out.focal_sigma = _jackknife_log_sigma(lines, length, v_inliers, h_inliers, vertical, horizontal)
     return out
 
 
-def _jackknife_log_sigma(lines: np.ndarray, length: np.ndarray, v_inliers: np.ndarray, h_inliers: np.ndarray
-                         ) -> float:
-    """The jackknife standard deviation of log f over the segments that support the two vanishing points: each
-    left out in turn and both points refitted. A few segments meeting at a narrow angle can put a vanishing point
-    anywhere along their common direction; leaving one out shows it. Infinite where a refit admits no focal length."""
-    v_index, h_index = np.flatnonzero(v_inliers), np.flatnonzero(h_inliers)
-    if min(len(v_index), len(h_index)) < 3:  # one left out leaves a single line: any point on it
+def _jackknife_log_sigma(lines: np.ndarray, length: np.ndarray, v_inliers: np.ndarray, h_inliers: np.ndarray,
+                         vertical: np.ndarray, horizontal: np.ndarray) -> float:
+    """The jackknife standard deviation of log f over the segments that support the two vanishing points (vertical,
+    horizontal: their refits over all of them): each segment left out in turn and its point refitted. A few
+    segments meeting at a narrow angle can put a vanishing point anywhere along their common direction; leaving one
+    out shows it. Infinite where a refit admits no focal length."""
+    groups = ((np.flatnonzero(v_inliers), horizontal), (np.flatnonzero(h_inliers), vertical))
+    if min(len(index) for index, _ in groups) < 3:  # one left out leaves a single line: any point on it
         return math.inf
-    vertical, horizontal = _refine(lines[v_index], length[v_index]), _refine(lines[h_index], length[h_index])
-    logs = []
-    for index, other, is_vertical in ((v_index, horizontal, True), (h_index, vertical, False)):
+    variance = 0.0  # the two groups' jackknife variances, (n - 1) / n sum (x_j - mean)^2, add
+    for index, other in groups:
+        logs = []
         for j in range(len(index)):
             keep = np.delete(index, j)
-            point = _refine(lines[keep], length[keep])
-            f2 = _focal_squared(point, other) if is_vertical else _focal_squared(other, point)
+            f2 = _focal_squared(_refine(lines[keep], length[keep]), other)  # symmetric in its two points
             if not (f2 > 0 and np.isfinite(f2)):
                 return math.inf
             logs.append(0.5 * math.log(f2))
-    # Per group: the jackknife variance (n - 1) / n sum (x_j - mean)^2; the two groups' variances add.
-    var = 0.0
-    for part in (logs[:len(v_index)], logs[len(v_index):]):
-        part = np.asarray(part)
-        var += (len(part) - 1) / len(part) * ((part - part.mean()) ** 2).sum()
-    return float(math.sqrt(var))
+        logs = np.asarray(logs)
+        variance += (len(logs) - 1) / len(logs) * ((logs - logs.mean()) ** 2).sum()
+    return float(math.sqrt(variance))
 
 
 def estimate_scene_camera(frames, masks=None, config: SceneLineConfig | None = None,
