@@ -28,17 +28,11 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from m3c.motion import OptimizerConfig, StageSpec, optimize, track_joints
+from m3c.motion import OptimizerConfig, StageSpec, optimize
 from m3c.testing.torch_objective import StageObjective, TorchState, run_lbfgs
-from optimizer_scene import add_scene_arguments, optimizer_scene
-
-
-def world_error_mm(model, tracks, truth) -> float:
-    return 1000 * float(np.mean([np.linalg.norm(track_joints(model, a) - track_joints(model, b), axis=-1).mean()
-                                 for a, b in zip(tracks, truth)]))
+from optimizer_scene import add_scene_arguments, optimizer_scene, world_error_mm
 
 
 def full_run(model, scene, label, **kwargs) -> None:

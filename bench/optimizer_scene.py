@@ -23,3 +23,13 @@ def optimizer_scene(frames: int, people: int, seed: int):
     scene = make_scene(model, num_people=people, num_frames=frames, seed=seed)
     estimate = estimate_scale(model, scene.init, scene.cameras_vo)
     return model, scene, estimate, rescaled(scene.init, scene.cameras_vo, estimate)
+
+
+def world_error_mm(model, tracks, truth) -> float:
+    """The mean world joint error of the tracks against the truth, person by person, mm."""
+    import numpy as np
+
+    from m3c.motion import track_joints
+
+    return 1000 * float(np.mean([np.linalg.norm(track_joints(model, a) - track_joints(model, b), axis=-1).mean()
+                                 for a, b in zip(tracks, truth)]))
