@@ -35,6 +35,7 @@ void BindMotion(py::module_& m) {
       .def_readwrite("contact_velocity_sigma", &OptimizerConfig::contact_velocity_sigma)
       .def_readwrite("upright_sigma", &OptimizerConfig::upright_sigma)
       .def_readwrite("min_depth", &OptimizerConfig::min_depth)
+      .def_readwrite("well_seen_keypoints", &OptimizerConfig::well_seen_keypoints)
       .def_readwrite("optimize_offset", &OptimizerConfig::optimize_offset)
       .def_readwrite("world_check", &OptimizerConfig::world_check)
       .def_readwrite("max_world_increase", &OptimizerConfig::max_world_increase)

@@ -266,14 +266,17 @@ bool LogPriorCost::Evaluate(double const* const* parameters, double* residuals, 
   return true;
 }
 
-BlockDifferenceCost::BlockDifferenceCost(int size, double weight) : sqrt_weight_(std::sqrt(weight)) {
+BlockDifferenceCost::BlockDifferenceCost(int size, double weight, Eigen::VectorXd target)
+    : sqrt_weight_(std::sqrt(weight)), target_(target.size() > 0 ? std::move(target) : Eigen::VectorXd::Zero(size)) {
+  M3C_CHECK(weight >= 0) << "weight must be >= 0";
+  M3C_CHECK(target_.size() == size) << "target of size " << target_.size() << " for blocks of size " << size;
   set_num_residuals(size);
   mutable_parameter_block_sizes()->assign({size, size});
 }
 
 bool BlockDifferenceCost::Evaluate(double const* const* parameters, double* residuals, double** jacobians) const {
   const int n = num_residuals();
-  for (int i = 0; i < n; ++i) residuals[i] = sqrt_weight_ * (parameters[1][i] - parameters[0][i]);
+  for (int i = 0; i < n; ++i) residuals[i] = sqrt_weight_ * (parameters[1][i] - parameters[0][i] - target_[i]);
   if (jacobians) {
     if (jacobians[0]) Eigen::Map<RowMatrixXd>(jacobians[0], n, n) = -sqrt_weight_ * RowMatrixXd::Identity(n, n);
     if (jacobians[1]) Eigen::Map<RowMatrixXd>(jacobians[1], n, n) = sqrt_weight_ * RowMatrixXd::Identity(n, n);

@@ -175,14 +175,16 @@ class RayAccelerationCost : public ceres::SizedCostFunction<1, 3, 3, 3> {
   Eigen::Vector3d ray_;
 };
 
-// sqrt(weight) (x_b - x_a) for two blocks of equal size (temporal smoothness of a parameter block).
+// sqrt(weight) (x_b - x_a - target) for two blocks of equal size: temporal smoothness of a parameter block
+// (target zero) or a step held to a given one (target of that size).
 class BlockDifferenceCost : public ceres::CostFunction {
  public:
-  BlockDifferenceCost(int size, double weight);
+  BlockDifferenceCost(int size, double weight, Eigen::VectorXd target = Eigen::VectorXd());
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   double sqrt_weight_;
+  Eigen::VectorXd target_;
 };
 
 }  // namespace m3c::motion

@@ -69,6 +69,9 @@ struct OptimizerConfig {
   double contact_velocity_sigma = 0.02;
   double upright_sigma = 0.2;  // Geman-McClure scale of "upright", metres of the spine across the up direction
   double min_depth = 0.05;            // metres in front of the camera
+  // A frame with at least this many keypoints of confidence >= min_confidence is well seen; "end_motion_anchor"
+  // holds the steps of a track's frames before its first and after its last well-seen frame.
+  int well_seen_keypoints = 12;
   bool optimize_offset = false;       // a shared camera translation offset (off: people's translations cover it)
   // A stage must not make the world worse: after each stage the world check (these terms at these weights,
   // evaluated over every person and frame: the images, jitter, planted feet, the ground) is compared with its

@@ -84,9 +84,9 @@ def test_default_stage_terms_match_torch(model, scene, stage_name):
     assert sorted(stage.terms) == sorted(expected)
     for term, (before, _) in stage.terms.items():
         assert before == pytest.approx(expected[term], rel=RTOL, abs=1e-12), term
-        # Every term is active at this state, so the comparison says something; the anchor is zero at the start
-        # (its centre is the tracks' pose) and is compared after Ceres steps below.
-        assert before > 0 or term == "pose_anchor", term
+        # Every term is active at this state, so the comparison says something; the anchors are zero at the start
+        # (their centres are the tracks' own) and are compared after Ceres steps below.
+        assert before > 0 or term in ("pose_anchor", "end_motion_anchor"), term
     assert stage.objective_before == pytest.approx(sum(expected.values()), rel=RTOL)
 
 
@@ -244,6 +244,41 @@ def test_heading_anchor_after_ceres_steps(model, scene):
     heavy.world_check = {}
     held = optimize(model, tracks, scene.cameras_vo, heavy)
     assert torch_terms(objective, held.tracks, 1.0)["heading_anchor"] < 0.5 * end["heading_anchor"]
+
+
+def test_end_motion_anchor_after_ceres_steps(model):
+    """end_motion_anchor holds the root's steps in each track's open ends (before the first and after the last
+    frame with well_seen_keypoints keypoints) to the tracks' own, weighted by the keypoints a frame lacks: zero at
+    the start, so both sides are compared at the state Ceres reaches from perturbed tracks."""
+    scene = make_scene(model, num_people=2, num_frames=20, seed=3, drop_rate=0.0)  # its occlusion gap is inside
+    tracks = perturbed(scene.init, seed=8)
+    hidden = []
+    for k, t in enumerate(tracks):
+        kp = t.keypoints.copy()
+        kp[:, :, 2] = np.where(kp[:, :, 2] > 0, np.maximum(kp[:, :, 2], 0.7), 0.0)  # dropped frames stay dropped
+        kp[: 2 + k, :, 2] = 0.0         # no keypoints at the start
+        kp[2 + k, 6:, 2] = 0.0          # then six
+        kp[-2:, 3 * k:, 2] = 0.1        # few confident ones at the end
+        hidden.append(dataclasses.replace(t, keypoints=kp))
+    weights = {"reprojection": 1e-3, "joint_acceleration": 30.0, "end_motion_anchor": 7.0}
+    config = single_stage(StageSpec("ends", ["transl", "root"], weights), 5, well_seen_keypoints=10)
+    config.world_check = {}
+    res = optimize(model, hidden, scene.cameras_vo, config)
+    stage = res.stages[0]
+    assert stage.status == "ok" and stage.iterations > 0, stage.message
+    objective = StageObjective(model, hidden, scene.cameras_vo, config, config.stages[0])
+    # Track 0: frames 0-1 none of 10, frame 2 six (lacks 0.4), the last two none; track 1: frames 0-2 none,
+    # frame 3 six, the last two three (0.7).
+    assert objective.end_weights.numpy().round(6).tolist() == [1.0, 1.0, 0.4, 1.0, 1.0, 1.0, 1.0, 1.0, 0.4, 0.7, 0.7]
+    start, end = torch_terms(objective, hidden, 1.0), torch_terms(objective, res.tracks, 1.0)
+    assert sorted(stage.terms) == sorted(weights) and start["end_motion_anchor"] < 1e-20 < end["end_motion_anchor"]
+    for term, (before, after) in stage.terms.items():
+        assert before == pytest.approx(start[term], rel=RTOL, abs=1e-12), term
+        assert after == pytest.approx(end[term], rel=1e-8), term
+    # Another threshold reads other frames: the setting is used on both sides.
+    other = single_stage(config.stages[0], 0, well_seen_keypoints=17)
+    np.testing.assert_allclose(StageObjective(model, hidden, scene.cameras_vo, other, other.stages[0]).end_weights,
+                               [1, 1, 11 / 17, 1, 1, 1, 1, 1, 11 / 17, 14 / 17, 14 / 17], rtol=1e-12)
 
 
 def test_lbfgs_baseline_lowers_the_stage_objective(model, scene):

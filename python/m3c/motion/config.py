@@ -35,6 +35,11 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
                     the pelvis-to-neck vector N_t - R_t across the person's ground normal (P projects onto the
                     ground's plane), the spine's lean off the vertical, robust so that a person bending over pulls
                     with a bounded force
+  end_motion_anchor sum_f lack_f |(T_f - T_g) - (T0_f - T0_g)|^2 over a track's open ends, the frames f before its
+                    first and after its last well-seen frame (well_seen_keypoints keypoints of confidence >=
+                    min_confidence), g the neighbour towards the well-seen frames, T the root translation, T0 the
+                    lift's, lack_f = 1 - (f's keypoints) / well_seen_keypoints: there the acceleration terms alone
+                    would continue the well-seen frames' motion at constant velocity; the lift's steps hold it
   scale_prior       ((log s - log s0) / sigma)^2: the camera scale s held to the scale estimator's s0 within its
                     uncertainty sigma (Cameras.initial_scale, scale_sigma; no residual without sigma)
 Terms that need network weights (`optimize(pose_prior=..., motion_prior=...)`; a stage reports them
@@ -77,6 +82,7 @@ class OptimizerConfig:
     contact_velocity_sigma: float = 0.02
     upright_sigma: float = 0.2
     min_depth: float = 0.05
+    well_seen_keypoints: int = 12
     optimize_offset: bool = False
     # After each stage the world check (these terms at these weights over every person and frame) is compared
     # with its value before; a stage that raised it by more than max_world_increase (relative) is reverted.
@@ -102,6 +108,9 @@ class OptimizerConfig:
         would abort the process on num_threads < 1)."""
         if isinstance(self.num_threads, bool) or not isinstance(self.num_threads, Integral) or self.num_threads < 1:
             raise ValueError(f"num_threads must be an integer >= 1, got {self.num_threads!r}")
+        if isinstance(self.well_seen_keypoints, bool) or not isinstance(self.well_seen_keypoints, Integral) \
+                or self.well_seen_keypoints < 1:
+            raise ValueError(f"well_seen_keypoints must be an integer >= 1, got {self.well_seen_keypoints!r}")
         for key in ("robust_sigma", "min_depth", "upright_sigma"):
             value = getattr(self, key)
             if not (isinstance(value, Real) and math.isfinite(value) and value > 0):

@@ -29,7 +29,7 @@ from m3c.motion.optimize import Cameras, Track
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness", "joint_acceleration", "root_acceleration", "ray_acceleration", "contact_velocity",
-               "contact_height", "motion_prior", "scale_prior", "upright", "heading_anchor")
+               "contact_height", "motion_prior", "scale_prior", "upright", "heading_anchor", "end_motion_anchor")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -239,6 +239,25 @@ class StageObjective:
         self.heading_reference = level / level.norm(dim=-1, keepdim=True).clamp(min=1e-12)
         self.ground_offset_cam = as_t(offset_cam / norm)
 
+        # end_motion_anchor's steps: (row f, row g of its neighbour towards the well-seen frames, weight = the share
+        # of well_seen_keypoints that f lacks, the tracks' own step T0_f - T0_g) in each track's open ends.
+        end_f, end_g, end_w, end_step = [], [], [], []
+        for t, a in zip(tracks, starts):
+            kp = np.asarray(t.keypoints, dtype=np.float64).reshape(t.num_frames, -1, 3)
+            seen = (kp[..., 2] >= config.min_confidence).sum(-1)
+            good = np.flatnonzero(seen >= config.well_seen_keypoints)
+            first, last = (good[0], good[-1]) if len(good) else (t.num_frames, -1)
+            for f in range(t.num_frames):
+                g = f + 1 if f < first else f - 1
+                lack = 1.0 - seen[f] / config.well_seen_keypoints
+                if first <= f <= last or lack <= 0 or not 0 <= g < t.num_frames:
+                    continue
+                end_f.append(a + f), end_g.append(a + g), end_w.append(lack)
+                end_step.append(np.asarray(t.transl[f], dtype=np.float64) - np.asarray(t.transl[g], dtype=np.float64))
+        self.end_rows = (torch.as_tensor(end_f, dtype=torch.long), torch.as_tensor(end_g, dtype=torch.long))
+        self.end_weights = as_t(np.asarray(end_w, dtype=np.float64))
+        self.end_steps = as_t(np.asarray(end_step, dtype=np.float64).reshape(-1, 3))
+
         self.tracks = tracks
         self.track_starts = starts
         self.start = start if start is not None else TorchState.from_tracks(tracks, cameras.initial_scale,
@@ -369,6 +388,10 @@ class StageObjective:
                 turn = torch.atan2((torch.linalg.cross(self.heading_reference, level) * up).sum(-1),
                                    (self.heading_reference * level).sum(-1))
                 out[term] = 0.5 * w * (self.heading_rows * turn ** 2).sum()
+            elif term == "end_motion_anchor":
+                f, g = self.end_rows
+                steps = state.transl[f] - state.transl[g] - self.end_steps
+                out[term] = 0.5 * w * (self.end_weights * (steps ** 2).sum(-1)).sum()
             elif term == "motion_prior":
                 total = joints.new_zeros(())
                 for rows, R, t, levels in self.motion_blocks:

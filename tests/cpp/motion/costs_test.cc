@@ -179,6 +179,15 @@ TEST(Costs, PriorsJacobians) {
   EXPECT_TRUE(CheckGradient(prior, {x.data()}));
   BlockDifferenceCost diff(4, 2.5);
   EXPECT_TRUE(CheckGradient(diff, {x.data(), y.data()}));
+  // A step held to a target: sqrt(weight) (y - x - target).
+  const Eigen::Vector4d target(0.5, -1.0, 0.25, 3.0);
+  BlockDifferenceCost held(4, 2.5, target);
+  EXPECT_TRUE(CheckGradient(held, {x.data(), y.data()}));
+  const double* params[] = {x.data(), y.data()};
+  double r[4];
+  ASSERT_TRUE(held.Evaluate(params, r, nullptr));
+  for (int i = 0; i < 4; ++i) EXPECT_NEAR(r[i], std::sqrt(2.5) * (y[i] - x[i] - target[i]), 1e-14);
+  EXPECT_THROW(BlockDifferenceCost(4, 1.0, Eigen::Vector3d::Zero()), std::invalid_argument);
 }
 
 TEST(Costs, LogPriorValueJacobianAndDomain) {
