@@ -514,10 +514,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           }
         }
         for (int f = 0; f < n; ++f) {
-          if (f >= first_good && f <= last_good) continue;
+          if (f >= first_good && f <= last_good) continue;  // outside, every frame lacks keypoints: lack > 0
           const double lack = 1.0 - static_cast<double>(seen[f]) / config_.well_seen_keypoints;
-          const int g = f < first_good ? f + 1 : f - 1;  // the neighbour towards the well-seen frames
-          if (lack <= 0.0 || g < 0 || g >= n) continue;
+          // The neighbour towards the well-seen frames; past the last frame only where no frame is well seen.
+          const int g = f < first_good ? f + 1 : f - 1;
+          if (g >= n) continue;
           const Eigen::Vector3d step = (tr.transl.row(f) - tr.transl.row(g)).transpose();
           problem->AddResidualBlock(new BlockDifferenceCost(3, weight * lack, step), nullptr, vars.transl[i][g],
                                     vars.transl[i][f]);

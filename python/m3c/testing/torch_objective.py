@@ -241,7 +241,7 @@ class StageObjective:
 
         # end_motion_anchor's steps: (row f, row g of its neighbour towards the well-seen frames, weight = the share
         # of well_seen_keypoints that f lacks, the tracks' own step T0_f - T0_g) in each track's open ends.
-        end_f, end_g, end_w, end_step = [], [], [], []
+        end_f, end_g, end_w = [], [], []
         for t, a in zip(tracks, starts):
             kp = np.asarray(t.keypoints, dtype=np.float64).reshape(t.num_frames, -1, 3)
             seen = (kp[..., 2] >= config.min_confidence).sum(-1)
@@ -249,14 +249,14 @@ class StageObjective:
             first, last = (good[0], good[-1]) if len(good) else (t.num_frames, -1)
             for f in range(t.num_frames):
                 g = f + 1 if f < first else f - 1
-                lack = 1.0 - seen[f] / config.well_seen_keypoints
-                if first <= f <= last or lack <= 0 or not 0 <= g < t.num_frames:
-                    continue
-                end_f.append(a + f), end_g.append(a + g), end_w.append(lack)
-                end_step.append(np.asarray(t.transl[f], dtype=np.float64) - np.asarray(t.transl[g], dtype=np.float64))
+                if not first <= f <= last and g < t.num_frames:  # outside, every frame lacks keypoints
+                    end_f.append(a + f)
+                    end_g.append(a + g)
+                    end_w.append(1.0 - seen[f] / config.well_seen_keypoints)
         self.end_rows = (torch.as_tensor(end_f, dtype=torch.long), torch.as_tensor(end_g, dtype=torch.long))
         self.end_weights = as_t(np.asarray(end_w, dtype=np.float64))
-        self.end_steps = as_t(np.asarray(end_step, dtype=np.float64).reshape(-1, 3))
+        start_transl = np.concatenate([np.asarray(t.transl, dtype=np.float64).reshape(-1, 3) for t in tracks])
+        self.end_steps = as_t((start_transl[end_f] - start_transl[end_g]).reshape(-1, 3))
 
         self.tracks = tracks
         self.track_starts = starts
