@@ -112,6 +112,10 @@ def test_config_yaml_round_trip_and_validation(tmp_path):
         OptimizerConfig(stages=[StageSpec("x", ["translation"], {"reprojection": 1.0})]).to_core()
     with pytest.raises(ValueError, match="unknown optimizer settings"):
         OptimizerConfig.from_yaml("robust_sigmaa: 3\n")
+    for bad in ("0", "2.5", "true"):  # a keypoint count: an integer >= 1
+        with pytest.raises(ValueError, match="well_seen_keypoints must be an integer"):
+            OptimizerConfig.from_yaml(f"well_seen_keypoints: {bad}\n")
+    assert OptimizerConfig.from_yaml("well_seen_keypoints: 8\n").to_core().well_seen_keypoints == 8
 
 
 def test_bad_inputs_raise_clear_errors(model, scene):
