@@ -59,7 +59,8 @@ void BindMotion(py::module_& m) {
       .def_readwrite("ground_normal", &TrackInput::ground_normal)
       .def_readwrite("ground_offset", &TrackInput::ground_offset)
       .def_readwrite("contacts", &TrackInput::contacts)
-      .def_readwrite("ground_contacts", &TrackInput::ground_contacts);
+      .def_readwrite("ground_contacts", &TrackInput::ground_contacts)
+      .def_readwrite("contact_heights", &TrackInput::contact_heights);
   py::class_<CameraInput>(m, "CameraInput")
       .def(py::init<>())
       .def_readwrite("world_from_cam", &CameraInput::world_from_cam)

@@ -193,14 +193,19 @@ bool UprightCost::Evaluate(double const* const* parameters, double* residuals, d
 
 ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
                                      std::vector<double> point_weights, const FrameCamera& camera,
-                                     Eigen::Vector3d normal_in_cam, double offset_in_cam, double tolerance)
+                                     Eigen::Vector3d normal_in_cam, double offset_in_cam, double tolerance,
+                                     std::vector<double> point_heights, bool below_only)
     : model_(model),
       regressor_(regressor),
+      heights_(point_heights.empty() ? std::vector<double>(regressor->num_keypoints(), 0.0) : std::move(point_heights)),
       normal_in_world_(camera.cam_from_world_rotation.transpose() * normal_in_cam.normalized()),
       centre_in_world_(camera.centre_in_world),
       offset_in_cam_(offset_in_cam / normal_in_cam.norm()),
-      tolerance_(tolerance) {
+      tolerance_(tolerance),
+      below_only_(below_only) {
   M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
+  M3C_CHECK(static_cast<int>(heights_.size()) == regressor->num_keypoints()) << "one height per point, or none";
+  for (double h : heights_) M3C_CHECK(std::isfinite(h)) << "contact point heights must be finite";
   M3C_CHECK(normal_in_cam.norm() > 1e-6 && std::isfinite(offset_in_cam))
       << "ground plane must have a nonzero normal and a finite offset";
   for (double w : point_weights) sqrt_weights_.push_back(std::sqrt(std::max(w, 0.0)));
@@ -223,11 +228,11 @@ bool ContactHeightCost::Evaluate(double const* const* parameters, double* residu
     }
   }
   for (int k = 0; k < K; ++k) {
-    const double height = n.dot(p.point(k)) + d;
-    const double excess = std::abs(height) - tolerance_;
+    const double height = n.dot(p.point(k)) + d - heights_[k];
+    const double excess = (below_only_ ? -height : std::abs(height)) - tolerance_;
     residuals[k] = excess > 0 ? sqrt_weights_[k] * excess : 0.0;
     if (!jacobians || excess <= 0) continue;
-    const double a = sqrt_weights_[k] * (height >= 0 ? 1.0 : -1.0);
+    const double a = sqrt_weights_[k] * (height >= 0 && !below_only_ ? 1.0 : -1.0);
     const RowMatrixXd M = a * n.transpose();
     for (int blk = 0; blk < 4; ++blk) {
       if (jacobians[blk]) ChainPointJacobian(M, p, k, blk, jacobians[blk], k, 1.0);

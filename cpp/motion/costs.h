@@ -122,21 +122,26 @@ class HeadingAnchorCost {
 // Contact height against the person's ground plane, given in the frame's camera coordinates (metric, as a
 // camera-local estimate measures it): n_c.x_cam + d_c = 0. In the world it is n.x + d = 0 with n = R_wc n_c and
 // d = d_c - n.(scale * centre + offset), so the plane moves with the camera scale and the camera height above
-// the ground becomes a metric cue. r_k = sqrt(w_k) max(0, |n.p_k + d| - tolerance).
+// the ground becomes a metric cue. r_k = sqrt(w_k) max(0, |n.p_k + d - h_k| - tolerance), h_k the point's height
+// above the ground when it stands on it (a joint's height above the sole: the ankle's is about 7 cm). below_only:
+// r_k = sqrt(w_k) max(0, h_k - (n.p_k + d) - tolerance), the point's depth under its standing height (a foot
+// through the floor), nothing above it.
 // Blocks: transl, root, body, betas, scale, offset. Residuals: K.
 class ContactHeightCost : public ceres::CostFunction {
  public:
   ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
                     std::vector<double> point_weights, const FrameCamera& camera, Eigen::Vector3d normal_in_cam,
-                    double offset_in_cam, double tolerance);
+                    double offset_in_cam, double tolerance, std::vector<double> point_heights = {},
+                    bool below_only = false);
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   const body::BodyModel* model_;
   const body::KeypointRegressor* regressor_;
-  std::vector<double> sqrt_weights_;
+  std::vector<double> sqrt_weights_, heights_;
   Eigen::Vector3d normal_in_world_, centre_in_world_;
   double offset_in_cam_, tolerance_;
+  bool below_only_;
 };
 
 // sqrt(weight) (x - mean): Gaussian priors on one block (shape prior with mean 0, L2 pose prior).

@@ -34,6 +34,10 @@ struct TrackInput {
   // feet (contact_velocity holds them still) are more than those standing on the ground: a monocular fit's
   // lifting heel may be planted, and pulling it down sinks the body.
   RowMatrixXd ground_contacts;
+  // (C) each contact point's height above the ground when it stands on it (a joint's height above the sole in
+  // the rest pose: the ankle's about 7 cm, the toes' joint 2.5): contact_height holds planted points there and
+  // ground_penetration keeps every point above it; empty: 0.
+  Eigen::VectorXd contact_heights;
 };
 
 struct CameraInput {
@@ -63,7 +67,8 @@ struct OptimizerConfig {
   double robust_sigma = 100.0;        // Geman-McClure scale, pixels
   double min_confidence = 0.4;        // keypoints below it are ignored (SLAHMR)
   double contact_threshold = 0.5;     // contact probability that activates contact terms
-  double contact_height_tolerance = 0.08;  // metres above/below the plane allowed for a contact joint
+  // Metres above/below its standing height (TrackInput::contact_heights) allowed for a planted contact point.
+  double contact_height_tolerance = 0.03;
   // Geman-McClure scale of "contact_velocity", metres per frame step (0: plain squares): a foot labelled planted
   // that moves much faster (a mislabelled swing) pulls with a bounded force.
   double contact_velocity_sigma = 0.02;

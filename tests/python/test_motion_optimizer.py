@@ -425,3 +425,41 @@ def test_end_motion_anchor_holds_a_hidden_track_start(model):
     assert errors[0.0][0] > 5 * errors[100.0][0] and errors[100.0][0] < 0.15, errors
     assert abs(errors[100.0][1] - errors[0.0][1]) < 0.01, errors
 
+
+
+def test_feet_stand_on_the_floor_not_through_it(model, scene):
+    """The scene's walkers stand with the lower foot's joint at its standing height above the ground (the sole on
+    it). Sunk 8 cm, ground_penetration lifts each frame just enough that no contact joint is below its standing
+    height; contact_height holds the planted feet at their standing heights (within its tolerance), not at the
+    sole's plane."""
+    from m3c.body.joint_names import CONTACT_JOINTS
+    from m3c.perception.contacts import contact_rest_heights
+
+    def heights(tracks):  # (frames, 4) contact joints' heights above their standing heights, all tracks
+        return np.concatenate([track_joints(model, t)[:, list(CONTACT_JOINTS), 1] - contact_rest_heights(model, t.betas)
+                               for t in tracks])
+
+    truth = [dataclasses.replace(t, ground_normal=i.ground_normal, ground_offset=i.ground_offset)
+             for t, i in zip(scene.truth, scene.init)]  # planes in the cameras, as the optimizer takes them
+    assert heights(truth)[:, 2:].min(axis=1) == pytest.approx(0.0, abs=1e-9)  # the lower foot on the floor
+    sunk = [dataclasses.replace(t, transl=t.transl - [0.0, 0.08, 0.0]) for t in truth]
+    for term in ("ground_penetration", "contact_height"):
+        config = OptimizerConfig.default()
+        config.contact_height_tolerance = 0.0
+        config.stages, config.world_check = [StageSpec(term, ["transl"], {term: 100.0}, 30)], {}
+        res = optimize(model, sunk, scene.cameras_true, config)
+        assert res.stages[0].status == "ok", res.stages[0].message
+        lift = np.concatenate([r.transl[:, 1] - s.transl[:, 1] for r, s in zip(res.tracks, sunk)])
+        if term == "ground_penetration":
+            # Nothing under the floor, and no frame lifted further than that takes (8 cm, or more where the
+            # synthetic model's ankle dips under its standing height).
+            assert heights(res.tracks).min() > -1e-3
+            needed = np.maximum(0.0, -heights(sunk).min(axis=1))
+            np.testing.assert_allclose(lift, needed, atol=2e-3)
+            assert needed.min() >= 0.08 - 1e-9
+        else:
+            # The planted feet, sunk 3.5-8 cm under their standing heights, back at them (within 1 cm); nothing
+            # pushes a body down.
+            planted = np.concatenate([t.contacts for t in truth]) > 0.5
+            assert heights(sunk)[planted].max() < -0.03
+            assert np.abs(heights(res.tracks)[planted]).max() < 0.01 and lift.min() > -1e-6

@@ -19,6 +19,7 @@ from m3c.body import BodyModel
 from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.camera import UP, look_at, world_to_image
 from m3c.motion import Cameras, Track, track_joints
+from m3c.perception.contacts import contact_rest_heights
 
 def walking_pose(phase: np.ndarray, num_joints: int = 24) -> np.ndarray:
     """Body pose (n, J-1, 3) of a walking cycle at the given phases (radians)."""
@@ -58,10 +59,6 @@ def make_scene(model: BodyModel, num_people: int = 2, num_frames: int = 60, fps:
     intrinsics = np.array([f, f, W / 2, H / 2])
     regressor = model.coco17_regressor()
     t = np.arange(num_frames) / fps
-
-    # Standing heights: put the rest feet on the ground.
-    rest = model.joints(np.zeros((1, model.num_joints, 3)), np.zeros(model.num_betas))[0]
-    foot_height = rest[list(CONTACT_JOINTS), 1].min()
 
     truth = []
     for p in range(num_people):
@@ -130,10 +127,12 @@ def make_scene(model: BodyModel, num_people: int = 2, num_frames: int = 60, fps:
 def _planted_root_path(model: BodyModel, root: np.ndarray, body: np.ndarray, betas: np.ndarray,
                        start: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Root translations that keep one foot joint planted: the body moves because the stance joint, fixed on the
-    ground, pushes it, and the lowest joint touches y = 0. Returns (transl n x 3, contacts n x 4), where
-    contacts[i] marks the joint held still between frames i and i + 1 (the ground-truth contact labels)."""
+    ground, pushes it, and the lower foot stands on y = 0 (its joint at its standing height above the sole,
+    contact_rest_heights). Returns (transl n x 3, contacts n x 4), where contacts[i] marks the joint held still
+    between frames i and i + 1 (the ground-truth contact labels)."""
     pose = np.concatenate([root[:, None], body], axis=1)
-    local = model.joints(pose, betas)[:, list(CONTACT_JOINTS)]  # root at the origin
+    # Contact joints relative to their standing heights, root at the origin.
+    local = model.joints(pose, betas)[:, list(CONTACT_JOINTS)] - contact_rest_heights(model, betas)[:, None] * UP
     n = len(root)
     transl = np.zeros((n, 3))
     contacts = np.zeros((n, len(CONTACT_JOINTS)))
@@ -144,6 +143,8 @@ def _planted_root_path(model: BodyModel, root: np.ndarray, body: np.ndarray, bet
         transl[i, [0, 2]] = transl[i - 1, [0, 2]] + local[i - 1, stance, [0, 2]] - local[i, stance, [0, 2]]
         contacts[i - 1, stance] = 1.0
     contacts[n - 1] = contacts[n - 2] if n > 1 else 0.0
-    # Vertical: the lower foot on the ground, so the stance foot is (nearly) still vertically too.
+    # Vertical: the lower foot joint at its standing height (the foot on the ground), so the stance foot is
+    # (nearly) still vertically too. (Placing the lowest of all four contact joints there instead lifts the stance
+    # foot whenever the synthetic model's ankle dips, and the scale estimator's planted feet read 10% long.)
     transl[:, 1] = -local[:, feet, 1].min(axis=1)
     return transl, contacts

@@ -28,9 +28,12 @@ Each stage frees some parameter groups (transl, root, body, betas, scale, offset
   contact_velocity  sum_feet c |x_{t+1} - x_t|^2 where contact probability c >= contact_threshold; with
                     contact_velocity_sigma > 0 (metres per frame step) robust, c GM(|x_{t+1} - x_t|^2), so that a
                     foot wrongly labelled planted (a swing) pulls with a bounded force
-  contact_height    sum_feet c max(0, |n.x + d| - contact_height_tolerance)^2 against the person's ground, c the
-                    probabilities of Track.ground_contacts (the feet surely on the ground) where given, else
-                    of its contacts
+  contact_height    sum_feet c max(0, |n.x + d - h| - contact_height_tolerance)^2 against the person's ground, h
+                    the joint's standing height (above the sole in the rest pose: ankle about 7 cm, toes 2.5;
+                    m3c.perception.contacts.contact_rest_heights), c the probabilities of Track.ground_contacts
+                    (the feet surely on the ground) where given, else of its contacts
+  ground_penetration sum_t sum_feet max(0, h - (n.x + d))^2 over every frame with a ground plane: no contact
+                    joint below its standing height (a foot through the floor), planted or not
   upright           sum_t GM(|P (N_t - R_t)|^2), GM(s) = sigma^2 s / (sigma^2 + s), sigma = upright_sigma metres:
                     the pelvis-to-neck vector N_t - R_t across the person's ground normal (P projects onto the
                     ground's plane), the spine's lean off the vertical, robust so that a person bending over pulls
@@ -78,7 +81,7 @@ class OptimizerConfig:
     robust_sigma: float = 100.0
     min_confidence: float = 0.4
     contact_threshold: float = 0.5
-    contact_height_tolerance: float = 0.08
+    contact_height_tolerance: float = 0.03
     contact_velocity_sigma: float = 0.02
     upright_sigma: float = 0.2
     min_depth: float = 0.05

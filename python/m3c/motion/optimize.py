@@ -12,6 +12,7 @@ from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.camera import WorldCameras
 from m3c.motion.config import OptimizerConfig
 from m3c.nn import HumorPrior, VPoser
+from m3c.perception.contacts import contact_rest_heights
 
 
 
@@ -24,7 +25,8 @@ class Track:
     person's ground plane n.x + d = 0 in each frame's CAMERA coordinates, metric, as a camera-local estimate
     gives it: it moves with the camera scale the optimizer estimates), contacts n x 4 probabilities for
     CONTACT_JOINTS (planted: contact_velocity holds them still), ground_contacts n x 4 (those surely on the ground,
-    which contact_height pulls onto it; None: contacts).
+    which contact_height pulls onto it, each joint to its height above the sole in the rest pose at the track's
+    betas, m3c.perception.contacts.contact_rest_heights; None: contacts).
     """
 
     first_frame: int
@@ -126,6 +128,7 @@ def _to_core_track(track: Track, model: BodyModel, num_keypoints: int) -> "_core
         core.contacts = _matrix(track.contacts, n, len(CONTACT_JOINTS), "contacts")
         if track.ground_contacts is not None:
             core.ground_contacts = _matrix(track.ground_contacts, n, len(CONTACT_JOINTS), "ground_contacts")
+    core.contact_heights = contact_rest_heights(model, core.betas)
     return core
 
 
@@ -163,11 +166,9 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
         if times.shape != (T,) or not np.isfinite(times).all() or (np.diff(times) <= 0).any():
             raise ValueError(f"times must be T={T} finite, increasing frame times in seconds, got shape {times.shape}")
         core_cams.times = list(times)
-    contact_regressor = None
-    if any(t.contacts is not None for t in tracks):
-        jw = np.zeros((len(CONTACT_JOINTS), model.num_joints))
-        jw[np.arange(len(CONTACT_JOINTS)), list(CONTACT_JOINTS)] = 1.0
-        contact_regressor = model.regressor(joint_weights=jw)
+    jw = np.zeros((len(CONTACT_JOINTS), model.num_joints))  # the contact points: CONTACT_JOINTS
+    jw[np.arange(len(CONTACT_JOINTS)), list(CONTACT_JOINTS)] = 1.0
+    contact_regressor = model.regressor(joint_weights=jw)
     core_tracks = [_to_core_track(t, model, K) for t in tracks]
     if motion_prior is not None and not isinstance(motion_prior, HumorPrior):
         motion_prior = HumorPrior(motion_prior)

@@ -94,9 +94,10 @@ class OptimizeNode(Node):
     stages (per stage: name, status, message, iterations, objective_before, objective_after, terms {term: [before,
     after]}), stopped_early, optimized (False when disabled)."""
 
-    version = "7"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on
+    version = "8"  # 2: cameras (WorldCameras) replace the metric world_from_cam; 3: contact_height on
     # ground_contacts; 4: the default recipe's joint_acceleration 10 -> 30; 5: walking_heading; 6: its gait needs
-    # the track to travel (m3c.eval.plausibility.GAIT_MIN_TRAVEL_MPS); 7: end_motion_anchor in the default recipe
+    # the track to travel (m3c.eval.plausibility.GAIT_MIN_TRAVEL_MPS); 7: end_motion_anchor in the default recipe;
+    # 8: contact_height holds each contact joint at its rest height above the sole, not at the sole
     type_name = "optimize"
     level = "track"
     inputs = ("video", "camera", "world")

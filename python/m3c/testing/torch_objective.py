@@ -26,10 +26,12 @@ from m3c.body.torch_lbs import axis_angle_to_matrix
 from m3c.motion.config import OptimizerConfig, StageSpec
 from m3c.body.joint_names import CONTACT_JOINTS, SMPL_JOINT_NAMES
 from m3c.motion.optimize import Cameras, Track
+from m3c.perception.contacts import contact_rest_heights
 
 TORCH_TERMS = ("reprojection", "shape_prior", "pose_prior", "latent_smoothness", "pose_anchor", "pose_smoothness",
                "joint_smoothness", "joint_acceleration", "root_acceleration", "ray_acceleration", "contact_velocity",
-               "contact_height", "motion_prior", "scale_prior", "upright", "heading_anchor", "end_motion_anchor")
+               "contact_height", "motion_prior", "scale_prior", "upright", "heading_anchor", "end_motion_anchor",
+               "ground_penetration")
 # The C++ level of each HuMoR block sits this many nats below its NLL at the stage's start.
 MOTION_PRIOR_LEVEL_DROP = 100.0
 
@@ -209,6 +211,7 @@ class StageObjective:
         # Contact weights (probability where it reaches the threshold) and ground planes in the world.
         contacts = np.zeros((len(rows), len(CONTACT_JOINTS)))
         on_ground = np.zeros_like(contacts)  # contact_height's points: ground_contacts where given
+        rest_heights = np.zeros_like(contacts)  # each contact joint's height above the sole at rest
         has_ground = np.zeros(len(rows), dtype=bool)
         normal_cam = np.tile([0.0, 0.0, 1.0], (len(rows), 1))
         offset_cam = np.zeros(len(rows))
@@ -220,6 +223,7 @@ class StageObjective:
                 g = p if t.ground_contacts is None else np.asarray(t.ground_contacts, dtype=np.float64).reshape(
                     t.num_frames, -1)
                 on_ground[s] = np.where(g >= config.contact_threshold, g, 0.0)
+            rest_heights[s] = contact_rest_heights(model, t.betas)
             if t.ground_normal is not None:
                 has_ground[s] = True
                 normal_cam[s] = np.asarray(t.ground_normal, dtype=np.float64).reshape(-1, 3)
@@ -227,6 +231,7 @@ class StageObjective:
         self.contact_weights = as_t(contacts)
         norm = np.linalg.norm(normal_cam, axis=1)
         self.height_weights = as_t(on_ground * has_ground[:, None])
+        self.rest_heights = as_t(rest_heights)
         self.has_ground = as_t(has_ground)  # upright's rows: its up direction is the ground's normal
         self.ground_normal = as_t(np.einsum("nij,nj->ni", world_from_cam[rows, :3, :3], normal_cam) / norm[:, None])
         # heading_anchor's reference: the tracks' own root orientation's facing direction (the body's z axis)
@@ -313,6 +318,14 @@ class StageObjective:
         return transition_nll(self.motion_prior, states[:-1], states[1:])
 
     # ---- the objective ---------------------------------------------------------------------------------
+    def _standing(self, joints: torch.Tensor, state: "TorchState") -> torch.Tensor:
+        """(rows, 4) each contact joint's height above its standing height on the person's ground plane, the plane
+        moved to the world with the state's camera scale and offset."""
+        centre = state.scale * self.centre + state.offset
+        d = self.ground_offset_cam - (self.ground_normal * centre).sum(-1)
+        feet = joints[:, list(CONTACT_JOINTS)]
+        return (feet * self.ground_normal[:, None]).sum(-1) + d[:, None] - self.rest_heights
+
     def terms(self, state: TorchState) -> dict[str, torch.Tensor]:
         """Cost of every active term (1/2 weight loss), as the C++ stage report gives them."""
         joints, vertices = self.posed(state)
@@ -369,12 +382,12 @@ class StageObjective:
                     step = sigma ** 2 * step / (sigma ** 2 + step)
                 out[term] = 0.5 * w * (self.contact_weights[self.pairs] * step).sum()
             elif term == "contact_height":
-                feet = joints[:, list(CONTACT_JOINTS)]
-                centre = state.scale * self.centre + state.offset
-                d = self.ground_offset_cam - (self.ground_normal * centre).sum(-1)
-                height = (feet * self.ground_normal[:, None]).sum(-1) + d[:, None]
-                excess = torch.clamp(height.abs() - self.config.contact_height_tolerance, min=0.0)
+                excess = torch.clamp(self._standing(joints, state).abs() - self.config.contact_height_tolerance,
+                                     min=0.0)
                 out[term] = 0.5 * w * (self.height_weights * excess ** 2).sum()
+            elif term == "ground_penetration":
+                sunk = torch.clamp(-self._standing(joints, state), min=0.0)
+                out[term] = 0.5 * w * (self.has_ground[:, None] * sunk ** 2).sum()
             elif term == "upright":
                 spine = joints[:, SMPL_JOINT_NAMES.index("neck")] - joints[:, SMPL_JOINT_NAMES.index("pelvis")]
                 up = self.ground_normal

@@ -138,6 +138,52 @@ TEST(Costs, ContactHeightJacobiansAndDeadZone) {
   EXPECT_NEAR(r[0], std::abs(0.05 - cam.centre_in_world.y()) - 0.08, 1e-9);
 }
 
+TEST(Costs, ContactHeightAboveRestHeightsAndBelowOnly) {
+  // Each point's height is measured above its standing height h_k; below_only counts only the depth under it.
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = ThreePointRegressor(model);
+  Frame f(model, 12);
+  std::vector<double> pts(9), pose(3 * model.num_joints());
+  std::copy(f.root.begin(), f.root.end(), pose.begin());
+  std::copy(f.body.begin(), f.body.end(), pose.begin() + 3);
+  body::KeypointsWithJacobian(model, reg, pose.data(), f.betas.data(), f.transl.data(), pts.data(), nullptr);
+  const FrameCamera cam = TestCamera();
+  const Eigen::Vector3d up(0, 1, 0);
+  const Eigen::Vector3d normal_in_cam = cam.cam_from_world_rotation * up;
+  // The world plane y = y0, 4 cm under point 0: offset in the camera at scale 1, no offset.
+  const double y0 = pts[1] - 0.04, offset_in_cam = up.dot(cam.centre_in_world) - y0;
+  const std::vector<double> weights = {4.0, 1.0, 9.0}, heights = {0.07, pts[4] - y0 - 0.05, pts[7] - y0 + 0.03};
+  double scale = 1.0, no_offset[3] = {0, 0, 0}, r[3];
+  const double* params[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, no_offset};
+  for (const bool below_only : {false, true}) {
+    ContactHeightCost cost(&model, &reg, weights, cam, normal_in_cam, offset_in_cam, 0.01, heights, below_only);
+    ASSERT_TRUE(cost.Evaluate(params, r, nullptr));
+    for (int k = 0; k < 3; ++k) {
+      const double h = pts[3 * k + 1] - y0 - heights[k];  // height above the standing height
+      const double excess = (below_only ? -h : std::abs(h)) - 0.01;
+      EXPECT_NEAR(r[k], excess > 0 ? std::sqrt(weights[k]) * excess : 0.0, 1e-9) << k << below_only;
+    }
+    // Point 0 stands 3 cm under its standing height (4 cm up, 7 expected): counted either way. Point 2 stands
+    // 3 cm under its own: counted either way too; point 1 stands 5 cm above its own: only both-sided.
+    EXPECT_NEAR(r[0], 2.0 * 0.02, 1e-9);
+    EXPECT_NEAR(r[2], 3.0 * 0.02, 1e-9);
+    EXPECT_NEAR(r[1], below_only ? 0.0 : 0.04, 1e-9);
+    // Jacobians against numeric differentiation, scale and offset included, on a tilted plane far above and far
+    // below the points (all residuals active on one side at least).
+    double scale2 = 1.3, offset2[3] = {0.02, -0.03, 0.01};
+    const double* params2[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale2, offset2};
+    int active = 0;
+    for (const double plane_offset : {7.0, -7.0}) {
+      ContactHeightCost far(&model, &reg, weights, cam, Eigen::Vector3d(0.1, -1.0, 0.05), plane_offset, 0.01, heights,
+                            below_only);
+      EXPECT_TRUE(CheckGradient(far, {params2[0], params2[1], params2[2], params2[3], params2[4], params2[5]}));
+      ASSERT_TRUE(far.Evaluate(params2, r, nullptr));
+      active += (r[0] > 0) + (r[1] > 0) + (r[2] > 0);
+    }
+    EXPECT_EQ(active, below_only ? 3 : 6);
+  }
+}
+
 TEST(Costs, UprightJacobiansAndValue) {
   const body::BodyModel model = MakeTestModel();
   Frame f(model, 5);
