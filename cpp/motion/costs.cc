@@ -194,18 +194,18 @@ bool UprightCost::Evaluate(double const* const* parameters, double* residuals, d
 ContactHeightCost::ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
                                      std::vector<double> point_weights, const FrameCamera& camera,
                                      Eigen::Vector3d normal_in_cam, double offset_in_cam, double tolerance,
-                                     std::vector<double> point_heights, bool below_only)
+                                     const Eigen::VectorXd& point_heights, bool below_only)
     : model_(model),
       regressor_(regressor),
-      heights_(point_heights.empty() ? std::vector<double>(regressor->num_keypoints(), 0.0) : std::move(point_heights)),
+      heights_(point_heights.size() > 0 ? point_heights : Eigen::VectorXd::Zero(regressor->num_keypoints())),
       normal_in_world_(camera.cam_from_world_rotation.transpose() * normal_in_cam.normalized()),
       centre_in_world_(camera.centre_in_world),
       offset_in_cam_(offset_in_cam / normal_in_cam.norm()),
       tolerance_(tolerance),
       below_only_(below_only) {
   M3C_CHECK(static_cast<int>(point_weights.size()) == regressor->num_keypoints()) << "one weight per point";
-  M3C_CHECK(static_cast<int>(heights_.size()) == regressor->num_keypoints()) << "one height per point, or none";
-  for (double h : heights_) M3C_CHECK(std::isfinite(h)) << "contact point heights must be finite";
+  M3C_CHECK(heights_.size() == regressor->num_keypoints() && heights_.allFinite())
+      << "one finite height per point, or none";
   M3C_CHECK(normal_in_cam.norm() > 1e-6 && std::isfinite(offset_in_cam))
       << "ground plane must have a nonzero normal and a finite offset";
   for (double w : point_weights) sqrt_weights_.push_back(std::sqrt(std::max(w, 0.0)));

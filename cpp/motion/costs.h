@@ -131,14 +131,15 @@ class ContactHeightCost : public ceres::CostFunction {
  public:
   ContactHeightCost(const body::BodyModel* model, const body::KeypointRegressor* regressor,
                     std::vector<double> point_weights, const FrameCamera& camera, Eigen::Vector3d normal_in_cam,
-                    double offset_in_cam, double tolerance, std::vector<double> point_heights = {},
+                    double offset_in_cam, double tolerance, const Eigen::VectorXd& point_heights = {},
                     bool below_only = false);
   bool Evaluate(double const* const* parameters, double* residuals, double** jacobians) const override;
 
  private:
   const body::BodyModel* model_;
   const body::KeypointRegressor* regressor_;
-  std::vector<double> sqrt_weights_, heights_;
+  std::vector<double> sqrt_weights_;
+  Eigen::VectorXd heights_;
   Eigen::Vector3d normal_in_world_, centre_in_world_;
   double offset_in_cam_, tolerance_;
   bool below_only_;

@@ -608,8 +608,6 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
                           {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]}, spine_movers);
         }
       } else if (term == "contact_height" && tr.contacts.size() > 0 && tr.ground_normal.size() > 0) {
-        const std::vector<double> standing(tr.contact_heights.data(),
-                                           tr.contact_heights.data() + tr.contact_heights.size());
         const RowMatrixXd& on_ground = tr.ground_contacts.size() > 0 ? tr.ground_contacts : tr.contacts;
         for (int f = 0; f < n; ++f) {
           const std::vector<double> w = contact_weights(on_ground, f, weight);
@@ -617,7 +615,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
           add_moved_block(problem,
                           new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
                                                 tr.ground_normal.row(f).transpose(), tr.ground_offset[f],
-                                                config_.contact_height_tolerance, standing),
+                                                config_.contact_height_tolerance, tr.contact_heights),
                           {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale,
                            vars.offset},
                           contact_movers);
@@ -625,13 +623,11 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       } else if (term == "ground_penetration" && contact_regressor_ && tr.ground_normal.size() > 0) {
         // Every frame, every contact point: none below its standing height (planted or not).
         const std::vector<double> w(contact_regressor_->num_keypoints(), weight);
-        const std::vector<double> standing(tr.contact_heights.data(),
-                                           tr.contact_heights.data() + tr.contact_heights.size());
         for (int f = 0; f < n; ++f) {
           add_moved_block(problem,
                           new ContactHeightCost(model_, contact_regressor_, w, frame_camera(tr.first_frame + f),
                                                 tr.ground_normal.row(f).transpose(), tr.ground_offset[f], 0.0,
-                                                standing, true),
+                                                tr.contact_heights, true),
                           {vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i], vars.scale,
                            vars.offset},
                           contact_movers);

@@ -9,10 +9,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from m3c.body import BodyModel
+from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.body.synthetic import make_synthetic_model
 from m3c.eval.scenes import make_scene
 from m3c.motion import Cameras, OptimizerConfig, StageSpec, optimize, track_joints
 from m3c.motion.scale import estimate_scale, rescaled
+from m3c.perception.contacts import contact_rest_heights
 from m3c.vo.scale import FEET_MODEL_SIGMA, PERSON_SIZE_SIGMA
 
 
@@ -432,9 +434,6 @@ def test_feet_stand_on_the_floor_not_through_it(model, scene):
     it). Sunk 8 cm, ground_penetration lifts each frame just enough that no contact joint is below its standing
     height; contact_height holds the planted feet at their standing heights (within its tolerance), not at the
     sole's plane."""
-    from m3c.body.joint_names import CONTACT_JOINTS
-    from m3c.perception.contacts import contact_rest_heights
-
     def heights(tracks):  # (frames, 4) contact joints' heights above their standing heights, all tracks
         return np.concatenate([track_joints(model, t)[:, list(CONTACT_JOINTS), 1] - contact_rest_heights(model, t.betas)
                                for t in tracks])

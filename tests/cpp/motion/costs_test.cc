@@ -152,7 +152,8 @@ TEST(Costs, ContactHeightAboveRestHeightsAndBelowOnly) {
   const Eigen::Vector3d normal_in_cam = cam.cam_from_world_rotation * up;
   // The world plane y = y0, 4 cm under point 0: offset in the camera at scale 1, no offset.
   const double y0 = pts[1] - 0.04, offset_in_cam = up.dot(cam.centre_in_world) - y0;
-  const std::vector<double> weights = {4.0, 1.0, 9.0}, heights = {0.07, pts[4] - y0 - 0.05, pts[7] - y0 + 0.03};
+  const std::vector<double> weights = {4.0, 1.0, 9.0};
+  const Eigen::Vector3d heights(0.07, pts[4] - y0 - 0.05, pts[7] - y0 + 0.03);
   double scale = 1.0, no_offset[3] = {0, 0, 0}, r[3];
   const double* params[6] = {f.transl.data(), f.root.data(), f.body.data(), f.betas.data(), &scale, no_offset};
   for (const bool below_only : {false, true}) {
