@@ -121,6 +121,7 @@ void BindFit(py::module_& m) {
       .def_readwrite("min_depth", &FitOptions::min_depth)
       .def_readwrite("max_iterations", &FitOptions::max_iterations)
       .def_readwrite("reinit_error_px", &FitOptions::reinit_error_px)
+      .def_readwrite("max_turn_from_3d_deg", &FitOptions::max_turn_from_3d_deg)
       .def_readwrite("torso", &FitOptions::torso)
       .def_readwrite("reference_3d", &FitOptions::reference_3d)
       .def_readwrite("left_side", &FitOptions::left_side)

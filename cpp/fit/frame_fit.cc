@@ -195,11 +195,11 @@ BodyState BodyFitter::Initialize(const FrameObservation& observation) const {
   return ColdState(observation, Mask(observation));
 }
 
-double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const BodyState* previous,
-                         const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection,
-                         BodyState* state, int* iterations) const {
+void BodyFitter::AddTerms(const FrameObservation& obs, const Masked& m, const BodyState* previous,
+                          const Eigen::Vector3d* predicted_transl, bool use_reprojection, BodyState* state,
+                          ceres::Problem* problem_ptr) const {
   const int P = static_cast<int>(state->body.size()), B = static_cast<int>(state->betas.size());
-  ceres::Problem problem;
+  ceres::Problem& problem = *problem_ptr;
   double* t = state->transl.data();
   double* r = state->root.data();
   double* b = state->body.data();
@@ -214,7 +214,7 @@ double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const Bod
                                                     options_.keypoints3d_weight, options_.keypoints3d_sigma),
                              nullptr, {r, b, beta});
   }
-  if (problem.NumResidualBlocks() == 0) return 0.0;
+  if (problem.NumResidualBlocks() == 0) return;
   if (use_reprojection && predicted_transl && options_.temporal_transl_weight > 0) {
     problem.AddResidualBlock(
         new WeightedPriorCost(*predicted_transl, Eigen::VectorXd::Constant(3, options_.temporal_transl_weight)),
@@ -239,6 +239,26 @@ double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const Bod
         new WeightedPriorCost(previous->betas, Eigen::VectorXd::Constant(B, options_.temporal_betas_weight)), nullptr,
         beta);
   }
+}
+
+double BodyFitter::FrameCost(const FrameObservation& obs, const Masked& m, BodyState state) const {
+  ceres::Problem problem;
+  AddTerms(obs, m, nullptr, nullptr, true, &state, &problem);
+  double cost = 0.0;
+  if (problem.NumResidualBlocks() > 0) {
+    problem.Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr, nullptr, nullptr);
+  }
+  return cost;
+}
+
+double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const BodyState* previous,
+                         const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection,
+                         BodyState* state, int* iterations) const {
+  ceres::Problem problem;
+  AddTerms(obs, m, previous, predicted_transl, use_reprojection, state, &problem);
+  if (problem.NumResidualBlocks() == 0) return 0.0;
+  double* b = state->body.data();
+  double* beta = state->betas.data();
   if (!free_pose) problem.SetParameterBlockConstant(b);
   if (!free_pose || !options_.optimize_betas) problem.SetParameterBlockConstant(beta);
 
@@ -287,6 +307,25 @@ void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitR
   result->reprojection_error_px = used > 0 ? sum / used : 0.0;
 }
 
+double BodyFitter::TorsoTurnFrom3d(const Masked& m, const BodyState& s) const {
+  if (m.keypoints3d.rows() == 0) return -1.0;
+  const int J = model_->num_joints(), K = regressor_->num_keypoints();
+  std::vector<double> pose(3 * J);
+  std::copy(s.root.data(), s.root.data() + 3, pose.begin());
+  std::copy(s.body.data(), s.body.data() + 3 * (J - 1), pose.begin() + 3);
+  Observations3 posed(K, 3);
+  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), s.betas.data(), true, nullptr, posed.data());
+  std::vector<Eigen::Vector3d> p, q;
+  for (int k : options_.torso) {
+    if (m.keypoints3d(k, 3) <= 0) continue;
+    p.push_back(posed.row(k).transpose());
+    q.push_back(m.keypoints3d.block<1, 3>(k, 0).transpose());
+  }
+  if (p.size() < 3) return -1.0;
+  const Eigen::Matrix3d R = Kabsch(p, q);
+  return std::acos(std::clamp(0.5 * (R.trace() - 1.0), -1.0, 1.0)) * 180.0 / M_PI;
+}
+
 FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* previous,
                                const Eigen::Vector3d* predicted_transl) const {
   Validate(obs);
@@ -322,6 +361,24 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
     result.state = warm;
     result.warm_started = true;
     Measure(obs, m, &result);
+    if (options_.max_turn_from_3d_deg >= 0 && TorsoTurnFrom3d(m, result.state) > options_.max_turn_from_3d_deg) {
+      // In a side view the keypoints fit a body turned half a turn about as well as the right one, and the
+      // robust 3D term barely pulls a torso that far off: a warm start on the wrong side stays there. The frame
+      // is solved again from where the warm fit put the person, turned and posed as the cold initialisation
+      // from the 3D torso, with the same temporal terms (a cold fit's depth would jump), and that solution is
+      // kept when the frame's own objective (keypoints, 3D, priors: without the pull towards the previous
+      // frame) is the lower one.
+      FrameFitResult turned;
+      turned.state = ColdState(obs, m);
+      turned.state.transl = result.state.transl;
+      turned.state.betas = result.state.betas;
+      turned.cost = Solve(obs, m, previous, predicted_transl, true, true, &turned.state, &result.iterations);
+      if (FrameCost(obs, m, turned.state) < FrameCost(obs, m, result.state)) {
+        result.state = turned.state;
+        result.cost = turned.cost;
+        Measure(obs, m, &result);
+      }
+    }
     if (result.reprojection_error_px > options_.reinit_error_px) {
       // A warm fit this far off the keypoints means the track's motion no longer predicts it (a fast turn, or a
       // depth that drifted: depth is weakly observed, and a constant-velocity prediction of a drifting depth

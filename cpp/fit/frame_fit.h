@@ -2,8 +2,9 @@
 // pose, shape and camera-frame translation fitted to 2D keypoints with a robust reprojection term and, when a
 // monocular 3D pose is available (MediaPipe's metric landmarks), a weak root-relative 3D term, with Gaussian
 // pose and shape priors. Frames of one track are warm-started from the previous frame's fit, with temporal
-// priors towards it; a warm start that ends far from the keypoints is retried from a cold initialisation and
-// the lower objective wins.
+// priors towards it; a warm fit whose torso ends turned far from the 3D torso is solved again turned as the 3D
+// torso, and one that ends far from the keypoints is retried from a cold initialisation (see Fit for which one
+// is kept).
 //
 // Cold initialisation: the root orientation from the 3D torso (Kabsch) or, without 3D, from which side of the
 // image the person's left shoulder and hip appear on (facing the camera or away from it); the body pose from a
@@ -42,6 +43,11 @@ struct FitOptions {
   double min_depth = 0.1;              // metres in front of the camera
   int max_iterations = 40;
   double reinit_error_px = 20.0;       // a warm start ending above this mean error is retried cold
+  // A warm fit whose torso ends turned more than this (degrees) from the monocular 3D torso is solved again
+  // turned as the 3D torso (see Fit). In a side view the 2D keypoints cannot tell which way the body faces,
+  // and the 3D term, robust, barely pulls a torso that is half a turn off: a warm start on the wrong side
+  // stayed there for seconds. Negative: never.
+  double max_turn_from_3d_deg = 90.0;
   // Keypoint roles, as indices into the regressor's keypoints (COCO-17 defaults).
   std::vector<int> torso = {5, 6, 11, 12};       // orientation from 3D (Kabsch)
   std::vector<int> reference_3d = {11, 12};      // origin of the relative 3D observations (hip centre)
@@ -104,11 +110,20 @@ class BodyFitter {
   };
   Masked Mask(const FrameObservation& observation) const;
   BodyState ColdState(const FrameObservation& observation, const Masked& masked) const;
-  // Adds the active terms to a Ceres problem over `state`'s memory and solves it. Returns the final cost.
+  // Adds the active terms over `state`'s memory to `problem` (the temporal ones with previous / predicted_transl).
+  void AddTerms(const FrameObservation& observation, const Masked& masked, const BodyState* previous,
+                const Eigen::Vector3d* predicted_transl, bool use_reprojection, BodyState* state,
+                ceres::Problem* problem) const;
+  // The frame's own objective at `state`: keypoints, 3D and priors, without the temporal terms.
+  double FrameCost(const FrameObservation& observation, const Masked& masked, BodyState state) const;
+  // Solves AddTerms' problem over `state` (pose and betas held unless free_pose). Returns the final cost.
   double Solve(const FrameObservation& observation, const Masked& masked, const BodyState* previous,
                const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection, BodyState* state,
                int* iterations) const;
   void Measure(const FrameObservation& observation, const Masked& masked, FrameFitResult* result) const;
+  // Degrees between the state's torso keypoints and the 3D torso (the Kabsch rotation's angle); -1 when fewer
+  // than 3 torso keypoints have 3D.
+  double TorsoTurnFrom3d(const Masked& masked, const BodyState& state) const;
   void Validate(const FrameObservation& observation) const;
 
   const body::BodyModel* model_;

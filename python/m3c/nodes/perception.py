@@ -59,7 +59,9 @@ class PerceptionNode(Node):
     # 8: the body fit's translation prior 3000 -> 100 (its constant-velocity prediction made the depth wander)
     # 9: no static_camera setting: the contacts use one rule in any camera (3D foot speeds of monocular fits
     #    failed), on the fits with their depth steadied (m3c.perception.contacts.steady_depth)
-    version = "9"
+    # 10: a warm body fit that ends turned more than 90 degrees from the 3D torso is solved again turned as it
+    #    (cpp/fit max_turn_from_3d_deg: side views held on the wrong side)
+    version = "10"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

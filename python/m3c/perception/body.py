@@ -76,6 +76,7 @@ class BodyFitConfig:
     min_depth: float = _FIT.min_depth
     max_iterations: int = _FIT.max_iterations
     reinit_error_px: float = _FIT.reinit_error_px
+    max_turn_from_3d_deg: float = _FIT.max_turn_from_3d_deg
 
     def to_core(self) -> "_core.BodyFitOptions":
         options = _core.BodyFitOptions()

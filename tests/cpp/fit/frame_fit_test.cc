@@ -243,6 +243,54 @@ TEST(BodyFitter, DriftingWarmStartRestartsColdWithoutTheVelocityPrediction) {
   }
 }
 
+double RootAngleRadians(const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+  const auto R = [](const Eigen::Vector3d& v) -> Eigen::Matrix3d {
+    if (v.norm() < 1e-12) return Eigen::Matrix3d::Identity();
+    return Eigen::AngleAxisd(v.norm(), v.normalized()).toRotationMatrix();
+  };
+  return Eigen::AngleAxisd(R(a).transpose() * R(b)).angle();
+}
+
+TEST(BodyFitter, WarmStartTurnedAwayFromThe3DTorsoIsTurnedBack) {
+  // A side view of a straight-limbed body, its face unseen: the 2D keypoints fit the body turned half a turn
+  // about the vertical about as well as the truth (only the depth order of its left and right sides differs),
+  // and the robust 3D term barely pulls a torso that far off. Warm-started on the wrong side, the old fit stayed
+  // there; a warm fit turned more than max_turn_from_3d_deg from the 3D torso is solved again turned as the 3D.
+  const body::BodyModel model = MakeTestModel();
+  const auto reg = JointPicks(model);
+  Truth truth;
+  const Eigen::Matrix3d side_on = Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).toRotationMatrix() *
+                                  Eigen::AngleAxisd(0.5 * M_PI, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const Eigen::AngleAxisd aa(side_on);
+  truth.state.root = aa.angle() * aa.axis();
+  truth.state.body = Eigen::VectorXd::Zero(3 * (model.num_joints() - 1));
+  truth.state.betas = Eigen::VectorXd::Zero(model.num_betas());
+  truth.state.transl = Eigen::Vector3d(0.0, 0.0, 6.0);
+  truth.points = FittedPoints(model, reg, truth.state);
+  FrameObservation o = Observe(truth, kCamera, 0.3, 0.01, true, 7);
+  for (int k : {0, 1, 2, 3, 4}) o.keypoints(k, 2) = 0.0, o.keypoints3d(k, 3) = 0.0;  // the head unseen
+  BodyState wrong_side = truth.state;
+  const Eigen::AngleAxisd turned(Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitY()).toRotationMatrix() * side_on);
+  wrong_side.root = turned.angle() * turned.axis();
+  FitOptions old_rule;
+  old_rule.max_turn_from_3d_deg = -1.0;
+  const FrameFitResult kept = BodyFitter(&model, &reg, old_rule).Fit(o, &wrong_side);
+  const FrameFitResult restarted = BodyFitter(&model, &reg, FitOptions()).Fit(o, &wrong_side);
+  // The premise: the warm fit ends half a turn off yet on the keypoints, so only the 3D can tell.
+  EXPECT_TRUE(kept.warm_started);
+  EXPECT_GT(RootAngleRadians(kept.state.root, truth.state.root), 0.75 * M_PI);
+  EXPECT_LT(kept.reprojection_error_px, FitOptions().reinit_error_px);
+  EXPECT_LT(RootAngleRadians(restarted.state.root, truth.state.root), 0.1);
+  EXPECT_LT(restarted.reprojection_error_px, 1.0);
+  // Re-solved from where the warm fit put the person, not from a cold depth: it stays a warm fit.
+  EXPECT_TRUE(restarted.warm_started);
+  EXPECT_LT((restarted.state.transl - truth.state.transl).norm(), 0.1);
+  // A warm start on the right side is kept.
+  const FrameFitResult right = BodyFitter(&model, &reg, FitOptions()).Fit(o, &truth.state);
+  EXPECT_TRUE(right.warm_started);
+  EXPECT_LT(RootAngleRadians(right.state.root, truth.state.root), 0.1);
+}
+
 TEST(BodyFitter, RejectsBadInput) {
   const body::BodyModel model = MakeTestModel();
   const auto reg = JointPicks(model);
