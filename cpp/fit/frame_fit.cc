@@ -101,26 +101,13 @@ BodyFitter::Masked BodyFitter::Mask(const FrameObservation& obs) const {
 
 BodyState BodyFitter::ColdState(const FrameObservation& obs, const Masked& m) const {
   const int J = model_->num_joints(), B = model_->num_betas(), K = regressor_->num_keypoints();
-  BodyState state;
+  BodyState state;  // the rest pose at the origin
   state.body = Eigen::VectorXd::Zero(3 * (J - 1));
   state.betas = Eigen::VectorXd::Zero(B);
 
   // Orientation.
-  std::vector<double> pose(3 * J, 0.0);
-  Observations3 rest(K, 3);
-  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), state.betas.data(), true, nullptr, rest.data());
-  std::vector<Eigen::Vector3d> p, q;
-  if (m.keypoints3d.rows() > 0) {
-    for (int k : options_.torso) {
-      if (m.keypoints3d(k, 3) <= 0) continue;
-      p.push_back(rest.row(k).transpose());
-      q.push_back(m.keypoints3d.block<1, 3>(k, 0).transpose());
-    }
-  }
   Eigen::Matrix3d R;
-  if (p.size() >= 3) {
-    R = Kabsch(p, q);
-  } else {
+  if (!TorsoTo3d(m, Posed(state, false), &R)) {
     // The model is y-up and faces +z; Rx(pi) turns it upright in the camera frame (y down) facing the camera,
     // with its left side on the image's right. Facing away is a further half turn about the vertical.
     double left_minus_right = 0.0;
@@ -140,10 +127,7 @@ BodyState BodyFitter::ColdState(const FrameObservation& obs, const Masked& m) co
   }
 
   // Translation: linear least squares on the projection equations of the posed keypoints.
-  std::copy(state.root.data(), state.root.data() + 3, pose.begin());
-  std::copy(state.body.data(), state.body.data() + 3 * (J - 1), pose.begin() + 3);
-  Observations3 posed(K, 3);
-  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), state.betas.data(), true, nullptr, posed.data());
+  const Observations3 posed = Posed(state, false);
   const Intrinsics& c = obs.intrinsics;
   Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
   Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
@@ -280,14 +264,33 @@ double BodyFitter::Solve(const FrameObservation& obs, const Masked& m, const Bod
   return summary.final_cost;
 }
 
-void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitResult* result) const {
-  const int J = model_->num_joints(), K = regressor_->num_keypoints();
-  const BodyState& s = result->state;
+Observations3 BodyFitter::Posed(const BodyState& s, bool translated) const {
+  const int J = model_->num_joints();
   std::vector<double> pose(3 * J);
   std::copy(s.root.data(), s.root.data() + 3, pose.begin());
   std::copy(s.body.data(), s.body.data() + 3 * (J - 1), pose.begin() + 3);
-  Observations3 points(K, 3);
-  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), s.betas.data(), true, s.transl.data(), points.data());
+  Observations3 points(regressor_->num_keypoints(), 3);
+  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), s.betas.data(), true,
+                          translated ? s.transl.data() : nullptr, points.data());
+  return points;
+}
+
+bool BodyFitter::TorsoTo3d(const Masked& m, const Observations3& points, Eigen::Matrix3d* R) const {
+  if (m.keypoints3d.rows() == 0) return false;
+  std::vector<Eigen::Vector3d> p, q;
+  for (int k : options_.torso) {
+    if (m.keypoints3d(k, 3) <= 0) continue;
+    p.push_back(points.row(k).transpose());
+    q.push_back(m.keypoints3d.block<1, 3>(k, 0).transpose());
+  }
+  if (p.size() < 3) return false;
+  *R = Kabsch(p, q);
+  return true;
+}
+
+void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitResult* result) const {
+  const int K = regressor_->num_keypoints();
+  const Observations3 points = Posed(result->state, true);
   const Intrinsics& c = obs.intrinsics;
   result->keypoint_error_px.resize(K);
   double sum = 0.0;
@@ -308,21 +311,8 @@ void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitR
 }
 
 double BodyFitter::TorsoTurnFrom3d(const Masked& m, const BodyState& s) const {
-  if (m.keypoints3d.rows() == 0) return -1.0;
-  const int J = model_->num_joints(), K = regressor_->num_keypoints();
-  std::vector<double> pose(3 * J);
-  std::copy(s.root.data(), s.root.data() + 3, pose.begin());
-  std::copy(s.body.data(), s.body.data() + 3 * (J - 1), pose.begin() + 3);
-  Observations3 posed(K, 3);
-  body::Keypoints<double>(*model_, *regressor_, 1, pose.data(), s.betas.data(), true, nullptr, posed.data());
-  std::vector<Eigen::Vector3d> p, q;
-  for (int k : options_.torso) {
-    if (m.keypoints3d(k, 3) <= 0) continue;
-    p.push_back(posed.row(k).transpose());
-    q.push_back(m.keypoints3d.block<1, 3>(k, 0).transpose());
-  }
-  if (p.size() < 3) return -1.0;
-  const Eigen::Matrix3d R = Kabsch(p, q);
+  Eigen::Matrix3d R;
+  if (m.keypoints3d.rows() == 0 || !TorsoTo3d(m, Posed(s, false), &R)) return -1.0;
   return std::acos(std::clamp(0.5 * (R.trace() - 1.0), -1.0, 1.0)) * 180.0 / M_PI;
 }
 
@@ -368,14 +358,13 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
       // from the 3D torso, with the same temporal terms (a cold fit's depth would jump), and that solution is
       // kept when the frame's own objective (keypoints, 3D, priors: without the pull towards the previous
       // frame) is the lower one.
-      FrameFitResult turned;
-      turned.state = ColdState(obs, m);
-      turned.state.transl = result.state.transl;
-      turned.state.betas = result.state.betas;
-      turned.cost = Solve(obs, m, previous, predicted_transl, true, true, &turned.state, &result.iterations);
-      if (FrameCost(obs, m, turned.state) < FrameCost(obs, m, result.state)) {
-        result.state = turned.state;
-        result.cost = turned.cost;
+      BodyState turned = ColdState(obs, m);
+      turned.transl = result.state.transl;
+      turned.betas = result.state.betas;
+      const double cost = Solve(obs, m, previous, predicted_transl, true, true, &turned, &result.iterations);
+      if (FrameCost(obs, m, turned) < FrameCost(obs, m, result.state)) {
+        result.state = turned;
+        result.cost = cost;
         Measure(obs, m, &result);
       }
     }

@@ -121,6 +121,10 @@ class BodyFitter {
                const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection, BodyState* state,
                int* iterations) const;
   void Measure(const FrameObservation& observation, const Masked& masked, FrameFitResult* result) const;
+  // The state's keypoints (K, 3) in the camera frame, or root-relative (no translation) when !translated.
+  Observations3 Posed(const BodyState& state, bool translated) const;
+  // R rotating `points`' torso keypoints onto the 3D torso (Kabsch); false when fewer than 3 have 3D.
+  bool TorsoTo3d(const Masked& masked, const Observations3& points, Eigen::Matrix3d* R) const;
   // Degrees between the state's torso keypoints and the 3D torso (the Kabsch rotation's angle); -1 when fewer
   // than 3 torso keypoints have 3D.
   double TorsoTurnFrom3d(const Masked& masked, const BodyState& state) const;
