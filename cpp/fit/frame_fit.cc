@@ -52,6 +52,8 @@ BodyFitter::BodyFitter(const body::BodyModel* model, const body::KeypointRegress
       << "term weights must be >= 0";
   M3C_CHECK(o.min_depth > 0 && o.max_iterations >= 1 && o.min_keypoints >= 2)
       << "min_depth must be > 0, max_iterations >= 1 and min_keypoints >= 2";
+  M3C_CHECK(!std::isnan(o.max_turn_from_3d_deg))
+      << "max_turn_from_3d_deg must be a number of degrees (negative: never re-solve turned), got NaN";
   const int K = regressor->num_keypoints();
   for (const auto* list : {&o.torso, &o.reference_3d, &o.left_side, &o.right_side}) {
     for (int k : *list) M3C_CHECK(k >= 0 && k < K) << "keypoint role index " << k << " outside [0, " << K << ")";

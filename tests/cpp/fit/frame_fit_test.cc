@@ -308,6 +308,9 @@ TEST(BodyFitter, RejectsBadInput) {
   FitOptions bad;
   bad.torso = {0, 1, 40};
   EXPECT_THROW(BodyFitter(&model, &reg, bad), std::invalid_argument);
+  FitOptions no_turn;
+  no_turn.max_turn_from_3d_deg = std::nan("");  // NaN would silently switch the rule off
+  EXPECT_THROW(BodyFitter(&model, &reg, no_turn), std::invalid_argument);
 }
 
 }  // namespace
