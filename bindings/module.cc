@@ -14,6 +14,7 @@ void BindNN(py::module_& m);
 void BindVO(py::module_& m);
 void BindFit(py::module_& m);
 void BindRender(py::module_& m);
+void BindPerception(py::module_& m);
 }  // namespace m3c::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -31,4 +32,5 @@ PYBIND11_MODULE(_core, m) {
   m3c::bindings::BindVO(m);
   m3c::bindings::BindFit(m);
   m3c::bindings::BindRender(m);
+  m3c::bindings::BindPerception(m);
 }

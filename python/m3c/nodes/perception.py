@@ -61,7 +61,8 @@ class PerceptionNode(Node):
     #    failed), on the fits with their depth steadied (m3c.perception.contacts.steady_depth)
     # 10: a warm body fit that ends turned more than 90 degrees from the 3D torso is solved again turned as it
     #    (cpp/fit max_turn_from_3d_deg: side views held on the wrong side)
-    version = "10"
+    # 11: the detector's proposals from a multi-person pose network (m3c.perception.paf) before BlazePose's tiles
+    version = "11"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

@@ -16,6 +16,7 @@ fit.
 
 from __future__ import annotations
 
+import logging
 import warnings
 
 import numpy as np
@@ -23,9 +24,14 @@ import numpy as np
 from m3c.perception._cv import import_cv2
 from m3c.perception.boxes import clip_boxes, crop, iou, isolate, pixel_region, process_box
 from m3c.perception.interfaces import Detector, PoseEstimator2D, Segmenter
+from m3c.perception.paf import INSTALL_COMMAND as PAF_INSTALL
+from m3c.perception.paf import PafPoseNetwork, skeleton_box
+from m3c.perception.paf import model_available as paf_model_available
+from m3c.perception.paf import model_path as paf_model_path
 from m3c.perception.registry import register
-from m3c.perception.types import FrameContext, Person
+from m3c.perception.types import FrameContext, Person, pose_distance
 
+LOG = logging.getLogger("m3c.perception.mediapipe")
 NAME = "mediapipe"
 # BlazePose landmark index of each COCO-17 keypoint (COCO order in m3c.body.joint_names.COCO17_NAMES).
 MP_TO_COCO17 = (0, 2, 5, 7, 8, 11, 12, 13, 14, 15, 16, 23, 24, 25, 26, 27, 28)
@@ -226,11 +232,18 @@ class MediaPipeDetector(Detector):
     scores, masks and keypoints. Known people are whitened before the search. A search at least fine_every frames
     after the last fine one goes on over tiles of fine_tiles times the frame's shorter side (0: never); there a
     find that overlaps a known person's box and is less than half as tall is taken for a piece of that person (in
-    a small tile BlazePose sees a person in an arm the whitening left)."""
+    a small tile BlazePose sees a person in an arm the whitening left).
+
+    Before the tiles, the multi-person network of m3c.perception.paf (paf: "auto" when it is installed, "on"
+    required, "off") proposes every person it sees at once: each one that is not a known person is posed by
+    BlazePose on its own patch, the other people whitened, and kept when BlazePose's keypoints agree with the
+    network's (mean distance under paf_agreement of the person's height); BlazePose alone finds nobody in a tile
+    where two people stand close together."""
 
     def __init__(self, max_people: int = 6, min_score: float = 0.5, min_box_height: float = 32.0,
                  whiten_dilation: float = 0.05, tile_overlap: float = 0.5, fine_tiles: float = 0.6,
-                 fine_every: int = 15, min_detection_confidence: float = 0.5, shared: dict | None = None):
+                 fine_every: int = 15, min_detection_confidence: float = 0.5, paf: str = "auto",
+                 paf_agreement: float = 0.25, shared: dict | None = None):
         if max_people < 1:
             raise ValueError(f"max_people must be >= 1, got {max_people}")
         if not 0.0 <= tile_overlap < 1.0:
@@ -243,6 +256,15 @@ class MediaPipeDetector(Detector):
         self.fine_tiles, self.fine_every = fine_tiles, fine_every
         self._last_fine: int | None = None
         self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
+        if paf not in ("auto", "on", "off") or not paf_agreement > 0:
+            raise ValueError(f'paf must be "auto", "on" or "off" and paf_agreement > 0, got {paf!r}, {paf_agreement}')
+        self.paf_agreement = paf_agreement
+        self.paf = None
+        if paf == "on" or (paf == "auto" and paf_model_available()):
+            self.paf = PafPoseNetwork()
+        elif paf == "auto":
+            LOG.warning("the multi-person pose network is not installed (%s): people standing close together may "
+                        "be missed; install it with `%s`", paf_model_path(), PAF_INSTALL)
 
     def _whiten(self, work: np.ndarray, person: Person, frame_size: tuple[int, int]) -> None:
         """Whitens a found person: its dilated mask, or its box when the mask is missing or much smaller."""
@@ -260,7 +282,7 @@ class MediaPipeDetector(Detector):
         known = list(known or [])
         for person in known:
             self._whiten(work, person, ctx.size)
-        people: list[Person] = []
+        people = self._network_people(ctx, work, known) if self.paf is not None else []
         tiles = [(tile, False) for tile in square_tiles(ctx.size, self.tile_overlap)]
         due = self._last_fine is None or not 0 <= ctx.index - self._last_fine < self.fine_every
         if self.fine_tiles > 0 and due:
@@ -294,8 +316,43 @@ class MediaPipeDetector(Detector):
                 people.append(person)
         return people
 
+    def _network_people(self, ctx: FrameContext, work: np.ndarray, known: list[Person]) -> list[Person]:
+        """The people the multi-person network sees that are not known, each posed by BlazePose on its isolated
+        patch (whitened in work once found)."""
+        skeletons = []
+        for keypoints in self.paf.people(ctx.image):
+            box = skeleton_box(keypoints, ctx.size)
+            if box is not None and box[3] - box[1] >= self.min_box_height:
+                skeletons.append((keypoints, box))
+        found: list[Person] = []
+        for i, (keypoints, box) in enumerate(skeletons):
+            if len(found) + len(known) >= self.max_people:
+                break
+            if any(_agree(keypoints, k.keypoints, self.paf_agreement) for k in known + found):
+                continue
+            others = known + found + [Person(b, 1.0) for j, (_, b) in enumerate(skeletons) if j != i]
+            person = _patch_person(ctx, self.engine, Person(box, 1.0), others, 5.0, 0.5)
+            # Known people are told apart by their keypoints, not their boxes: a tracked box can span a person
+            # standing behind.
+            if (person is None or person.score < self.min_score
+                    or person.box[3] - person.box[1] < self.min_box_height
+                    or not _agree(keypoints, person.keypoints, self.paf_agreement)
+                    or any(_agree(k.keypoints[:17], person.keypoints, self.paf_agreement) for k in known + found
+                           if k.keypoints is not None)):
+                continue
+            person.sources = {"detector": NAME + "+paf", "segmenter": NAME, "pose2d": NAME}
+            self._whiten(work, person, ctx.size)
+            found.append(person)
+        return found
+
     def close(self) -> None:
         self.engine.close()
+
+
+def _agree(skeleton: np.ndarray, keypoints: np.ndarray | None, tolerance: float) -> bool:
+    """Whether a network skeleton (17, 3) and BlazePose keypoints (K >= 17, 3) are one person (pose_distance under
+    tolerance; BlazePose's keypoints taken where their visibility is at least one half)."""
+    return keypoints is not None and pose_distance(skeleton, keypoints, 0.0, 0.49) < tolerance
 
 
 @register("segmenter", NAME)

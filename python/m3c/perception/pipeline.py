@@ -29,7 +29,7 @@ from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
 from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
-from m3c.perception.types import FrameContext, Person, pack_mask
+from m3c.perception.types import FrameContext, Person, pack_mask, pose_distance
 
 DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
                       "contacts": "kinematic", "depth": "none", "gender": "neutral"}
@@ -236,10 +236,19 @@ def _same_person(a: np.ndarray, b: np.ndarray, max_iou: float) -> bool:
     return inter > max_iou * (area_a + area_b - inter) or inter >= 0.8 * min(area_a, area_b)
 
 
-def _dedupe(people: list[Person], max_iou: float) -> list[Person]:
+def _dedupe(people: list[Person], max_iou: float, min_pose_distance: float = 0.15) -> list[Person]:
+    """The people less their duplicates (the higher score stays): overlapping boxes (_same_person) hold one person
+    unless both people's keypoints are apart by more than min_pose_distance of the height (pose_distance): one
+    person standing partly behind another."""
     kept: list[Person] = []
+
+    def apart(a: Person, b: Person) -> bool:
+        return (a.keypoints is not None and b.keypoints is not None
+                and pose_distance(a.keypoints, b.keypoints, 0.49, 0.49) > min_pose_distance
+                and pose_distance(b.keypoints, a.keypoints, 0.49, 0.49) > min_pose_distance)
+
     for person in sorted(people, key=lambda p: -p.score):
-        if not any(_same_person(person.box, k.box, max_iou) for k in kept):
+        if not any(_same_person(person.box, k.box, max_iou) and not apart(person, k) for k in kept):
             kept.append(person)
     return kept
 

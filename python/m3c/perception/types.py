@@ -15,6 +15,18 @@ NUM_COCO = 17
 NUM_WITH_FEET = NUM_COCO + len(FOOT_KEYPOINT_NAMES)
 
 
+def pose_distance(a: np.ndarray, b: np.ndarray, confident_a: float = 0.0, confident_b: float = 0.0) -> float:
+    """How far apart two people's keypoints (K >= 17, 3) lie: the mean image distance over the COCO-17 keypoints
+    both see (confidence above confident_a, confident_b), in units of a's height (the extent of its keypoints seen
+    there, at least 8 px); inf when fewer than 3 are seen by both."""
+    a, b = np.asarray(a, dtype=np.float64)[:NUM_COCO], np.asarray(b, dtype=np.float64)[:NUM_COCO]
+    both = (a[:, 2] > confident_a) & (b[:, 2] > confident_b)
+    if both.sum() < 3:
+        return float("inf")
+    height = max(float(np.ptp(a[both, 1])), 8.0)
+    return float(np.linalg.norm(a[both, :2] - b[both, :2], axis=-1).mean() / height)
+
+
 def pack_mask(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     """A bool mask h x w -> (its bits packed row-major, h, w): an eighth of its memory. Tracks keep their people's
     masks packed so a long video's masks do not pile up (m3c.nodes.records stores them in the same packing)."""
