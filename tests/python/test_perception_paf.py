@@ -190,3 +190,21 @@ def test_the_network_refuses_bad_images_and_sizes():
     with pytest.raises(ValueError, match="image"):
         net.forward(np.zeros((40, 40, 3), np.float32) + 0.5, 64, 64)
     assert net.forward(np.zeros((40, 40, 3), np.uint8), 64, 48).shape == (57, 6, 8)
+
+
+@pytest.mark.skipif(not mediapipe_available(), reason="mediapipe==0.10.14 not installed")
+def test_without_the_network_the_detector_warns_and_searches_alone(tmp_path, monkeypatch, caplog):
+    from m3c.perception.mediapipe_pose import MediaPipeDetector
+
+    monkeypatch.setenv("M3C_PAF_MODEL", str(tmp_path / "absent.pb"))
+    with caplog.at_level("WARNING", logger="m3c.perception.mediapipe"):
+        detector = MediaPipeDetector(paf="auto")
+    try:
+        assert detector.paf is None
+        assert "m3c.perception.paf install" in caplog.text
+    finally:
+        detector.close()
+    with pytest.raises(FileNotFoundError, match="absent.pb is not installed"):
+        MediaPipeDetector(paf="on")
+    with pytest.raises(ValueError, match='paf must be "auto", "on" or "off"'):
+        MediaPipeDetector(paf="maybe")

@@ -255,7 +255,6 @@ class MediaPipeDetector(Detector):
         self.whiten_dilation, self.tile_overlap = whiten_dilation, tile_overlap
         self.fine_tiles, self.fine_every = fine_tiles, fine_every
         self._last_fine: int | None = None
-        self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
         if paf not in ("auto", "on", "off") or not paf_agreement > 0:
             raise ValueError(f'paf must be "auto", "on" or "off" and paf_agreement > 0, got {paf!r}, {paf_agreement}')
         self.paf_agreement = paf_agreement
@@ -265,6 +264,7 @@ class MediaPipeDetector(Detector):
         elif paf == "auto":
             LOG.warning("the multi-person pose network is not installed (%s): people standing close together may "
                         "be missed; install it with `%s`", paf_model_path(), PAF_INSTALL)
+        self.engine = shared_engine(shared, min_detection_confidence=min_detection_confidence)
 
     def _whiten(self, work: np.ndarray, person: Person, frame_size: tuple[int, int]) -> None:
         """Whitens a found person: its dilated mask, or its box when the mask is missing or much smaller."""
