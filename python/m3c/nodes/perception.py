@@ -62,7 +62,9 @@ class PerceptionNode(Node):
     # 10: a warm body fit that ends turned more than 90 degrees from the 3D torso is solved again turned as it
     #    (cpp/fit max_turn_from_3d_deg: side views held on the wrong side)
     # 11: the detector's proposals from a multi-person pose network (m3c.perception.paf) before BlazePose's tiles
-    version = "11"
+    # 12: a patch BlazePose finds nobody on, shifted into the frame at its edge, is retried centred on the person
+    #     (white past the edge)
+    version = "12"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
