@@ -122,6 +122,29 @@ def test_only_a_square_well_past_the_frame_is_retried_centred():
     assert 0 < EDGE_RETRY_OVERHANG < 0.5
 
 
+
+def test_a_pose_pass_that_finds_nobody_keeps_the_pose_blazepose_gave_before():
+    # Seed 1's pan: the detector posed a person 25% behind another on her own patch; the pose pass re-ran
+    # BlazePose with the other people whitened too, found nobody, and dropped her (8 frames missed).
+    from m3c.perception.mediapipe_pose import NAME, MediaPipePose2D
+    from m3c.perception.types import FrameContext, Person
+
+    class Blind:
+        def run(self, image, origin=(0, 0)):
+            return None
+
+    estimator = MediaPipePose2D.__new__(MediaPipePose2D)
+    estimator.patch_pass, estimator.padding, estimator.engine = "auto", 5.0, Blind()
+    image = np.full((540, 960, 3), 90, dtype=np.uint8)
+    keypoints = np.column_stack([np.linspace(380, 450, 17), np.linspace(150, 330, 17), np.full(17, 0.9)])
+    posed = Person(np.array([370.0, 144.0, 460.0, 335.0]), 0.9, keypoints, sources={"pose2d": NAME})
+    unposed = Person(np.array([600.0, 144.0, 690.0, 335.0]), 0.9, sources={"detector": "tracker"})
+    front = Person(np.array([378.0, 286.0, 552.0, 508.0]), 0.9, keypoints, sources={"pose2d": NAME})
+    kept, dropped, _ = estimator.estimate(FrameContext(image, 0), [posed, unposed, front])
+    assert kept is posed and np.array_equal(kept.keypoints, keypoints)
+    assert dropped is None  # nobody found and no pose before: nothing to keep
+
+
 @pytest.fixture(scope="module")
 def walking_frame(open_model, mocap_clips, tmp_path_factory):
     """The first frame of a rendered panning sequence of three walkers, and their true keypoints there."""

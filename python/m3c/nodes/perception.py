@@ -64,7 +64,9 @@ class PerceptionNode(Node):
     # 11: the detector's proposals from a multi-person pose network (m3c.perception.paf) before BlazePose's tiles
     # 12: a patch BlazePose finds nobody on, shifted into the frame at its edge, is retried centred on the person
     #     (white past the edge)
-    version = "12"
+    # 13: a pose pass that re-runs BlazePose on a patch among more whitened people and finds nobody keeps the
+    #     person's earlier BlazePose pose instead of dropping the person
+    version = "13"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

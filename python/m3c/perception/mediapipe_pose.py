@@ -448,7 +448,8 @@ class MediaPipePose2D(PoseEstimator2D):
                     continue
             found = _patch_person(ctx, self.engine, person, others, self.padding, 0.5)
             if found is None:
-                out.append(None)
+                # A re-run among more whitened people that finds nobody keeps the pose BlazePose gave before.
+                out.append(person if have else None)
                 continue
             sources = dict(person.sources)
             sources.update(pose2d=NAME)
