@@ -86,7 +86,6 @@ def test_a_small_find_on_a_known_person_is_a_piece_of_it():
     assert not _piece_of(np.array([800.0, 300.0, 840.0, 400.0]), known)
 
 
-
 def test_the_centred_square_is_centred_on_the_padded_box_and_may_leave_the_frame():
     # A box 100 wide and 300 tall at the left edge, padded by 5: a 310-pixel square around its centre (50, 250).
     assert centred_square([0.0, 100.0, 100.0, 400.0], 5.0).tolist() == [-105.0, 95.0, 205.0, 405.0]
@@ -94,7 +93,6 @@ def test_the_centred_square_is_centred_on_the_padded_box_and_may_leave_the_frame
     square = centred_square([10.2, 20.0, 50.7, 70.3], 0.0)
     assert square[2] - square[0] == square[3] - square[1] == 51
     assert abs((square[0] + square[2]) / 2 - 30.45) <= 0.5 and abs((square[1] + square[3]) / 2 - 45.15) <= 0.5
-
 
 
 def test_only_a_square_well_past_the_frame_is_retried_centred():
@@ -120,7 +118,6 @@ def test_only_a_square_well_past_the_frame_is_retried_centred():
             (h, w), origin = engine.patches[1]
             assert h == w == 310 and origin == (-105, 95)  # the centred square, white past the frame
     assert 0 < EDGE_RETRY_OVERHANG < 0.5
-
 
 
 def test_a_pose_pass_that_finds_nobody_keeps_the_pose_blazepose_gave_before():

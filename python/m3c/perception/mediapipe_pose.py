@@ -190,6 +190,24 @@ def _isolated(ctx: FrameContext, person: Person, other_boxes: np.ndarray, region
     return patch
 
 
+def _centred_run(ctx: FrameContext, engine: MediaPipeEngine, person: Person, other_boxes: np.ndarray,
+                 padding: float):
+    """(run, the in-frame part of its square) of BlazePose on the person's square centred on them, white past the
+    frame, when that square reaches past the frame by EDGE_RETRY_OVERHANG of its side or more; else None."""
+    square = centred_square(person.box, padding)
+    inside = np.clip(square, 0, [ctx.size[1], ctx.size[0]] * 2)
+    side = int(square[2] - square[0])
+    if np.abs(square - inside).max() < EDGE_RETRY_OVERHANG * side or inside[2] <= inside[0] or inside[3] <= inside[1]:
+        return None
+    canvas = np.full((side, side, 3), WHITE, dtype=np.uint8)
+    (x0, y0, x1, y1), (sx, sy) = inside.astype(int), square[:2].astype(int)
+    canvas[y0 - sy:y1 - sy, x0 - sx:x1 - sx] = _isolated(ctx, person, other_boxes, inside)
+    run = engine.run(canvas, origin=(sx, sy))
+    if run is not None and run[2] is not None:  # the mask kept inside the frame only
+        run = (run[0], run[1], run[2][y0 - sy:y1 - sy, x0 - sx:x1 - sx])
+    return run, inside
+
+
 def _patch_person(ctx: FrameContext, engine: MediaPipeEngine, person: Person, others: list[Person], padding: float,
                   min_confidence: float) -> Person | None:
     """BlazePose on the person's isolated patch (cached per frame, so the segmenter and the pose estimator
@@ -208,18 +226,9 @@ def _patch_person(ctx: FrameContext, engine: MediaPipeEngine, person: Person, ot
         patch = _isolated(ctx, person, other_boxes, patch_box)
         run = engine.run(patch, origin=(patch_box[0], patch_box[1])) if patch.size else None
         run_box = patch_box
-        square = centred_square(person.box, padding)
-        inside = np.clip(square, 0, [ctx.size[1], ctx.size[0]] * 2)
-        side = int(square[2] - square[0])
-        if (run is None and np.abs(square - inside).max() >= EDGE_RETRY_OVERHANG * side
-                and inside[2] > inside[0] and inside[3] > inside[1]):
-            canvas = np.full((side, side, 3), WHITE, dtype=np.uint8)
-            (x0, y0, x1, y1), (sx, sy) = inside.astype(int), square[:2].astype(int)
-            canvas[y0 - sy:y1 - sy, x0 - sx:x1 - sx] = _isolated(ctx, person, other_boxes, inside)
-            run = engine.run(canvas, origin=(sx, sy))
-            if run is not None and run[2] is not None:  # the mask kept inside the frame only
-                run = (run[0], run[1], run[2][y0 - sy:y1 - sy, x0 - sx:x1 - sx])
-            run_box = inside
+        retried = _centred_run(ctx, engine, person, other_boxes, padding) if run is None else None
+        if retried is not None:
+            run, run_box = retried
         found = None
         if run is not None:
             sources = {"segmenter": NAME, "pose2d": NAME}
