@@ -1,11 +1,13 @@
 """The track-merge rule on synthetic tracks: splits of one person are joined; two people (other clothes, or the
-same clothes elsewhere), parts that overlap in time and parts too far apart in time are not."""
+same clothes elsewhere), parts that overlap in time and parts too far apart in time are not. The slide rule: the
+frames where a track showed another person coming back are handed to that person's track, and no others."""
 
 import numpy as np
 import pytest
 
 from m3c.perception.appearance import DESCRIPTOR_SIZE, bhattacharyya_distance
-from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits, piece_cost, split_cost
+from m3c.perception.track_merge import (TrackMergeConfig, TrackSegment, hand_back_slides, merge_track_splits,
+                                        piece_cost, split_cost)
 
 FPS = 30.0
 
@@ -141,3 +143,75 @@ def test_pieces_of_someone_else_or_outside_a_gap_stay_apart(rng):
     twin = segment(11, range(101, 104), (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
     merged = merge_track_splits([player, long_piece, twin], FPS)
     assert sorted(merged[i] for i in (10, 11)) in ([1, 10], [1, 11])
+
+
+# Slides: a tracked patch that followed a person coming out from behind -----------------------------------------
+def skeleton(centre_u: float, height: float = 200.0, top: float = 100.0, confidence: float = 0.9) -> np.ndarray:
+    """17 COCO keypoints (u, v, confidence) of an upright stick figure of `height` pixels centred at centre_u."""
+    v = top + height * np.linspace(0.0, 1.0, 17)
+    u = centre_u + 0.15 * height * np.sin(np.arange(17) * 1.3)
+    return np.column_stack([u, v, np.full(17, confidence)])
+
+
+def slide_scene(slide=range(20, 25), gap=range(15, 25)):
+    """Person X at u = 400 and person Y at u = 470 (0.35 of their height apart), both drifting right. Track 0
+    follows X but shows Y at the frames of `slide` (the first of them a mix, 30% X); track 1 follows Y and misses
+    the frames of `gap`."""
+    x = {f: skeleton(400 + f) for f in range(30)}
+    y = {f: skeleton(470 + f) for f in range(30)}
+    track0 = dict(x)
+    for f in slide:
+        track0[f] = y[f].copy()
+    track0[slide[0]][:, :2] = 0.3 * x[slide[0]][:, :2] + 0.7 * y[slide[0]][:, :2]
+    track1 = {f: y[f] for f in range(30) if f not in gap}
+    return {0: track0, 1: track1}
+
+
+def test_a_track_that_slid_onto_a_returning_person_hands_those_frames_back():
+    tracks = slide_scene()
+    moves = hand_back_slides(tracks)
+    assert moves == [(0, 1, list(range(20, 25)))]  # exactly the frames where track 0 showed Y
+    assert set(tracks[0]) == set(range(30)) and set(tracks[1]) == set(range(30)) - set(range(15, 25))  # untouched
+    # The cap, and the rule switched off.
+    assert hand_back_slides(tracks, TrackMergeConfig(max_slide_frames=3)) == [(0, 1, [22, 23, 24])]
+    assert hand_back_slides(tracks, TrackMergeConfig(max_slide_frames=0)) == []
+
+
+def test_no_slide_without_a_jump_back_or_a_returning_track_where_it_was():
+    # Track 1 was there the frame before: it did not come back.
+    assert hand_back_slides(slide_scene(gap=range(15, 24))) == []
+    # Track 0 never left X: no jump back.
+    tracks = slide_scene()
+    tracks[0] = {f: skeleton(400 + f) for f in range(30)}
+    assert hand_back_slides(tracks) == []
+    # Track 1 comes back far from where track 0 was (Y re-found 2 heights away).
+    tracks = slide_scene()
+    tracks[1] = {f: (skeleton(470 + f) if f < 15 else skeleton(870 + f)) for f in tracks[1]}
+    assert hand_back_slides(tracks) == []
+    # A jump of less than slide_jump (Y 0.35 heights from X) is no evidence.
+    assert hand_back_slides(slide_scene(), TrackMergeConfig(slide_jump=0.5)) == []
+    # Keypoints too unsure to compare.
+    tracks = slide_scene()
+    tracks[0][24] = skeleton(494, confidence=0.1)
+    assert hand_back_slides(tracks) == []
+    with pytest.raises(ValueError, match="max_slide_frames"):
+        TrackMergeConfig(max_slide_frames=-1)
+    with pytest.raises(ValueError, match="slide_jump"):
+        TrackMergeConfig(slide_jump=0)
+
+
+def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows():
+    from m3c.perception.pipeline import _hand_back_slides
+    from m3c.perception.types import Person
+
+    tracks = slide_scene()
+    records = {i: [(f, Person(np.array([0.0, 0.0, 1.0, 1.0]), 0.9, k), None, None) for f, k in sorted(t.items())]
+               for i, t in tracks.items()}
+    cues = {i: [(np.array([float(f), float(i), 5.0]), None) for f, _ in sorted(t.items())] for i, t in tracks.items()}
+    flows = {0: {f: np.full((4, 2), float(f)) for f in tracks[0]}}
+    assert _hand_back_slides([0, 1], records, cues, flows, TrackMergeConfig()) == [(0, 1, list(range(20, 25)))]
+    for i, frames in ((0, [f for f in range(30) if not 20 <= f < 25]), (1, [f for f in range(30) if not 15 <= f < 20])):
+        assert [r[0] for r in records[i]] == frames
+        assert [c[0][0] for c in cues[i]] == frames  # each cue still beside its frame's record
+    assert np.array_equal(records[1][16][1].keypoints, tracks[0][21])  # frame 21: what track 0 saw there
+    assert sorted(flows[1]) == list(range(20, 25)) and 20 not in flows[0]

@@ -66,7 +66,9 @@ class PerceptionNode(Node):
     #     (white past the edge)
     # 13: a pose pass that re-runs BlazePose on a patch among more whitened people and finds nobody keeps the
     #     person's earlier BlazePose pose instead of dropping the person
-    version = "13"
+    # 14: frames of a track that slid onto a person coming back are handed to that person's track
+    #     (m3c.perception.track_merge.hand_back_slides)
+    version = "14"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

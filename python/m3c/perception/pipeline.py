@@ -9,6 +9,7 @@ Which estimator runs each task is named in PerceptionConfig and recorded in the 
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -27,9 +28,11 @@ from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, gro
 from m3c.perception.boxes import clip_boxes
 from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
-from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, merge_track_splits
+from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, hand_back_slides, merge_track_splits
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person, pack_mask, pose_distance
+
+LOG = logging.getLogger("m3c.perception.pipeline")
 
 DEFAULT_ESTIMATORS = {"detector": "mediapipe", "segmenter": "mediapipe", "pose2d": "mediapipe", "body": "fit",
                       "contacts": "kinematic", "depth": "none", "gender": "neutral"}
@@ -50,7 +53,8 @@ class PerceptionConfig:
     tracked person was not found again); in between, people are found on the patches of their tracks'
     predicted boxes, enlarged by proposal_margin of their height on each side.
     restart_gap: a track's body fit starts cold after more than this many frames without it.
-    merge: how track splits are merged after tracking (m3c.perception.track_merge).
+    merge: how track splits are merged after tracking, and frames of a track that slid onto another person handed
+        back (m3c.perception.track_merge).
     ground_motion: how the feet's motion against the ground is read from the images for the contacts
     (m3c.perception.ground_motion; enabled false: the feet's heights and their motion relative to the body).
     contact_depth_window: the contacts read each track's fit with its depth steadied (m3c.perception.contacts.
@@ -389,6 +393,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
 
         t0 = time.perf_counter()
         confirmed = sorted(i for i in records if i in tracker.confirmed_ids())
+        _hand_back_slides(confirmed, records, cues, flows, config.merge)
         merged = merge_track_splits([_segment(i, records[i], cues[i]) for i in confirmed], fps, config.merge)
         joined: dict[int, list] = {}
         joined_flows: dict[int, dict[int, np.ndarray]] = {}
@@ -412,6 +417,27 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                             np.array(people_per_frame, dtype=np.int64),
                             np.stack(depth_maps) if depth_maps else None,
                             {i: j for i, j in merged.items() if i != j})
+
+
+def _hand_back_slides(track_ids: list[int], records: dict, cues: dict, flows: dict,
+                      config: TrackMergeConfig) -> list[tuple[int, int, list[int]]]:
+    """Moves the frames of tracks that slid onto a person coming back (m3c.perception.track_merge.hand_back_slides)
+    to that person's track, with their cues and ground flows; returns the moves."""
+    keypoints = {i: {entry[0]: entry[1].keypoints for entry in records[i]} for i in track_ids}
+    moves = hand_back_slides(keypoints, config)
+    for source, target, frames in moves:
+        pairs, taken = list(zip(records[source], cues[source])), set(frames)
+        moved = [pair for pair in pairs if pair[0][0] in taken]
+        kept = [pair for pair in pairs if pair[0][0] not in taken]
+        joined = sorted(list(zip(records[target], cues[target])) + moved, key=lambda pair: pair[0][0])
+        for track_id, rows in ((source, kept), (target, joined)):
+            records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
+        for frame in frames:
+            if frame in flows.get(source, {}):
+                flows.setdefault(target, {})[frame] = flows[source].pop(frame)
+        LOG.info("frames %d-%d of track %d handed to track %d: it had slid onto that person", frames[0], frames[-1],
+                 source, target)
+    return moves
 
 
 def _segment(track_id: int, entries: list, cues: list) -> TrackSegment:

@@ -15,6 +15,14 @@ piece of that person when its colour agrees and its bearing does: a piece (a cro
 gets a depth from its box that is no guide, so its locations are moved along their lines of sight to the other
 track's depths at the gap's two ends and compared across the line of sight only (max_distance + max_speed * time
 from that end). It joins the track it fits best (cost: appearance plus the worse of the two ends).
+
+Before either rule, frames are handed back where a tracked patch slid onto another person (hand_back_slides): a
+person coming out from behind another is in that other's patch, and BlazePose there may pose the one coming out;
+the track then follows them for a few frames and jumps back once their own track finds them again. A track whose
+keypoints jump by slide_jump of the person's height or more from frame t-1 to t, just as another track comes back
+at t (absent at t-1) nearer its keypoints at t-1 than its own at t are, had slid onto that person: its frames up
+to t-1 whose keypoints lie nearer the returning track's at t than its own at t (at most max_slide_frames of them,
+contiguous, where the returning track has none) are that person's and go to the returning track.
 """
 
 from __future__ import annotations
@@ -25,8 +33,10 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from m3c.perception.appearance import bhattacharyya_distance
+from m3c.perception.types import pose_distance
 
 INFEASIBLE = 1e6
+SLIDE_CONFIDENCE = 0.3  # keypoints compared by the slide rule: those above this confidence (the tracker's)
 
 
 @dataclass
@@ -39,12 +49,14 @@ class TrackMergeConfig:
     max_speed: float = 3.0         # m/s a person may have moved during the gap
     ends: int = 10                 # locations at each part's end whose median is compared
     max_piece_s: float = 1.0       # longest part absorbed into another track's gap (a 0 turns the rule off)
+    max_slide_frames: int = 10     # most frames handed back from a track that slid onto another (0: off)
+    slide_jump: float = 0.2        # the jump back that ends such a slide, in the person's height
 
     def __post_init__(self):
-        if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction) <= 0:
-            raise ValueError("max_gap_s, max_appearance, max_distance and depth_fraction must be > 0")
-        if self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0:
-            raise ValueError("max_speed and max_piece_s must be >= 0 and ends >= 1")
+        if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction, self.slide_jump) <= 0:
+            raise ValueError("max_gap_s, max_appearance, max_distance, depth_fraction and slide_jump must be > 0")
+        if self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0 or self.max_slide_frames < 0:
+            raise ValueError("max_speed, max_piece_s and max_slide_frames must be >= 0 and ends >= 1")
 
 
 @dataclass
@@ -187,3 +199,45 @@ def merge_track_splits(segments: list[TrackSegment], fps: float,
             while merged[i] in hosted:
                 merged[i] = hosted[merged[i]]
     return merged
+
+
+def hand_back_slides(keypoints: dict[int, dict[int, np.ndarray]],
+                     config: TrackMergeConfig | None = None) -> list[tuple[int, int, list[int]]]:
+    """(from track, to track, frames) of every slide found (see the module docstring), in the order found; the
+    moves are made on keypoints as they are found, so a frame is handed on at most once. keypoints: track id ->
+    frame -> (K >= 17, 3) image keypoints (u, v, confidence) of that track's person there."""
+    config = config or TrackMergeConfig()
+    tracks = {i: dict(frames) for i, frames in keypoints.items()}
+    if config.max_slide_frames == 0:
+        return []
+
+    def distance(a: np.ndarray, b: np.ndarray) -> float:
+        return pose_distance(a, b, SLIDE_CONFIDENCE, SLIDE_CONFIDENCE)
+
+    moves = []
+    for a in sorted(tracks):
+        for t in sorted(tracks[a]):
+            if t - 1 not in tracks[a] or t not in tracks[a]:
+                continue
+            last, own = tracks[a][t - 1], tracks[a][t]
+            jump = distance(last, own)  # inf where they share under 3 keypoints: no evidence of a jump
+            if not config.slide_jump <= jump < np.inf:
+                continue
+            # The tracks that come back at t within slide_jump of a's keypoints at t-1 (nearer than a's own at t).
+            returning = [(distance(last, tracks[b][t]), b) for b in sorted(tracks)
+                         if b != a and t in tracks[b] and t - 1 not in tracks[b]]
+            returning = [(d, b) for d, b in returning if d < config.slide_jump]
+            if not returning:
+                continue
+            b = min(returning)[1]
+            back, frames = tracks[b][t], []
+            s = t - 1
+            while (len(frames) < config.max_slide_frames and s in tracks[a] and s not in tracks[b]
+                   and distance(tracks[a][s], back) < distance(tracks[a][s], own) < np.inf):
+                frames.append(s)
+                s -= 1
+            if frames and len(frames) < len(tracks[a]):  # a track is never emptied
+                for f in frames:
+                    tracks[b][f] = tracks[a].pop(f)
+                moves.append((a, b, sorted(frames)))
+    return moves
