@@ -159,39 +159,42 @@ def walking_frame(open_model, mocap_clips, tmp_path_factory):
 
 
 @needs_mediapipe
-@pytest.mark.parametrize("person, cut", [(0, 0.25), (0, 0.3), (1, 0.35), (1, 0.4), (2, 0.25), (2, 0.3)])
-def test_a_person_cut_by_the_frames_edge_is_posed_on_a_centred_square(walking_frame, person, cut):
+def test_a_person_cut_by_the_frames_edge_is_posed_on_a_centred_square(walking_frame):
     from m3c.perception.boxes import crop, process_box
     from m3c.perception.mediapipe_pose import MediaPipeEngine, _patch_person
     from m3c.perception.types import FrameContext, Person
 
     image, keypoints = walking_frame
-    truth = keypoints[person]
-    box = np.concatenate([truth.min(0), truth.max(0)])
-    # The frame starts `cut` of the person's width into them: their left part is outside the picture.
-    shift = int(box[0] + cut * (box[2] - box[0]))
-    frame = np.ascontiguousarray(image[:, shift:])
-    truth = truth - [shift, 0]
-    box = np.array([0.0, box[1], box[2] - shift, box[3]])
+    missed_on_the_shifted_square = 0
     engine = MediaPipeEngine()
     try:
-        # The premise: on the square shifted into the frame (the person off-centre) BlazePose finds nobody.
-        shifted = process_box(box, frame.shape[:2], 5.0)
-        assert engine.run(crop(frame, shifted), origin=(shifted[0], shifted[1])) is None
-        found = _patch_person(FrameContext(frame, 0), engine, Person(box, 1.0), [], 5.0, 0.5)
+        for person, cut in [(0, 0.25), (0, 0.3), (1, 0.35), (1, 0.4), (2, 0.25), (2, 0.3)]:
+            truth = keypoints[person]
+            box = np.concatenate([truth.min(0), truth.max(0)])
+            # The frame starts `cut` of the person's width into them: their left part is outside the picture.
+            shift = int(box[0] + cut * (box[2] - box[0]))
+            frame = np.ascontiguousarray(image[:, shift:])
+            truth = truth - [shift, 0]
+            box = np.array([0.0, box[1], box[2] - shift, box[3]])
+            # The premise: on the square shifted into the frame (the person off-centre) BlazePose often finds
+            # nobody (6 of these 6 on the machine this was written on, 4 on another CPU).
+            shifted = process_box(box, frame.shape[:2], 5.0)
+            missed_on_the_shifted_square += engine.run(crop(frame, shifted), origin=(shifted[0], shifted[1])) is None
+            found = _patch_person(FrameContext(frame, 0), engine, Person(box, 1.0), [], 5.0, 0.5)
+            assert found is not None, (person, cut)
+            # Its keypoints in the picture within 0.15 of its height of the truth (the video benchmark matches at
+            # 0.2), half of them or more confident.
+            inside = truth[:, 0] >= 0
+            height = np.ptp(truth[inside, 1])
+            assert np.linalg.norm(found.keypoints[:17][inside, :2] - truth[inside], axis=-1).mean() < 0.15 * height
+            assert (found.keypoints[:17][inside, 2] >= 0.5).sum() >= inside.sum() / 2
+            # The mask stays inside the frame, where its box says it is.
+            x0, y0, x1, y1 = found.mask_box
+            assert 0 <= x0 < x1 <= frame.shape[1] and 0 <= y0 < y1 <= frame.shape[0]
+            assert found.mask.shape == (y1 - y0, x1 - x0)
     finally:
         engine.close()
-    assert found is not None
-    # Its keypoints in the picture within 0.15 of its height of the truth (the video benchmark matches at 0.2),
-    # half of them or more confident.
-    inside = truth[:, 0] >= 0
-    height = np.ptp(truth[inside, 1])
-    assert np.linalg.norm(found.keypoints[:17][inside, :2] - truth[inside], axis=-1).mean() < 0.15 * height
-    assert (found.keypoints[:17][inside, 2] >= 0.5).sum() >= inside.sum() / 2
-    # The mask stays inside the frame, where its box says it is.
-    x0, y0, x1, y1 = found.mask_box
-    assert 0 <= x0 < x1 <= frame.shape[1] and 0 <= y0 < y1 <= frame.shape[0]
-    assert found.mask.shape == (y1 - y0, x1 - x0)
+    assert missed_on_the_shifted_square >= 2  # the centred retry found those (else found would be None above)
 
 
 def check_single_person_clip(result, min_fraction: float = 0.95, max_median_px: float = 3.0,
