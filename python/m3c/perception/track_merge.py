@@ -207,9 +207,9 @@ def hand_back_slides(keypoints: dict[int, dict[int, np.ndarray]],
     moves are made on keypoints as they are found, so a frame is handed on at most once. keypoints: track id ->
     frame -> (K >= 17, 3) image keypoints (u, v, confidence) of that track's person there."""
     config = config or TrackMergeConfig()
-    tracks = {i: dict(frames) for i, frames in keypoints.items()}
     if config.max_slide_frames == 0:
         return []
+    tracks = {i: dict(frames) for i, frames in keypoints.items()}  # moved on as found; the caller's untouched
 
     def distance(a: np.ndarray, b: np.ndarray) -> float:
         return pose_distance(a, b, SLIDE_CONFIDENCE, SLIDE_CONFIDENCE)
