@@ -1,13 +1,14 @@
 """The track-merge rule on synthetic tracks: splits of one person are joined; two people (other clothes, or the
 same clothes elsewhere), parts that overlap in time and parts too far apart in time are not. The slide rule: the
-frames where a track showed another person coming back are handed to that person's track, and no others."""
+frames where a track showed another person coming back are handed to that person's track, and no others. The
+colour-change rule: a track whose keypoint colours change for good as its own person comes back is split there."""
 
 import numpy as np
 import pytest
 
 from m3c.perception.appearance import DESCRIPTOR_SIZE, bhattacharyya_distance
 from m3c.perception.track_merge import (TrackMergeConfig, TrackSegment, hand_back_slides, merge_track_splits,
-                                        piece_cost, split_cost)
+                                        piece_cost, split_colour_changes, split_cost)
 
 FPS = 30.0
 
@@ -215,3 +216,86 @@ def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows()
         assert [c[0][0] for c in cues[i]] == frames  # each cue still beside its frame's record
     assert np.array_equal(records[1][16][1].keypoints, tracks[0][21])  # frame 21: what track 0 saw there
     assert sorted(flows[1]) == list(range(20, 25)) and 20 not in flows[0]
+
+
+# Colour changes: a track that slid onto someone for good while its own person came back as a new track -----------
+def colour(share_a: float) -> np.ndarray:
+    """A keypoint colour descriptor: person A's colours (bins 0..3) for share_a of it, B's (bins 40..43) for the
+    rest."""
+    a, b = np.zeros(DESCRIPTOR_SIZE), np.zeros(DESCRIPTOR_SIZE)
+    a[0:4], b[40:44] = [0.4, 0.3, 0.2, 0.1], [0.4, 0.3, 0.2, 0.1]
+    return share_a * a + (1 - share_a) * b
+
+
+def change_scene(new_start: int = 48, new_share_a: float = 1.0, blend=(0.8, 0.5, 0.2)):
+    """Track 0 follows A (frames 0-119) until it slides onto B at frames 40-42 (the keypoint colours of `blend`)
+    and stays on B; B's own track 1 ended at frame 20; A comes back as track 2 from new_start (its colours
+    new_share_a A's); track 3 is someone else (bins 80..83) throughout."""
+    track0 = {f: colour(1.0) if f < 40 else colour(0.0) for f in range(120)}
+    for f, share in zip(range(40, 43), blend):
+        track0[f] = colour(share)
+    other = np.zeros(DESCRIPTOR_SIZE)
+    other[80:84] = [0.4, 0.3, 0.2, 0.1]
+    return {0: track0, 1: {f: colour(0.0) for f in range(21)},
+            2: {f: colour(new_share_a) for f in range(new_start, 120)}, 3: {f: other for f in range(120)}}
+
+
+def test_a_track_whose_colours_change_as_its_person_comes_back_is_split_there():
+    scene = change_scene()
+    [(track, new, first, dropped)] = split_colour_changes(scene, FPS)
+    assert (track, new) == (0, 2)
+    # The mixed frame (half A, half B) is dropped; what is kept before the split is mostly A, after it mostly B.
+    assert 41 in dropped and set(dropped) <= {40, 41, 42}
+    kept = [f for f in scene[0] if f not in dropped]
+    assert all(scene[0][f][:4].sum() >= 0.8 for f in kept if f < first)
+    assert all(scene[0][f][:4].sum() <= 0.2 for f in kept if f >= first)
+    # A colour unknown in some frames changes nothing.
+    scene[0][30], scene[0][50] = None, None
+    assert split_colour_changes(scene, FPS)[0][:2] == (0, 2)
+    assert split_colour_changes(scene, FPS, TrackMergeConfig(colour_window=0)) == []
+
+
+def test_no_colour_split_without_a_lasting_change_and_a_new_track_like_before():
+    # The new track wears B's colours (someone else), or comes more than max_reappear_s after the change.
+    assert split_colour_changes(change_scene(new_share_a=0.0), FPS) == []
+    assert split_colour_changes(change_scene(new_start=80), FPS) == []
+    assert split_colour_changes(change_scene(new_start=80), FPS, TrackMergeConfig(max_reappear_s=1.5)) != []
+    # No lasting change: track 0 shows B for three frames only.
+    scene = change_scene()
+    scene[0] = {f: colour(0.0) if 40 <= f < 43 else colour(1.0) for f in range(120)}
+    assert split_colour_changes(scene, FPS) == []
+    # A change under min_colour_change: B dressed nearly as A.
+    scene = change_scene()
+    scene[0] = {f: colour(1.0) if f < 40 else colour(0.9) for f in range(120)}
+    assert split_colour_changes(scene, FPS) == []
+    with pytest.raises(ValueError, match="colour_window"):
+        TrackMergeConfig(colour_window=-1)
+    with pytest.raises(ValueError, match="min_colour_change"):
+        TrackMergeConfig(min_colour_change=0)
+
+
+def test_parts_kept_apart_are_not_merged_again(rng):
+    before = segment(1, range(40), (0.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    after = segment(2, range(41, 80), (0.41, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    assert merge_track_splits([before, after], FPS) == {1: 1, 2: 1}
+    assert merge_track_splits([before, after], FPS, apart={frozenset((1, 2))}) == {1: 1, 2: 2}
+
+
+def test_the_perception_stage_splits_records_cues_and_flows_at_a_colour_change():
+    from m3c.perception.pipeline import _split_colour_changes
+    from m3c.perception.types import Person
+
+    scene = change_scene()
+    records = {i: [(f, Person(np.array([0.0, 0.0, 1.0, 1.0]), 0.9, skeleton(400.0)), None, None) for f in sorted(t)]
+               for i, t in scene.items()}
+    cues = {i: [(np.array([float(f), float(i), 5.0]), None, t[f]) for f in sorted(t)] for i, t in scene.items()}
+    flows = {0: {f: np.full((4, 2), float(f)) for f in scene[0]}}
+    ids = [0, 1, 2, 3]
+    [(_, _, first, dropped)] = split_colour_changes(scene, FPS)
+    assert _split_colour_changes(ids, records, cues, flows, FPS, TrackMergeConfig()) == {frozenset((0, 4))}
+    assert ids == [0, 1, 2, 3, 4]
+    for i, frames in ((0, [f for f in range(first) if f not in dropped]),
+                      (4, [f for f in range(first, 120) if f not in dropped])):
+        assert [r[0] for r in records[i]] == frames
+        assert [c[0][0] for c in cues[i]] == frames  # each cue still beside its frame's record
+        assert sorted(flows[i]) == frames

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from m3c.perception import Observation, Tracker, TrackerConfig, appearance_descriptor, bhattacharyya_distance
-from m3c.perception.appearance import DESCRIPTOR_SIZE, rgb_to_hsv
+from m3c.perception.appearance import DESCRIPTOR_SIZE, _half_histogram, pose_colour_descriptor, rgb_to_hsv
 from m3c.perception.tracking import BoxKalmanFilter
 
 H, W = 240, 800
@@ -175,3 +175,54 @@ def test_a_box_spanning_two_people_goes_to_the_lost_track_whose_pose_it_shows():
 def test_reclaim_margin_must_not_be_negative():
     with pytest.raises(ValueError, match="reclaim_margin"):
         TrackerConfig(reclaim_margin=-0.1)
+
+
+def test_pose_colours_follow_the_keypoints_where_the_mask_holds_two_people():
+    # Two people side by side on grey: A in a red top and blue trousers, B in a green top and yellow trousers.
+    image = np.full((200, 200, 3), 128, np.uint8)
+    image[20:100, 20:80], image[100:180, 20:80] = (200, 30, 30), (30, 30, 200)
+    image[20:100, 110:170], image[100:180, 110:170] = (30, 200, 30), (200, 200, 30)
+
+    def keypoints(left: float, knees: float = 1.0) -> np.ndarray:
+        k = np.zeros((17, 3))
+        k[:, 2] = 1.0
+        k[[5, 6, 11, 12, 13, 14], :2] = [[left, 25], [left + 55, 25], [left, 100], [left + 55, 100],
+                                         [left, 175], [left + 55, 175]]
+        k[[13, 14], 2] = knees
+        return k
+
+    a, b = pose_colour_descriptor(image, keypoints(22)), pose_colour_descriptor(image, keypoints(112))
+    # The torso half is the top's colour alone, the thighs' half the trousers' (the quads shrunk inside them).
+    top, trousers = (_half_histogram(np.tile(colour, (10, 1)), 0.25, 0.15) for colour in ((200, 30, 30), (30, 30, 200)))
+    np.testing.assert_allclose(a, np.concatenate([top, trousers]) / 2, atol=1e-12)
+    half = DESCRIPTOR_SIZE // 2
+    assert bhattacharyya_distance(a, b) == pytest.approx(1.0)
+    # One mask over both people: its colours are the same whichever of them the keypoints are on.
+    both = appearance_descriptor(image, [20, 20, 170, 180])
+    assert bhattacharyya_distance(both, a) < 0.75 and bhattacharyya_distance(both, b) < 0.75
+    # A side view's crossed quadrilateral (shoulders swapped) still reads the same torso.
+    crossed = keypoints(22)
+    crossed[[5, 6]] = crossed[[6, 5]]
+    assert bhattacharyya_distance(pose_colour_descriptor(image, crossed), a) == pytest.approx(0.0, abs=1e-7)
+    # Unsure knees: the thighs' half is empty; an unsure shoulder: no descriptor.
+    no_knees = pose_colour_descriptor(image, keypoints(22, knees=0.2))
+    assert no_knees[half:].sum() == 0 and no_knees[:half].sum() == pytest.approx(1.0)
+    unsure = keypoints(22)
+    unsure[5, 2] = 0.3
+    assert pose_colour_descriptor(image, unsure) is None
+
+
+def test_the_polygon_test_matches_opencv(rng):
+    cv2 = pytest.importorskip("cv2")
+    from m3c.perception.appearance import _inside_polygon
+
+    for _ in range(20):
+        corners = rng.uniform(5, 95, size=(4, 2))
+        centre = corners.mean(axis=0)
+        corners = corners[np.argsort(np.arctan2(*(corners - centre).T[::-1]))]
+        v, u = np.mgrid[0:100, 0:100] + 0.5
+        ours = _inside_polygon(u, v, corners)
+        ref = np.array([[cv2.pointPolygonTest(corners.astype(np.float32), (float(x), float(y)), True)
+                         for x, y in zip(ur, vr)] for ur, vr in zip(u, v)])
+        sure = np.abs(ref) > 1e-6  # points on an edge may go either way
+        assert np.array_equal(ours[sure], ref[sure] > 0)

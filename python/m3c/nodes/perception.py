@@ -68,7 +68,9 @@ class PerceptionNode(Node):
     #     person's earlier BlazePose pose instead of dropping the person
     # 14: frames of a track that slid onto a person coming back are handed to that person's track
     #     (m3c.perception.track_merge.hand_back_slides)
-    version = "14"
+    # 15: a track whose keypoint colours change for good as its own person comes back as a new track is split
+    #     there (m3c.perception.track_merge.split_colour_changes)
+    version = "15"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

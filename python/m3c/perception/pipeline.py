@@ -21,14 +21,15 @@ import numpy as np
 from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.io import atomic_path, save_npz_atomic
 from m3c.io.video import default_intrinsics, iter_frames, probe_video
-from m3c.perception.appearance import appearance_descriptor
+from m3c.perception.appearance import appearance_descriptor, pose_colour_descriptor
 from m3c.perception.body import RESTART_GAP, BodyFits, cold_starts, rough_location
 from m3c.perception.contacts import contact_rest_heights, estimate_up, steady_depth
 from m3c.perception.ground_motion import GroundMotionConfig, contact_pixels, ground_flow, ground_speeds
 from m3c.perception.boxes import clip_boxes
 from m3c.perception.interfaces import TASKS
 from m3c.perception.registry import create
-from m3c.perception.track_merge import TrackMergeConfig, TrackSegment, hand_back_slides, merge_track_splits
+from m3c.perception.track_merge import (TrackMergeConfig, TrackSegment, hand_back_slides, merge_track_splits,
+                                        split_colour_changes)
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person, pack_mask, pose_distance
 
@@ -308,7 +309,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
     seconds = {"tracked_patches": 0.0, "detect": 0.0, "new_patches": 0.0, "depth": 0.0, "track": 0.0, "body": 0.0,
                "contacts": 0.0, "ground_motion": 0.0}
     records: dict[int, list[tuple[int, Person]]] = {}
-    cues: dict[int, list[tuple[np.ndarray | None, np.ndarray | None]]] = {}  # per record: location, appearance
+    # Per record: location, mask colours, keypoint colours (None where unknown).
+    cues: dict[int, list[tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]]] = {}
     # The ground's image motion near each person's contact points, from a frame to the next: track -> frame -> (4, 2)
     flows: dict[int, dict[int, np.ndarray]] = {}
     motion = config.ground_motion
@@ -362,7 +364,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                     if config.save_masks and person.mask is not None else None
                 records.setdefault(track_id, []).append((index, replace(person, mask=None, mask_box=None), result,
                                                          mask))
-                cues.setdefault(track_id, []).append((obs.location, obs.appearance))
+                cues.setdefault(track_id, []).append((obs.location, obs.appearance,
+                                                      pose_colour_descriptor(image, person.keypoints)))
             t6 = time.perf_counter()
             people_mask = _people_mask(people, ctx.size) if motion.enabled or config.save_masks else None
             t7 = time.perf_counter()
@@ -394,7 +397,8 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
         t0 = time.perf_counter()
         confirmed = sorted(i for i in records if i in tracker.confirmed_ids())
         _hand_back_slides(confirmed, records, cues, flows, config.merge)
-        merged = merge_track_splits([_segment(i, records[i], cues[i]) for i in confirmed], fps, config.merge)
+        apart = _split_colour_changes(confirmed, records, cues, flows, fps, config.merge)
+        merged = merge_track_splits([_segment(i, records[i], cues[i]) for i in confirmed], fps, config.merge, apart)
         joined: dict[int, list] = {}
         joined_flows: dict[int, dict[int, np.ndarray]] = {}
         for track_id in confirmed:
@@ -440,11 +444,35 @@ def _hand_back_slides(track_ids: list[int], records: dict, cues: dict, flows: di
     return moves
 
 
+def _split_colour_changes(track_ids: list[int], records: dict, cues: dict, flows: dict, fps: float,
+                          config: TrackMergeConfig) -> set[frozenset]:
+    """Splits the tracks whose keypoint colours changed for good as their own person came back as a new track
+    (m3c.perception.track_merge.split_colour_changes): the frames from the change go to a new id (appended to
+    track_ids) with their cues and ground flows, the blended frames are dropped; returns the pairs of parts."""
+    colours = {i: {entry[0]: cue[2] for entry, cue in zip(records[i], cues[i])} for i in track_ids}
+    apart = set()
+    for source, new, first, dropped in split_colour_changes(colours, fps, config):
+        target = max(max(records), max(track_ids)) + 1
+        gone = set(dropped)
+        pairs = [pair for pair in zip(records[source], cues[source]) if pair[0][0] not in gone]
+        for track_id, rows in ((source, [p for p in pairs if p[0][0] < first]),
+                               (target, [p for p in pairs if p[0][0] >= first])):
+            records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
+        moved = flows.get(source, {})
+        flows[source] = {f: v for f, v in moved.items() if f < first and f not in gone}
+        flows[target] = {f: v for f, v in moved.items() if f >= first and f not in gone}
+        track_ids.append(target)
+        apart.add(frozenset((source, target)))
+        LOG.info("track %d split at frame %d (its colours changed as track %d came in; %d blended frames dropped): "
+                 "frames from there are track %d", source, first, new, len(dropped), target)
+    return apart
+
+
 def _segment(track_id: int, entries: list, cues: list) -> TrackSegment:
     """A track's frames, locations and descriptors for the merge rule (NaN rows where a cue is missing)."""
-    locations = np.array([np.full(3, np.nan) if loc is None else loc for loc, _ in cues], dtype=np.float64)
-    size = next((len(a) for _, a in cues if a is not None), 1)
-    appearances = np.array([np.full(size, np.nan) if a is None else a for _, a in cues], dtype=np.float64)
+    locations = np.array([np.full(3, np.nan) if cue[0] is None else cue[0] for cue in cues], dtype=np.float64)
+    size = next((len(cue[1]) for cue in cues if cue[1] is not None), 1)
+    appearances = np.array([np.full(size, np.nan) if cue[1] is None else cue[1] for cue in cues], dtype=np.float64)
     return TrackSegment(track_id, np.array([entry[0] for entry in entries]), locations, appearances)
 
 

@@ -23,6 +23,17 @@ keypoints jump by slide_jump of the person's height or more from frame t-1 to t,
 at t (absent at t-1) nearer its keypoints at t-1 than its own at t are, had slid onto that person: its frames up
 to t-1 whose keypoints lie nearer the returning track's at t than its own at t (at most max_slide_frames of them,
 contiguous, where the returning track has none) are that person's and go to the returning track.
+
+A slide with no jump back (split_colour_changes): the track stays on the person it slid to, and its own person,
+in full view, is found again as a new track within a second. The colours at the track's keypoints (torso and
+thighs, appearance.pose_colour_descriptor; the mask's colours do not change while the patch holds both people)
+change there for good: the colours of the colour_window frames before a frame s and of those from s (per-bin
+medians) differ by min_colour_change or more (Bhattacharyya), and the new track's first colours lie nearer the
+before-window's, by colour_margin or more, than the after-window's (s: the largest such change among the frames
+up to max_reappear_s before the new track's first). The track is split where its frames around s go over
+from the before-window's colours to the after-window's; the frames between, no nearer either by a factor of
+TRANSITION_RATIO (a blend of the two people), are dropped, and the two parts are never merged again; the merge rule
+then joins each part to whichever track agrees with it.
 """
 
 from __future__ import annotations
@@ -37,6 +48,7 @@ from m3c.perception.types import pose_distance
 
 INFEASIBLE = 1e6
 SLIDE_CONFIDENCE = 0.3  # keypoints compared by the slide rule: those above this confidence (the tracker's)
+TRANSITION_RATIO = 1.5  # a frame nearer neither window's colours than this factor is a blend, dropped by a split
 
 
 @dataclass
@@ -51,12 +63,19 @@ class TrackMergeConfig:
     max_piece_s: float = 1.0       # longest part absorbed into another track's gap (a 0 turns the rule off)
     max_slide_frames: int = 10     # most frames handed back from a track that slid onto another (0: off)
     slide_jump: float = 0.2        # the jump back that ends such a slide, in the person's height
+    colour_window: int = 8         # frames each side of a colour change compared by split_colour_changes (0: off)
+    min_colour_change: float = 0.5   # Bhattacharyya distance between the two windows' keypoint colours
+    colour_margin: float = 0.2     # how much nearer the new track's colours lie to the before-window's
+    max_reappear_s: float = 1.0    # the new track starts at most this long after the change
 
     def __post_init__(self):
-        if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction, self.slide_jump) <= 0:
-            raise ValueError("max_gap_s, max_appearance, max_distance, depth_fraction and slide_jump must be > 0")
-        if self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0 or self.max_slide_frames < 0:
-            raise ValueError("max_speed, max_piece_s and max_slide_frames must be >= 0 and ends >= 1")
+        if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction, self.slide_jump,
+               self.min_colour_change, self.colour_margin, self.max_reappear_s) <= 0:
+            raise ValueError("max_gap_s, max_appearance, max_distance, depth_fraction, slide_jump, "
+                             "min_colour_change, colour_margin and max_reappear_s must be > 0")
+        if (self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0 or self.max_slide_frames < 0
+                or self.colour_window < 0):
+            raise ValueError("max_speed, max_piece_s, max_slide_frames and colour_window must be >= 0 and ends >= 1")
 
 
 @dataclass
@@ -161,9 +180,10 @@ def absorb_pieces(segments: list[TrackSegment], fps: float, config: TrackMergeCo
     return hosted
 
 
-def merge_track_splits(segments: list[TrackSegment], fps: float,
-                       config: TrackMergeConfig | None = None) -> dict[int, int]:
-    """track id -> id of the track it joins (its chain's first part; itself when not merged) for every segment."""
+def merge_track_splits(segments: list[TrackSegment], fps: float, config: TrackMergeConfig | None = None,
+                       apart: set[frozenset] | None = None) -> dict[int, int]:
+    """track id -> id of the track it joins (its chain's first part; itself when not merged) for every segment;
+    the pairs of ids in `apart` (split_colour_changes's parts) are never joined to each other."""
     config = config or TrackMergeConfig()
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be > 0, got {fps}")
@@ -176,7 +196,7 @@ def merge_track_splits(segments: list[TrackSegment], fps: float,
     cost = np.full((len(segments), len(segments)), INFEASIBLE)
     for i, before in enumerate(segments):
         for j, after in enumerate(segments):
-            if i != j:
+            if i != j and frozenset((before.track_id, after.track_id)) not in (apart or set()):
                 c = split_cost(before, after, fps, config)
                 if c is not None:
                     cost[i, j] = c
@@ -241,3 +261,68 @@ def hand_back_slides(keypoints: dict[int, dict[int, np.ndarray]],
                     tracks[b][f] = tracks[a].pop(f)
                 moves.append((a, b, sorted(frames)))
     return moves
+
+
+def _typical_colour(rows: list, least: int) -> np.ndarray | None:
+    """The per-bin median of the known descriptors among rows, renormalised (a window's colours, unmoved by a few
+    blended frames), or None with fewer than `least` known."""
+    rows = [r for r in rows if r is not None]
+    if len(rows) < max(1, least):
+        return None
+    median = np.median(rows, axis=0)
+    return median / median.sum() if median.sum() > 0 else None
+
+
+def split_colour_changes(colours: dict[int, dict[int, np.ndarray | None]], fps: float,
+                         config: TrackMergeConfig | None = None) -> list[tuple[int, int, int, list[int]]]:
+    """(track, new track whose start set it off, first frame of the part after the change, blended frames to
+    drop) for every colour change found (see the module docstring), each track split at most once. colours:
+    track id -> frame -> keypoint colour descriptor (appearance.pose_colour_descriptor) or None where unknown."""
+    config = config or TrackMergeConfig()
+    w = config.colour_window
+    if w == 0 or not colours:
+        return []
+    lag = int(round(config.max_reappear_s * fps))
+    firsts = {i: min(frames) for i, frames in colours.items() if frames}
+    start = min(firsts.values())
+    splits, split = [], set()
+    for new in sorted(firsts, key=lambda i: (firsts[i], i)):
+        born = firsts[new]
+        own = _typical_colour([colours[new][f] for f in sorted(colours[new])[:w]], w // 2)
+        if born == start or own is None:
+            continue  # there from the first frame (not a person found again), or its colours unknown
+        best = None
+        for k in sorted(colours):
+            track = colours[k]
+            if k == new or k in split or k not in firsts or firsts[k] >= born or max(track) < born:
+                continue  # split already, or not seen across the new track's start
+            for s in range(born - lag, born + 1):
+                before = _typical_colour([track.get(f) for f in range(s - w, s)], w // 2)
+                after = _typical_colour([track.get(f) for f in range(s, s + w)], w // 2)
+                if before is None or after is None:
+                    continue
+                change = bhattacharyya_distance(before, after)
+                nearer = bhattacharyya_distance(own, after) - bhattacharyya_distance(own, before)
+                if (change >= config.min_colour_change and nearer >= config.colour_margin
+                        and (best is None or change > best[0])):
+                    best = (change, k, s, before, after)
+        if best is None:
+            continue
+        _, k, s, before, after = best
+        # Each frame around s: nearer one side's colours by TRANSITION_RATIO, or a blend of the two people. The
+        # track is split at the first frame of the after side past the last of the before side, the blends
+        # between them dropped.
+        sides = {}
+        for f in range(s - w, s + w):
+            if colours[k].get(f) is not None:
+                a, b = (bhattacharyya_distance(colours[k][f], ref) for ref in (before, after))
+                sides[f] = "before" if TRANSITION_RATIO * a < b else "after" if TRANSITION_RATIO * b < a else "blend"
+        last = max((f for f, side in sides.items() if side == "before"), default=s - w - 1)
+        first = min((f for f, side in sides.items() if side == "after" and f > last), default=None)
+        if first is None:
+            continue
+        dropped = [f for f in sorted(sides) if last < f < first]
+        if any(f < first and f not in dropped for f in colours[k]):  # the part before is never empty
+            splits.append((k, new, first, dropped))
+            split.add(k)
+    return splits
