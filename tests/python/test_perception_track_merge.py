@@ -253,6 +253,7 @@ def test_a_track_whose_colours_change_as_its_person_comes_back_is_split_there():
     scene[0][30], scene[0][50] = None, None
     assert split_colour_changes(scene, FPS)[0][:2] == (0, 2)
     assert split_colour_changes(scene, FPS, TrackMergeConfig(colour_window=0)) == []
+    assert split_colour_changes({0: {}, 1: {}}, FPS) == []  # tracks without frames
 
 
 def test_no_colour_split_without_a_lasting_change_and_a_new_track_like_before():

@@ -364,8 +364,9 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                     if config.save_masks and person.mask is not None else None
                 records.setdefault(track_id, []).append((index, replace(person, mask=None, mask_box=None), result,
                                                          mask))
-                cues.setdefault(track_id, []).append((obs.location, obs.appearance,
-                                                      pose_colour_descriptor(image, person.keypoints)))
+                # Keypoint colours only feed the colour-change split: not read when it is off.
+                colours = pose_colour_descriptor(image, person.keypoints) if config.merge.colour_window else None
+                cues.setdefault(track_id, []).append((obs.location, obs.appearance, colours))
             t6 = time.perf_counter()
             people_mask = _people_mask(people, ctx.size) if motion.enabled or config.save_masks else None
             t7 = time.perf_counter()
@@ -452,7 +453,7 @@ def _split_colour_changes(track_ids: list[int], records: dict, cues: dict, flows
     colours = {i: {entry[0]: cue[2] for entry, cue in zip(records[i], cues[i])} for i in track_ids}
     apart = set()
     for source, new, first, dropped in split_colour_changes(colours, fps, config):
-        target = max(max(records), max(track_ids)) + 1
+        target = max(records) + 1  # every track id, confirmed or not, is a key of records
         gone = set(dropped)
         pairs = [pair for pair in zip(records[source], cues[source]) if pair[0][0] not in gone]
         for track_id, rows in ((source, [p for p in pairs if p[0][0] < first]),

@@ -185,6 +185,7 @@ def merge_track_splits(segments: list[TrackSegment], fps: float, config: TrackMe
     """track id -> id of the track it joins (its chain's first part; itself when not merged) for every segment;
     the pairs of ids in `apart` (split_colour_changes's parts) are never joined to each other."""
     config = config or TrackMergeConfig()
+    apart = apart or set()
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be > 0, got {fps}")
     ids = [s.track_id for s in segments]
@@ -196,7 +197,7 @@ def merge_track_splits(segments: list[TrackSegment], fps: float, config: TrackMe
     cost = np.full((len(segments), len(segments)), INFEASIBLE)
     for i, before in enumerate(segments):
         for j, after in enumerate(segments):
-            if i != j and frozenset((before.track_id, after.track_id)) not in (apart or set()):
+            if i != j and frozenset((before.track_id, after.track_id)) not in apart:
                 c = split_cost(before, after, fps, config)
                 if c is not None:
                     cost[i, j] = c
@@ -280,10 +281,10 @@ def split_colour_changes(colours: dict[int, dict[int, np.ndarray | None]], fps: 
     track id -> frame -> keypoint colour descriptor (appearance.pose_colour_descriptor) or None where unknown."""
     config = config or TrackMergeConfig()
     w = config.colour_window
-    if w == 0 or not colours:
+    firsts = {i: min(frames) for i, frames in colours.items() if frames}
+    if w == 0 or not firsts:
         return []
     lag = int(round(config.max_reappear_s * fps))
-    firsts = {i: min(frames) for i, frames in colours.items() if frames}
     start = min(firsts.values())
     splits, split = [], set()
     for new in sorted(firsts, key=lambda i: (firsts[i], i)):
