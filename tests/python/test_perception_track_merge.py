@@ -154,16 +154,16 @@ def skeleton(centre_u: float, height: float = 200.0, top: float = 100.0, confide
     return np.column_stack([u, v, np.full(17, confidence)])
 
 
-def slide_scene(slide=range(20, 25), gap=range(15, 25)):
+def slide_scene(slide=range(20, 25), gap=range(15, 25), mix=0.3):
     """Person X at u = 400 and person Y at u = 470 (0.35 of their height apart), both drifting right. Track 0
-    follows X but shows Y at the frames of `slide` (the first of them a mix, 30% X); track 1 follows Y and misses
-    the frames of `gap`."""
+    follows X but shows Y at the frames of `slide` (the first of them a blend, `mix` X); track 1 follows Y and
+    misses the frames of `gap`."""
     x = {f: skeleton(400 + f) for f in range(30)}
     y = {f: skeleton(470 + f) for f in range(30)}
     track0 = dict(x)
     for f in slide:
         track0[f] = y[f].copy()
-    track0[slide[0]][:, :2] = 0.3 * x[slide[0]][:, :2] + 0.7 * y[slide[0]][:, :2]
+    track0[slide[0]][:, :2] = mix * x[slide[0]][:, :2] + (1 - mix) * y[slide[0]][:, :2]
     track1 = {f: y[f] for f in range(30) if f not in gap}
     return {0: track0, 1: track1}
 
@@ -171,10 +171,18 @@ def slide_scene(slide=range(20, 25), gap=range(15, 25)):
 def test_a_track_that_slid_onto_a_returning_person_hands_those_frames_back():
     tracks = slide_scene()
     moves = hand_back_slides(tracks)
-    assert moves == [(0, 1, list(range(20, 25)))]  # exactly the frames where track 0 showed Y
+    # Exactly the frames where track 0 showed Y; frame 20, 30% X, lies 0.13 of a height from Y's pose at 25 and
+    # 0.22 from X's (drifted 5 frames): nearer Y, but not by SLIDE_RATIO, so a blend, dropped from both.
+    assert moves == [(0, 1, list(range(21, 25)), [20])]
     assert set(tracks[0]) == set(range(30)) and set(tracks[1]) == set(range(30)) - set(range(15, 25))  # untouched
+    # A first frame 10% X is Y's (0.06 against 0.29); one 50% X is not even nearer Y (0.20 against 0.15): the
+    # slide starts at 21.
+    assert hand_back_slides(slide_scene(mix=0.1)) == [(0, 1, list(range(20, 25)), [])]
+    assert hand_back_slides(slide_scene(mix=0.5)) == [(0, 1, list(range(21, 25)), [])]
+    # A slide of nothing but a blend (40% X: 0.145 against 0.205): dropped, nothing handed.
+    assert hand_back_slides(slide_scene(slide=range(24, 25), gap=range(20, 25), mix=0.4)) == [(0, 1, [], [24])]
     # The cap, and the rule switched off.
-    assert hand_back_slides(tracks, TrackMergeConfig(max_slide_frames=3)) == [(0, 1, [22, 23, 24])]
+    assert hand_back_slides(tracks, TrackMergeConfig(max_slide_frames=3)) == [(0, 1, [22, 23, 24], [])]
     assert hand_back_slides(tracks, TrackMergeConfig(max_slide_frames=0)) == []
 
 
@@ -202,7 +210,7 @@ def test_no_slide_without_a_jump_back_or_a_returning_track_where_it_was():
 
 
 def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows():
-    from m3c.perception.pipeline import _hand_back_slides
+    from m3c.perception.pipeline import _frame_ranges, _hand_back_slides
     from m3c.perception.types import Person
 
     tracks = slide_scene()
@@ -210,12 +218,14 @@ def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows()
                for i, t in tracks.items()}
     cues = {i: [(np.array([float(f), float(i), 5.0]), None) for f, _ in sorted(t.items())] for i, t in tracks.items()}
     flows = {0: {f: np.full((4, 2), float(f)) for f in tracks[0]}}
-    assert _hand_back_slides([0, 1], records, cues, flows, TrackMergeConfig()) == [(0, 1, list(range(20, 25)))]
-    for i, frames in ((0, [f for f in range(30) if not 20 <= f < 25]), (1, [f for f in range(30) if not 15 <= f < 20])):
+    assert _hand_back_slides([0, 1], records, cues, flows, TrackMergeConfig()) == [(0, 1, list(range(21, 25)), [20])]
+    # Frame 20, the blend, is in neither track.
+    for i, frames in ((0, [f for f in range(30) if not 20 <= f < 25]), (1, [f for f in range(30) if not 15 <= f < 21])):
         assert [r[0] for r in records[i]] == frames
         assert [c[0][0] for c in cues[i]] == frames  # each cue still beside its frame's record
-    assert np.array_equal(records[1][16][1].keypoints, tracks[0][21])  # frame 21: what track 0 saw there
-    assert sorted(flows[1]) == list(range(20, 25)) and 20 not in flows[0]
+    assert np.array_equal(records[1][15][1].keypoints, tracks[0][21])  # frame 21: what track 0 saw there
+    assert sorted(flows[1]) == list(range(21, 25)) and 20 not in flows[0] and 19 in flows[0]
+    assert _frame_ranges([3, 4, 5, 9]) == "3-5, 9" and _frame_ranges([]) == "none"  # as logged
 
 
 # Colour changes: a track that slid onto someone for good while its own person came back as a new track -----------

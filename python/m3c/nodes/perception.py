@@ -70,7 +70,9 @@ class PerceptionNode(Node):
     #     (m3c.perception.track_merge.hand_back_slides)
     # 15: a track whose keypoint colours change for good as its own person comes back as a new track is split
     #     there (m3c.perception.track_merge.split_colour_changes)
-    version = "15"
+    # 16: a slid frame nearer the returning pose than the track's own by less than SLIDE_RATIO is a blend of the two
+    #     people, dropped instead of handed on
+    version = "16"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

@@ -425,24 +425,39 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
 
 
 def _hand_back_slides(track_ids: list[int], records: dict, cues: dict, flows: dict,
-                      config: TrackMergeConfig) -> list[tuple[int, int, list[int]]]:
+                      config: TrackMergeConfig) -> list[tuple[int, int, list[int], list[int]]]:
     """Moves the frames of tracks that slid onto a person coming back (m3c.perception.track_merge.hand_back_slides)
-    to that person's track, with their cues and ground flows; returns the moves."""
+    to that person's track, with their cues and ground flows, and drops the slides' blended frames; returns the
+    moves."""
     keypoints = {i: {entry[0]: entry[1].keypoints for entry in records[i]} for i in track_ids}
     moves = hand_back_slides(keypoints, config)
-    for source, target, frames in moves:
-        pairs, taken = list(zip(records[source], cues[source])), set(frames)
+    for source, target, frames, blends in moves:
+        pairs, taken, gone = list(zip(records[source], cues[source])), set(frames), set(blends)
         moved = [pair for pair in pairs if pair[0][0] in taken]
-        kept = [pair for pair in pairs if pair[0][0] not in taken]
+        kept = [pair for pair in pairs if pair[0][0] not in taken | gone]
         joined = sorted(list(zip(records[target], cues[target])) + moved, key=lambda pair: pair[0][0])
         for track_id, rows in ((source, kept), (target, joined)):
             records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
         for frame in frames:
             if frame in flows.get(source, {}):
                 flows.setdefault(target, {})[frame] = flows[source].pop(frame)
-        LOG.info("frames %d-%d of track %d handed to track %d: it had slid onto that person", frames[0], frames[-1],
-                 source, target)
+        for frame in blends:
+            flows.get(source, {}).pop(frame, None)
+        LOG.info("track %d had slid onto the person of track %d: frames handed to it: %s; blends of the two people "
+                 "dropped: %s", source, target, _frame_ranges(frames), _frame_ranges(blends))
     return moves
+
+
+def _frame_ranges(frames: list[int]) -> str:
+    """'3-5, 9' for [3, 4, 5, 9]; 'none' for []."""
+    if not frames:
+        return "none"
+    runs, start = [], frames[0]
+    for previous, frame in zip(frames, frames[1:] + [None]):
+        if frame != previous + 1:
+            runs.append(f"{start}-{previous}" if previous > start else f"{start}")
+            start = frame
+    return ", ".join(runs)
 
 
 def _split_colour_changes(track_ids: list[int], records: dict, cues: dict, flows: dict, fps: float,

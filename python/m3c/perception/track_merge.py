@@ -20,9 +20,11 @@ Before either rule, frames are handed back where a tracked patch slid onto anoth
 person coming out from behind another is in that other's patch, and BlazePose there may pose the one coming out;
 the track then follows them for a few frames and jumps back once their own track finds them again. A track whose
 keypoints jump by slide_jump of the person's height or more from frame t-1 to t, just as another track comes back
-at t (absent at t-1) nearer its keypoints at t-1 than its own at t are, had slid onto that person: its frames up
+at t (absent at t-1) nearer its keypoints at t-1 than its own at t are, had slid onto that person. Its frames up
 to t-1 whose keypoints lie nearer the returning track's at t than its own at t (at most max_slide_frames of them,
-contiguous, where the returning track has none) are that person's and go to the returning track.
+contiguous, where the returning track has none) are the slide: those at most 1 / SLIDE_RATIO as far from the
+returning pose as from its own are that person's and go to the returning track; the others, nearer but not
+clearly, are a blend of the two people (BlazePose half on each) and are dropped from both.
 
 A slide with no jump back (split_colour_changes): the track stays on the person it slid to, and its own person,
 in full view, is found again as a new track within a second. The colours at the track's keypoints (torso and
@@ -49,6 +51,7 @@ from m3c.perception.types import pose_distance
 INFEASIBLE = 1e6
 SLIDE_CONFIDENCE = 0.3  # keypoints compared by the slide rule: those above this confidence (the tracker's)
 TRANSITION_RATIO = 1.5  # a frame nearer neither window's colours than this factor is a blend, dropped by a split
+SLIDE_RATIO = 2.0  # a slid frame nearer the returning pose than its own by less than this factor is a blend
 
 
 @dataclass
@@ -223,10 +226,11 @@ def merge_track_splits(segments: list[TrackSegment], fps: float, config: TrackMe
 
 
 def hand_back_slides(keypoints: dict[int, dict[int, np.ndarray]],
-                     config: TrackMergeConfig | None = None) -> list[tuple[int, int, list[int]]]:
-    """(from track, to track, frames) of every slide found (see the module docstring), in the order found; the
-    moves are made on keypoints as they are found, so a frame is handed on at most once. keypoints: track id ->
-    frame -> (K >= 17, 3) image keypoints (u, v, confidence) of that track's person there."""
+                     config: TrackMergeConfig | None = None) -> list[tuple[int, int, list[int], list[int]]]:
+    """(from track, to track, frames handed on, blended frames dropped) of every slide found (see the module
+    docstring), in the order found; the moves are made on keypoints as they are found, so a frame is handed on or
+    dropped at most once. keypoints: track id -> frame -> (K >= 17, 3) image keypoints (u, v, confidence) of that
+    track's person there."""
     config = config or TrackMergeConfig()
     if config.max_slide_frames == 0:
         return []
@@ -251,16 +255,20 @@ def hand_back_slides(keypoints: dict[int, dict[int, np.ndarray]],
             if not returning:
                 continue
             b = min(returning)[1]
-            back, frames = tracks[b][t], []
+            back, handed, blends = tracks[b][t], [], []
             s = t - 1
-            while (len(frames) < config.max_slide_frames and s in tracks[a] and s not in tracks[b]
-                   and distance(tracks[a][s], back) < distance(tracks[a][s], own) < np.inf):
-                frames.append(s)
+            while len(handed) + len(blends) < config.max_slide_frames and s in tracks[a] and s not in tracks[b]:
+                to_back, to_own = distance(tracks[a][s], back), distance(tracks[a][s], own)
+                if not to_back < to_own < np.inf:
+                    break
+                (handed if SLIDE_RATIO * to_back <= to_own else blends).append(s)
                 s -= 1
-            if frames and len(frames) < len(tracks[a]):  # a track is never emptied
-                for f in frames:
+            if handed + blends and len(handed) + len(blends) < len(tracks[a]):  # a track is never emptied
+                for f in handed:
                     tracks[b][f] = tracks[a].pop(f)
-                moves.append((a, b, sorted(frames)))
+                for f in blends:
+                    del tracks[a][f]
+                moves.append((a, b, sorted(handed), sorted(blends)))
     return moves
 
 
