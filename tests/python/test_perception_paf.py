@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from m3c.perception.paf import (LIMB_CHANNELS, LIMBS, NUM_HEATMAPS, NUM_PARTS, TO_COCO17, PafConfig, group_people,
-                                model_available, skeleton_box)
+                                model_available, skeleton_box, skeleton_mask, skeletons_for_lost_tracks)
 from m3c.perception.mediapipe_pose import mediapipe_available
 
 needs_network = pytest.mark.skipif(not model_available(), reason="the multi-person pose network is not installed "
@@ -75,6 +75,72 @@ def test_skeleton_box_grows_the_keypoints_extent_inside_the_frame():
     keypoints[[0, 15, 16]] = [[50, 10, 0.9], [40, 110, 0.8], [60, 110, 0.8]]
     np.testing.assert_allclose(skeleton_box(keypoints, (200, 300)), [25, -0.5, 75, 120])
     assert skeleton_box(keypoints * [1, 1, 0], (200, 300)) is None
+
+
+def standing_coco17(centre_u: float, top: float = 100.0, height: float = 200.0, confidence: float = 0.8):
+    """A standing person's COCO-17 keypoints (STANDING's parts, mapped to COCO-17 and scaled to `height`)."""
+    parts = STANDING[list(TO_COCO17)]
+    uv = (parts - [10.0, 3.5]) * height / 21.5 + [centre_u, top]
+    return np.column_stack([uv, np.full(17, confidence)])
+
+
+def test_skeleton_mask_covers_the_bones_torso_and_head_and_nothing_far_from_them():
+    keypoints = standing_coco17(150.0)
+    box = skeleton_box(keypoints, (400, 400))
+    mask, mask_box = skeleton_mask(keypoints, box)
+    assert mask.shape == (mask_box[3] - mask_box[1], mask_box[2] - mask_box[0])
+    assert (mask_box[:2] <= box[:2]).all() and (mask_box[2:] >= box[2:]).all()
+
+    def at(u, v):
+        return bool(mask[int(round(v)) - mask_box[1], int(round(u)) - mask_box[0]])
+
+    torso = keypoints[[5, 6, 12, 11], :2]
+    assert at(*torso.mean(axis=0))  # inside the torso
+    for a, b in ((7, 9), (13, 15), (14, 16)):  # along the forearm and the shins
+        assert at(*(0.5 * (keypoints[a, :2] + keypoints[b, :2])))
+    assert at(*keypoints[0, :2])  # the head
+    # Far from every bone: beside the knees, between the ankles' level and the box's side.
+    assert not at(keypoints[13, 0] + 40, keypoints[13, 1]) and not at(box[0] + 1, box[3] - 1)
+    # The drawn area against cv2's own polygon fill of the torso alone: more than it, well under the box.
+    torso_only = np.zeros_like(mask, np.uint8)
+    cv2.fillPoly(torso_only, [np.round(torso - mask_box[:2]).astype(np.int32).reshape(-1, 1, 2)], 1)
+    assert torso_only.sum() < mask.sum() < 0.6 * mask.size
+    # Unseen keypoints draw nothing: without the legs, nothing below the hips.
+    no_legs = keypoints.copy()
+    no_legs[13:, 2] = 0
+    upper, upper_box = skeleton_mask(no_legs, box)
+    hips_row = int(np.ceil(keypoints[[11, 12], 1].max())) - upper_box[1] + 12
+    assert not upper[hips_row:].any()
+
+
+def test_lost_tracks_take_the_skeletons_nobody_found_claims_nearest_first():
+    a, b, c = standing_coco17(100.0), standing_coco17(300.0), standing_coco17(500.0)
+    moved = a.copy()
+    moved[:, 0] += 20.0  # track 1's person, 20 px (a tenth of their height) on
+    found = [c]  # the person at 500 was found by the pose search
+    skeletons = [c * [1, 1, 0.5], b * [1, 1, 0.5], moved * [1, 1, 0.5]]
+    lost = {1: a, 2: b + [400.0, 0, 0]}  # track 2 was last seen 400 px from anyone here
+    assert skeletons_for_lost_tracks(skeletons, lost, found, 0.25) == {1: 2}
+    # Two lost tracks, one skeleton: the nearer track takes it, the other none.
+    near = a.copy()
+    near[:, 0] += 15.0
+    assert skeletons_for_lost_tracks([moved], {1: a, 3: near}, [], 0.25) == {3: 0}
+    # Within tolerance only (20 px of a 200 px person: 0.1), and a claimed skeleton never.
+    assert skeletons_for_lost_tracks([moved], {1: a}, [], 0.09) == {}
+    assert skeletons_for_lost_tracks([moved], {1: a}, [moved], 0.25) == {}
+    assert skeletons_for_lost_tracks([], {1: a}, [], 0.25) == {}
+    # A track the detector found again (a found pose near its last one) is not lost, even where the network's
+    # skeleton of that person disagrees with the found keypoints (here: shifted 60 px, a third of the height).
+    refound, off = a.copy(), a.copy()
+    refound[:, 0] -= 10.0  # 70 px from the skeleton: it does not claim it
+    off[:, 0] += 60.0
+    assert skeletons_for_lost_tracks([off], {1: a}, [], 0.33) == {1: 0}
+    assert skeletons_for_lost_tracks([off], {1: a}, [refound], 0.33) == {}
+    # Too few sure keypoints to fit (a head and shoulders at the frame's edge): not kept.
+    partial = moved.copy()
+    partial[5:, 2] = 0.2
+    assert skeletons_for_lost_tracks([partial], {1: a}, [], 0.25) == {}
+    assert skeletons_for_lost_tracks([partial], {1: a}, [], 0.25, min_keypoints=5) == {1: 0}
 
 
 @pytest.fixture(scope="module")

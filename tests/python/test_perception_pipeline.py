@@ -211,3 +211,64 @@ def test_ground_motion_cue_falls_back_where_the_ground_cannot_be_tracked(scene_f
                                       b.contacts if b.ground_contacts is None else b.ground_contacts)
     with pytest.raises(ValueError, match="ground_motion"):
         PerceptionConfig.from_dict({"ground_motion": {"rings": []}})
+
+
+@register("detector", "test_network_sees_all")
+class NetworkDetector(SceneDetector):
+    """The scene detector, blind to person `blind` in `frames_blind` (as BlazePose's tiles can be), while its
+    multi-person network's skeletons are every visible person's keypoints."""
+
+    def __init__(self, frames: list, owner: list, blind: int, frames_blind: range):
+        super().__init__(frames)
+        self.hidden = {t: b for t, i, b in owner if i == blind and t in frames_blind}
+
+    def detect(self, ctx, known=None):
+        return [p for p in super().detect(ctx, known)
+                if ctx.index not in self.hidden or iou(p.box, self.hidden[ctx.index]) < 0.9]
+
+    def skeletons(self, ctx):
+        return [p.keypoints * [1, 1, 0.6] for p in self.frames[ctx.index]]
+
+
+@register("pose2d", "test_blind_pose")
+class BlindPose(ScenePose):
+    """The scene's pose estimator, finding nobody on person `blind`'s patch in `frames_blind`."""
+
+    def __init__(self, frames: list, owner: list, blind: int, frames_blind: range):
+        super().__init__(frames)
+        self.hidden = {t: b for t, i, b in owner if i == blind and t in frames_blind}
+
+    def estimate(self, ctx, people):
+        out = super().estimate(ctx, people)
+        hidden = self.hidden.get(ctx.index)
+        return [None if p is not None and hidden is not None and iou(p.box, hidden) > 0.9 else p for p in out]
+
+
+def test_a_tracked_person_the_pose_search_loses_is_kept_on_the_networks_skeleton(scene_frames, caplog):
+    model, scene, frames, images, owner = scene_frames
+    blind = dict(owner=owner, blind=1, frames_blind=range(4, 14))  # person 1 in view from frame 0 to 16
+    settings = {"detector": {"name": "test_network_sees_all", "options": {"frames": frames, **blind}},
+                "pose2d": {"name": "test_blind_pose", "options": {"frames": frames, **blind}}}
+    with caplog.at_level("INFO", logger="m3c.perception.pipeline"):
+        kept = run_scene(scene_frames, **settings)
+    assert "kept on the detector's network skeleton where its pose search found nobody: frames 4-13" in caplog.text
+    lost = run_scene(scene_frames, skeleton_agreement=0, **settings)
+    seen = {t for t, i, _ in owner if i == 1 and t in range(4, 14)}
+    assert len(seen) == 10  # the premise: the person is in view there
+
+    def frames_of(result):
+        return {int(f) for track in result.tracks for f, box in zip(track.frame_ids, track.boxes)
+                if any(t == f and i == 1 and iou(b, box) > 0.5 for t, i, b in owner)}
+
+    assert not seen & frames_of(lost)  # switched off, the person is missing there
+    assert seen <= frames_of(kept)
+    assert len(kept.tracks) == 2
+    for track in kept.tracks:  # one person per track, and the skeleton's keypoints where it was kept
+        people = {i for f, box in zip(track.frame_ids, track.boxes) for t, i, b in owner if t == f
+                  and iou(b, box) > 0.5}
+        assert len(people) == 1
+        if people == {1}:
+            rows = np.isin(track.frame_ids, sorted(seen))
+            np.testing.assert_allclose(track.keypoints[rows, :17, 2], 0.9 * 0.6)
+    with pytest.raises(ValueError, match="skeleton_agreement"):
+        PerceptionConfig(skeleton_agreement=-0.1)

@@ -131,6 +131,34 @@ def test_a_piece_inside_a_gap_joins_the_track_around_it(rng):
     assert piece_cost(player, piece, FPS, config) == pytest.approx(appearance + across, rel=1e-9)
 
 
+def test_a_piece_whose_mask_colours_are_mixed_joins_by_its_keypoint_colours(rng):
+    # The piece of the player coming out from behind a man: its patch's mask covers both, so the masks' colours
+    # are half hers (bins 0..3) and half his (bins 20..23); the colours at her keypoints are hers.
+    player = segment(1, [*range(100), *range(106, 200)], (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
+    player.pose_colours = np.stack([descriptor(rng, 40) for _ in player.frames])  # her kit at the keypoints
+    frames = np.arange(101, 104)
+    mixed = np.stack([0.5 * descriptor(rng, 0) + 0.5 * descriptor(rng, 20) for _ in frames])
+    locations = np.array([1.0, 0.8, 9.0]) + frames[:, None] * np.array([0.01, 0, 0])
+    piece = TrackSegment(7, frames, locations, mixed, np.stack([descriptor(rng, 40) for _ in frames]))
+    config = TrackMergeConfig()
+    mask_distance = bhattacharyya_distance(player.mean_appearance(), piece.mean_appearance())
+    pose_distance = bhattacharyya_distance(player.mean_appearance(pose=True), piece.mean_appearance(pose=True))
+    assert mask_distance > config.max_appearance and pose_distance < 0.1  # the premise
+    assert merge_track_splits([player, piece], FPS) == {1: 1, 7: 1}
+    without = TrackSegment(7, frames, locations, mixed)  # no keypoint colours: the masks' alone refuse it
+    assert merge_track_splits([player, without], FPS) == {1: 1, 7: 7}
+    # The cost: the keypoint colours' distance in units of max_piece_colour, plus the bearing's as before.
+    across = piece_cost(player, piece, FPS, config) - pose_distance / config.max_piece_colour
+    assert 0 <= across < 1
+    # Someone else's keypoint colours (bins 60..63) keep it apart, and so does a tighter max_piece_colour.
+    stranger = TrackSegment(8, frames, locations, mixed, np.stack([descriptor(rng, 60) for _ in frames]))
+    assert merge_track_splits([player, stranger], FPS) == {1: 1, 8: 8}
+    assert merge_track_splits([player, piece], FPS, TrackMergeConfig(max_piece_colour=0.5 * pose_distance)) == \
+        {1: 1, 7: 7}
+    with pytest.raises(ValueError, match="max_piece_colour"):
+        TrackMergeConfig(max_piece_colour=0)
+
+
 def test_pieces_of_someone_else_or_outside_a_gap_stay_apart(rng):
     player = segment(1, [*range(100), *range(106, 200)], (1.0, 0.8, 9.0), (0.01, 0, 0), 0, rng)
     other_clothes = segment(7, range(101, 104), (2.0, 0.8, 9.0), (0.01, 0, 0), 24, rng)

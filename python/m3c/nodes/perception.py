@@ -72,7 +72,10 @@ class PerceptionNode(Node):
     #     there (m3c.perception.track_merge.split_colour_changes)
     # 16: a slid frame nearer the returning pose than the track's own by less than SLIDE_RATIO is a blend of the two
     #     people, dropped instead of handed on
-    version = "16"
+    # 17: a tracked person BlazePose finds nobody on is kept on the detector's multi-person network skeleton
+    #     (skeleton_agreement); a piece inside another track's gap may join it by its keypoint colours
+    #     (merge.max_piece_colour)
+    version = "17"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

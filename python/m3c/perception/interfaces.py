@@ -33,6 +33,11 @@ class Detector(Estimator):
     def detect(self, ctx: FrameContext, known: list[Person] | None = None) -> list[Person]:
         ...
 
+    def skeletons(self, ctx: FrameContext) -> list[np.ndarray]:
+        """The people (17, 3) a multi-person pose network saw in this frame, when detect ran one on it (the
+        pipeline keeps a tracked person its pose search lost on them); none by default."""
+        return []
+
 
 class Segmenter(Estimator):
     """Frame + people -> the same people with masks (Person.mask / mask_box)."""

@@ -302,6 +302,7 @@ class MediaPipeDetector(Detector):
         self.whiten_dilation, self.tile_overlap = whiten_dilation, tile_overlap
         self.fine_tiles, self.fine_every = fine_tiles, fine_every
         self._last_fine: int | None = None
+        self._skeletons: tuple[int | None, list[np.ndarray]] = (None, [])  # the network's people of one frame
         if paf not in ("auto", "on", "off") or not paf_agreement > 0:
             raise ValueError(f'paf must be "auto", "on" or "off" and paf_agreement > 0, got {paf!r}, {paf_agreement}')
         self.paf_agreement = paf_agreement
@@ -371,6 +372,7 @@ class MediaPipeDetector(Detector):
             box = skeleton_box(keypoints, ctx.size)
             if box is not None and box[3] - box[1] >= self.min_box_height:
                 skeletons.append((keypoints, box))
+        self._skeletons = (ctx.index, [keypoints for keypoints, _ in skeletons])
         found: list[Person] = []
         for i, (keypoints, box) in enumerate(skeletons):
             if len(found) + len(known) >= self.max_people:
@@ -391,6 +393,10 @@ class MediaPipeDetector(Detector):
             self._whiten(work, person, ctx.size)
             found.append(person)
         return found
+
+    def skeletons(self, ctx: FrameContext) -> list[np.ndarray]:
+        index, skeletons = self._skeletons
+        return list(skeletons) if index == ctx.index else []
 
     def close(self) -> None:
         self.engine.close()

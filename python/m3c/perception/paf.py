@@ -266,6 +266,59 @@ def skeleton_box(keypoints: np.ndarray, frame_size: tuple[int, int]) -> np.ndarr
                      min(y1 + 0.1 * h, height - 0.5)])
 
 
+# COCO-17 bones drawn by skeleton_mask: arms, legs, shoulders, hips, the torso's sides, the head's.
+COCO17_BONES = ((5, 7), (7, 9), (6, 8), (8, 10), (11, 13), (13, 15), (12, 14), (14, 16), (5, 6), (11, 12), (5, 11),
+                (6, 12), (0, 1), (0, 2), (1, 3), (2, 4), (0, 5), (0, 6))
+
+
+def skeleton_mask(keypoints: np.ndarray, box: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A person's silhouette drawn from its skeleton (17, 3), for a person no segmenter found: (mask (h, w) bool,
+    integer mask box) over `box`. Bones a tenth of the keypoints' height thick, the torso (shoulders, hips) filled,
+    the head a disc: what the camera's odometry must not track and what the person's colours are read from."""
+    import cv2
+
+    mask_box = np.array([np.floor(box[0]), np.floor(box[1]), np.ceil(box[2]), np.ceil(box[3])]).astype(np.int64)
+    mask = np.zeros((int(mask_box[3] - mask_box[1]), int(mask_box[2] - mask_box[0])), dtype=np.uint8)
+    seen = keypoints[:, 2] > 0
+    points = np.round(keypoints[:, :2] - mask_box[:2]).astype(np.int32)
+    height = max(float(np.ptp(keypoints[seen, 1])) if seen.sum() >= 2 else 0.0, 8.0)
+    thickness = max(2, int(round(0.1 * height)))
+    for a, b in COCO17_BONES:
+        if seen[a] and seen[b]:
+            cv2.line(mask, tuple(int(c) for c in points[a]), tuple(int(c) for c in points[b]), 1, thickness)
+    if seen[[5, 6, 12, 11]].all():
+        cv2.fillPoly(mask, [points[[5, 6, 12, 11]].reshape(-1, 1, 2)], 1)
+    if seen[0]:
+        cv2.circle(mask, tuple(int(c) for c in points[0]), max(2, int(round(0.07 * height))), 1, -1)
+    return mask.astype(bool), mask_box
+
+
+def skeletons_for_lost_tracks(skeletons: list[np.ndarray], lost: dict[int, np.ndarray], found: list[np.ndarray],
+                              tolerance: float, min_keypoints: int = 6,
+                              min_confidence: float = 0.3) -> dict[int, int]:
+    """Track id -> index into skeletons, for the tracked people a frame's pose search lost whom the network still
+    sees: a skeleton (17, 3) with at least min_keypoints keypoints of min_confidence (what the body fit needs to
+    fit a frame; a head and shoulders at the frame's edge only moves the track's box) that no found person's
+    keypoints agree with (pose_distance under tolerance) goes to the
+    lost track (id -> its last keypoints (K >= 17, 3)) whose last pose it lies within tolerance of, the nearest
+    pairs first, each skeleton and track once. A track whose last pose a found person agrees with is not lost (the
+    detector found them again; the tracker joins them). Distances are in the last pose's height, over the
+    keypoints both see (the track's and the found people's with confidence above one half)."""
+    from m3c.perception.types import pose_distance
+
+    free = [i for i, s in enumerate(skeletons) if (s[:, 2] >= min_confidence).sum() >= min_keypoints
+            and not any(pose_distance(s, k, 0.0, 0.49) < tolerance for k in found)]
+    lost = {track: last for track, last in lost.items()
+            if not any(pose_distance(last, k, 0.49, 0.49) < tolerance for k in found)}
+    pairs = sorted((pose_distance(last, skeletons[i], 0.49, 0.0), track, i)
+                   for track, last in lost.items() for i in free)
+    chosen: dict[int, int] = {}
+    for distance, track, i in pairs:
+        if distance < tolerance and track not in chosen and i not in chosen.values():
+            chosen[track] = i
+    return chosen
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] != ["install"] or len(argv) > 2:

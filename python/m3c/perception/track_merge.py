@@ -11,7 +11,9 @@ qualify, each part gets at most one successor and one predecessor, chosen by the
 successors become one track that keeps its first part's id.
 
 A short part that lies inside a gap of another track (the other track seen just before and just after it) is a
-piece of that person when its colour agrees and its bearing does: a piece (a crouching or half-detected person)
+piece of that person when its colour agrees (the masks' colours, or, where those do not, the colours at the
+keypoints within max_piece_colour: a piece is often a person coming out from behind another, whose patch's mask
+covers both) and its bearing does: a piece (a crouching or half-detected person)
 gets a depth from its box that is no guide, so its locations are moved along their lines of sight to the other
 track's depths at the gap's two ends and compared across the line of sight only (max_distance + max_speed * time
 from that end). It joins the track it fits best (cost: appearance plus the worse of the two ends).
@@ -64,6 +66,7 @@ class TrackMergeConfig:
     max_speed: float = 3.0         # m/s a person may have moved during the gap
     ends: int = 10                 # locations at each part's end whose median is compared
     max_piece_s: float = 1.0       # longest part absorbed into another track's gap (a 0 turns the rule off)
+    max_piece_colour: float = 0.5  # keypoint colours (Bhattacharyya) by which a piece fills a gap if the masks' don't
     max_slide_frames: int = 10     # most frames handed back from a track that slid onto another (0: off)
     slide_jump: float = 0.2        # the jump back that ends such a slide, in the person's height
     colour_window: int = 8         # frames each side of a colour change compared by split_colour_changes (0: off)
@@ -73,9 +76,9 @@ class TrackMergeConfig:
 
     def __post_init__(self):
         if min(self.max_gap_s, self.max_appearance, self.max_distance, self.depth_fraction, self.slide_jump,
-               self.min_colour_change, self.colour_margin, self.max_reappear_s) <= 0:
+               self.min_colour_change, self.colour_margin, self.max_reappear_s, self.max_piece_colour) <= 0:
             raise ValueError("max_gap_s, max_appearance, max_distance, depth_fraction, slide_jump, "
-                             "min_colour_change, colour_margin and max_reappear_s must be > 0")
+                             "min_colour_change, colour_margin, max_reappear_s and max_piece_colour must be > 0")
         if (self.max_speed < 0 or self.ends < 1 or self.max_piece_s < 0 or self.max_slide_frames < 0
                 or self.colour_window < 0):
             raise ValueError("max_speed, max_piece_s, max_slide_frames and colour_window must be >= 0 and ends >= 1")
@@ -84,19 +87,27 @@ class TrackMergeConfig:
 @dataclass
 class TrackSegment:
     """What the merge rule sees of one track: its frames (n,) increasing, camera-frame locations (n, 3) in
-    metres (rows of NaN where unknown) and colour descriptors (n, D) (rows of NaN where unknown)."""
+    metres, the masks' colour descriptors (n, D) and the keypoints' (n, D) or None (rows of NaN where unknown)."""
 
     track_id: int
     frames: np.ndarray
     locations: np.ndarray
     appearances: np.ndarray
+    pose_colours: np.ndarray | None = None
 
     def __post_init__(self):
         self.frames = np.asarray(self.frames, dtype=np.int64)
         self.locations = np.asarray(self.locations, dtype=np.float64).reshape(len(self.frames), 3)
         self.appearances = np.asarray(self.appearances, dtype=np.float64).reshape(len(self.frames), -1)
+        if self.pose_colours is None:
+            self.pose_colours = np.full((len(self.frames), 1), np.nan)
+        self.pose_colours = np.asarray(self.pose_colours, dtype=np.float64).reshape(len(self.frames), -1)
         if len(self.frames) == 0 or np.any(np.diff(self.frames) <= 0):
             raise ValueError(f"track {self.track_id}: frames must be non-empty and increasing")
+
+    def part(self, rows: slice) -> "TrackSegment":
+        return TrackSegment(self.track_id, self.frames[rows], self.locations[rows], self.appearances[rows],
+                            self.pose_colours[rows])
 
     def end_location(self, first: bool, count: int) -> np.ndarray | None:
         rows = self.locations[np.isfinite(self.locations).all(axis=1)]
@@ -104,8 +115,10 @@ class TrackSegment:
             return None
         return np.median(rows[:count] if first else rows[-count:], axis=0)
 
-    def mean_appearance(self) -> np.ndarray | None:
-        rows = self.appearances[np.isfinite(self.appearances).all(axis=1)]
+    def mean_appearance(self, pose: bool = False) -> np.ndarray | None:
+        """The mean of the known colour descriptors, renormalised: the masks' (or with pose, the keypoints')."""
+        descriptors = self.pose_colours if pose else self.appearances
+        rows = descriptors[np.isfinite(descriptors).all(axis=1)]
         if len(rows) == 0:
             return None
         mean = rows.mean(axis=0)
@@ -142,8 +155,7 @@ def piece_cost(host: TrackSegment, piece: TrackSegment, fps: float, config: Trac
     if (host.frames[k] - host.frames[k - 1]) / fps > config.max_gap_s:
         return None
     a, b = host.mean_appearance(), piece.mean_appearance()
-    before = TrackSegment(host.track_id, host.frames[:k], host.locations[:k], host.appearances[:k])
-    after = TrackSegment(host.track_id, host.frames[k:], host.locations[k:], host.appearances[k:])
+    before, after = host.part(slice(None, k)), host.part(slice(k, None))
     ends = [(before.end_location(False, config.ends), piece.end_location(True, config.ends),
              piece.frames[0] - host.frames[k - 1]),
             (after.end_location(True, config.ends), piece.end_location(False, config.ends),
@@ -151,6 +163,9 @@ def piece_cost(host: TrackSegment, piece: TrackSegment, fps: float, config: Trac
     if a is None or b is None or any(h is None or p is None or h[2] <= 0 or p[2] <= 0 for h, p, _ in ends):
         return None
     appearance = bhattacharyya_distance(a, b) / config.max_appearance
+    a_pose, b_pose = host.mean_appearance(pose=True), piece.mean_appearance(pose=True)
+    if appearance > 1.0 and a_pose is not None and b_pose is not None:
+        appearance = min(appearance, bhattacharyya_distance(a_pose, b_pose) / config.max_piece_colour)
     across = max(np.linalg.norm(p[:2] * (h[2] / p[2]) - h[:2]) / (config.max_distance + config.max_speed * n / fps)
                  for h, p, n in ends)
     if appearance > 1.0 or across > 1.0:
@@ -161,9 +176,12 @@ def piece_cost(host: TrackSegment, piece: TrackSegment, fps: float, config: Trac
 def _joined(parts: list[TrackSegment]) -> TrackSegment:
     """One segment of parts that do not overlap in time (a chain of splits)."""
     order = np.argsort([p.frames[0] for p in parts])
+    width = max(p.pose_colours.shape[1] for p in parts)  # parts without keypoint colours hold one NaN column
+    pose_colours = [np.pad(parts[i].pose_colours, ((0, 0), (0, width - parts[i].pose_colours.shape[1])),
+                           constant_values=np.nan) for i in order]
     return TrackSegment(parts[order[0]].track_id, np.concatenate([parts[i].frames for i in order]),
                         np.concatenate([parts[i].locations for i in order]),
-                        np.concatenate([parts[i].appearances for i in order]))
+                        np.concatenate([parts[i].appearances for i in order]), np.concatenate(pose_colours))
 
 
 def absorb_pieces(segments: list[TrackSegment], fps: float, config: TrackMergeConfig) -> dict[int, int]:
