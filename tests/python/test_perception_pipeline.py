@@ -250,9 +250,9 @@ def test_a_tracked_person_the_pose_search_loses_is_kept_on_the_networks_skeleton
     settings = {"detector": {"name": "test_network_sees_all", "options": {"frames": frames, **blind}},
                 "pose2d": {"name": "test_blind_pose", "options": {"frames": frames, **blind}}}
     with caplog.at_level("INFO", logger="m3c.perception.pipeline"):
-        kept = run_scene(scene_frames, **settings)
+        kept = run_scene(scene_frames, skeleton_agreement=0.25, **settings)
     assert "kept on the detector's network skeleton where its pose search found nobody: frames 4-13" in caplog.text
-    lost = run_scene(scene_frames, skeleton_agreement=0, **settings)
+    lost = run_scene(scene_frames, **settings)  # off by default
     seen = {t for t, i, _ in owner if i == 1 and t in range(4, 14)}
     assert len(seen) == 10  # the premise: the person is in view there
 

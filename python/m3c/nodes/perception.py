@@ -72,8 +72,8 @@ class PerceptionNode(Node):
     #     there (m3c.perception.track_merge.split_colour_changes)
     # 16: a slid frame nearer the returning pose than the track's own by less than SLIDE_RATIO is a blend of the two
     #     people, dropped instead of handed on
-    # 17: a tracked person BlazePose finds nobody on is kept on the detector's multi-person network skeleton
-    #     (skeleton_agreement); a piece inside another track's gap may join it by its keypoint colours
+    # 17: a tracked person BlazePose finds nobody on may be kept on the detector's multi-person network skeleton
+    #     (skeleton_agreement, opt-in); a piece inside another track's gap may join it by its keypoint colours
     #     (merge.max_piece_colour)
     version = "17"
 
