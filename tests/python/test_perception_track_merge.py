@@ -237,8 +237,8 @@ def test_no_slide_without_a_jump_back_or_a_returning_track_where_it_was():
         TrackMergeConfig(slide_jump=0)
 
 
-def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows():
-    from m3c.perception.pipeline import _frame_ranges, _hand_back_slides
+def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows(caplog):
+    from m3c.perception.pipeline import _hand_back_slides
     from m3c.perception.types import Person
 
     tracks = slide_scene()
@@ -246,14 +246,26 @@ def test_the_perception_stage_moves_a_slides_records_with_their_cues_and_flows()
                for i, t in tracks.items()}
     cues = {i: [(np.array([float(f), float(i), 5.0]), None) for f, _ in sorted(t.items())] for i, t in tracks.items()}
     flows = {0: {f: np.full((4, 2), float(f)) for f in tracks[0]}}
-    assert _hand_back_slides([0, 1], records, cues, flows, TrackMergeConfig()) == [(0, 1, list(range(21, 25)), [20])]
+    with caplog.at_level("INFO", logger="m3c.perception.pipeline"):
+        moves = _hand_back_slides([0, 1], records, cues, flows, TrackMergeConfig())
+    assert moves == [(0, 1, list(range(21, 25)), [20])]
+    assert ("track 0 had slid onto the person of track 1: frames handed to it: 21-24; blends of the two people "
+            "dropped: 20") in caplog.text
     # Frame 20, the blend, is in neither track.
     for i, frames in ((0, [f for f in range(30) if not 20 <= f < 25]), (1, [f for f in range(30) if not 15 <= f < 21])):
         assert [r[0] for r in records[i]] == frames
         assert [c[0][0] for c in cues[i]] == frames  # each cue still beside its frame's record
     assert np.array_equal(records[1][15][1].keypoints, tracks[0][21])  # frame 21: what track 0 saw there
     assert sorted(flows[1]) == list(range(21, 25)) and 20 not in flows[0] and 19 in flows[0]
-    assert _frame_ranges([3, 4, 5, 9]) == "3-5, 9" and _frame_ranges([]) == "none"  # as logged
+    # Without a blend the log says so.
+    clean = slide_scene(mix=0.1)
+    records = {i: [(f, Person(np.array([0.0, 0.0, 1.0, 1.0]), 0.9, k), None, None) for f, k in sorted(t.items())]
+               for i, t in clean.items()}
+    cues = {i: [(None, None) for _ in t] for i, t in clean.items()}
+    caplog.clear()
+    with caplog.at_level("INFO", logger="m3c.perception.pipeline"):
+        _hand_back_slides([0, 1], records, cues, {}, TrackMergeConfig())
+    assert "frames handed to it: 20-24; blends of the two people dropped: none" in caplog.text
 
 
 # Colour changes: a track that slid onto someone for good while its own person came back as a new track -----------

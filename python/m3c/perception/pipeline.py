@@ -33,6 +33,7 @@ from m3c.perception.track_merge import (TrackMergeConfig, TrackSegment, hand_bac
                                         split_colour_changes)
 from m3c.perception.tracking import Observation, Tracker, TrackerConfig
 from m3c.perception.types import FrameContext, Person, pack_mask, pose_distance
+from m3c.pipeline.finite import index_ranges
 
 LOG = logging.getLogger("m3c.perception.pipeline")
 
@@ -415,7 +416,7 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
 
         for track_id, frames in sorted(on_skeletons.items()):
             LOG.info("track %d kept on the detector's network skeleton where its pose search found nobody: frames %s",
-                     track_id, _frame_ranges(frames))
+                     track_id, index_ranges(np.array(frames)))
         t0 = time.perf_counter()
         confirmed = sorted(i for i in records if i in tracker.confirmed_ids())
         _hand_back_slides(confirmed, records, cues, flows, config.merge)
@@ -445,6 +446,23 @@ def run_perception_frames(frames: Iterable[np.ndarray], fps: float, image_size: 
                             {i: j for i, j in merged.items() if i != j})
 
 
+def _move_frames(records: dict, cues: dict, flows: dict, source: int, target: int, moving: set,
+                 dropping: set) -> None:
+    """Moves the records, cues and ground flows of `source`'s frames in `moving` to `target` (kept in frame order
+    beside what target holds) and drops those of its frames in `dropping`."""
+    pairs = [pair for pair in zip(records[source], cues[source]) if pair[0][0] not in dropping]
+    moved = [pair for pair in pairs if pair[0][0] in moving]
+    kept = [pair for pair in pairs if pair[0][0] not in moving]
+    joined = sorted(list(zip(records.get(target, []), cues.get(target, []))) + moved, key=lambda pair: pair[0][0])
+    for track_id, rows in ((source, kept), (target, joined)):
+        records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
+    source_flows = flows.get(source, {})
+    for frame in dropping:
+        source_flows.pop(frame, None)
+    for frame in sorted(moving & set(source_flows)):
+        flows.setdefault(target, {})[frame] = source_flows.pop(frame)
+
+
 def _hand_back_slides(track_ids: list[int], records: dict, cues: dict, flows: dict,
                       config: TrackMergeConfig) -> list[tuple[int, int, list[int], list[int]]]:
     """Moves the frames of tracks that slid onto a person coming back (m3c.perception.track_merge.hand_back_slides)
@@ -453,32 +471,11 @@ def _hand_back_slides(track_ids: list[int], records: dict, cues: dict, flows: di
     keypoints = {i: {entry[0]: entry[1].keypoints for entry in records[i]} for i in track_ids}
     moves = hand_back_slides(keypoints, config)
     for source, target, frames, blends in moves:
-        pairs, taken, gone = list(zip(records[source], cues[source])), set(frames), set(blends)
-        moved = [pair for pair in pairs if pair[0][0] in taken]
-        kept = [pair for pair in pairs if pair[0][0] not in taken | gone]
-        joined = sorted(list(zip(records[target], cues[target])) + moved, key=lambda pair: pair[0][0])
-        for track_id, rows in ((source, kept), (target, joined)):
-            records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
-        for frame in frames:
-            if frame in flows.get(source, {}):
-                flows.setdefault(target, {})[frame] = flows[source].pop(frame)
-        for frame in blends:
-            flows.get(source, {}).pop(frame, None)
+        _move_frames(records, cues, flows, source, target, set(frames), set(blends))
         LOG.info("track %d had slid onto the person of track %d: frames handed to it: %s; blends of the two people "
-                 "dropped: %s", source, target, _frame_ranges(frames), _frame_ranges(blends))
+                 "dropped: %s", source, target, index_ranges(np.array(frames)) or "none",
+                 index_ranges(np.array(blends)) or "none")
     return moves
-
-
-def _frame_ranges(frames: list[int]) -> str:
-    """'3-5, 9' for [3, 4, 5, 9]; 'none' for []."""
-    if not frames:
-        return "none"
-    runs, start = [], frames[0]
-    for previous, frame in zip(frames, frames[1:] + [None]):
-        if frame != previous + 1:
-            runs.append(f"{start}-{previous}" if previous > start else f"{start}")
-            start = frame
-    return ", ".join(runs)
 
 
 def _split_colour_changes(track_ids: list[int], records: dict, cues: dict, flows: dict, fps: float,
@@ -490,14 +487,8 @@ def _split_colour_changes(track_ids: list[int], records: dict, cues: dict, flows
     apart = set()
     for source, new, first, dropped in split_colour_changes(colours, fps, config):
         target = max(records) + 1  # every track id, confirmed or not, is a key of records
-        gone = set(dropped)
-        pairs = [pair for pair in zip(records[source], cues[source]) if pair[0][0] not in gone]
-        for track_id, rows in ((source, [p for p in pairs if p[0][0] < first]),
-                               (target, [p for p in pairs if p[0][0] >= first])):
-            records[track_id], cues[track_id] = [r for r, _ in rows], [c for _, c in rows]
-        moved = flows.get(source, {})
-        flows[source] = {f: v for f, v in moved.items() if f < first and f not in gone}
-        flows[target] = {f: v for f, v in moved.items() if f >= first and f not in gone}
+        _move_frames(records, cues, flows, source, target, {entry[0] for entry in records[source]
+                                                             if entry[0] >= first}, set(dropped))
         track_ids.append(target)
         apart.add(frozenset((source, target)))
         LOG.info("track %d split at frame %d (its colours changed as track %d came in; %d blended frames dropped): "
