@@ -79,6 +79,7 @@ void BindMotion(py::module_& m) {
       .def_readonly("status", &StageReport::status)
       .def_readonly("message", &StageReport::message)
       .def_readonly("iterations", &StageReport::iterations)
+      .def_readonly("parts", &StageReport::parts)
       .def_readonly("seconds", &StageReport::seconds)
       .def_readonly("objective_before", &StageReport::objective_before)
       .def_readonly("world_before", &StageReport::world_before)

@@ -1,9 +1,14 @@
 #include "motion/world_optimizer.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <sstream>
+#include <thread>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 #include <unordered_map>
 #include <unordered_set>
 
@@ -46,22 +51,24 @@ struct State {
 // evaluation is at a new point.
 class StageCallback : public ceres::EvaluationCallback, public ceres::IterationCallback {
  public:
-  StageCallback(LatentPoseDecoder* decoder, SharedJoints* joints, HumorTransitionBatch* humor)
-      : decoder_(decoder), joints_(joints), humor_(humor), levels_(util::ScopedOpenMpLevels::Current()) {}
+  // levels: the OpenMP levels of the callback's loops (ScopedOpenMpLevels; 0 when its solve has one thread).
+  StageCallback(LatentPoseDecoder* decoder, std::vector<SharedJoints*> joints, HumorTransitionBatch* humor,
+                int levels)
+      : decoder_(decoder), joints_(std::move(joints)), humor_(humor), levels_(levels) {}
   void PrepareForEvaluation(bool evaluate_jacobians, bool new_evaluation_point) override {
     const util::ScopedOpenMpLevels ours(levels_);
     if (decoder_) decoder_->DecodeAll(evaluate_jacobians);
-    if (joints_) joints_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
+    for (SharedJoints* joints : joints_) joints->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
     if (humor_) humor_->PrepareForEvaluation(evaluate_jacobians, new_evaluation_point);
   }
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& /*summary*/) override {
-    if (joints_) joints_->Release();
+    for (SharedJoints* joints : joints_) joints->Release();
     return ceres::SOLVER_CONTINUE;
   }
 
  private:
   LatentPoseDecoder* decoder_;
-  SharedJoints* joints_;
+  std::vector<SharedJoints*> joints_;
   HumorTransitionBatch* humor_;
   int levels_;
 };
@@ -404,12 +411,13 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       contact_regressor_ ? MovingJoints(*model_, *contact_regressor_) : std::vector<int>();
   // The contact points as body joints (empty if the contact regressor is not a joint selection).
   const std::vector<int> contact_joints = contact_regressor_ ? SelectedJoints(*contact_regressor_) : std::vector<int>();
-  // The world joints of every person and frame, evaluated once per evaluation point for the joint stencils.
-  SharedJoints shared_joints(model_, joint_regressor_.get(), config_.num_threads);
-  std::vector<std::vector<int>> joint_frame(tracks.size());  // [track][frame] -> shared_joints frame
+  // The world joints of every frame, evaluated once per evaluation point for the joint stencils; one set per
+  // person, so that people whose problems are solved apart (below) evaluate their own side by side.
+  std::vector<std::unique_ptr<SharedJoints>> shared_joints;  // [track], frame f of the track its frame f
   for (size_t i = 0; i < tracks.size(); ++i) {
+    shared_joints.push_back(std::make_unique<SharedJoints>(model_, joint_regressor_.get(), config_.num_threads));
     for (size_t f = 0; f < vars.body[i].size(); ++f) {
-      joint_frame[i].push_back(shared_joints.AddFrame(vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]));
+      shared_joints[i]->AddFrame(vars.transl[i][f], vars.root[i][f], vars.body[i][f], vars.betas[i]);
     }
   }
   // The finite-difference stencil of a velocity (order 1: frames t, t+1) or acceleration (order 2: t..t+2) in
@@ -433,8 +441,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   auto add_joint_stencil = [&](ceres::Problem* problem, size_t i, int first, const std::vector<double>& stencil,
                                std::vector<int> joints, std::vector<double> weights, double sigma = 0.0) {
     const int F = static_cast<int>(stencil.size());
-    auto* cost = new JointStencilCost(&shared_joints, {joint_frame[i].begin() + first, joint_frame[i].begin() + first + F},
-                                      stencil, std::move(joints), std::move(weights), sigma);
+    std::vector<int> frames(F);
+    for (int g = 0; g < F; ++g) frames[g] = first + g;
+    auto* cost = new JointStencilCost(shared_joints[i].get(), std::move(frames), stencil, std::move(joints),
+                                      std::move(weights), sigma);
     std::vector<double*> blocks;
     for (int g = first; g < first + F; ++g) {
       blocks.insert(blocks.end(), {vars.transl[i][g], vars.root[i][g]});
@@ -473,9 +483,12 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     return any ? w : std::vector<double>();
   };
 
+  // The people whose blocks the builders add (a stage solved apart per person builds one problem per person).
+  std::vector<char> in_part(tracks.size(), 1);
   // Builders of the built-in terms.
   auto add_builtin = [&](const std::string& term, double weight, ceres::Problem* problem) {
     for (size_t i = 0; i < tracks.size(); ++i) {
+      if (!in_part[i]) continue;
       const TrackInput& tr = tracks[i];
       const int n = static_cast<int>(tr.transl.rows());
       if (term == "reprojection") {
@@ -561,7 +574,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
             add_joint_stencil(problem, i, f, stencil, {0}, {weight});
             continue;
           }
-          for (const std::vector<int>& chain : shared_joints.Chains()) {
+          for (const std::vector<int>& chain : shared_joints[i]->Chains()) {
             add_joint_stencil(problem, i, f, stencil, chain, std::vector<double>(chain.size(), weight));
           }
         }
@@ -640,6 +653,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
   // callback). The level c sits 100 nats below each block's start.
   auto add_motion_prior = [&](double weight, HumorTransitionBatch* batch, ceres::Problem* problem) {
     for (size_t i = 0; i < tracks.size(); ++i) {
+      if (!in_part[i]) continue;
       const TrackInput& tr = tracks[i];
       const int n = static_cast<int>(tr.transl.rows());
       if (tr.ground_normal.size() == 0 || n < 4) continue;
@@ -663,6 +677,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     const std::vector<double> stencil = term == "pose_prior" ? std::vector<double>{1.0} : std::vector<double>{-1.0, 1.0};
     const int F = static_cast<int>(stencil.size());
     for (size_t i = 0; i < tracks.size(); ++i) {
+      if (!in_part[i]) continue;
       for (int f = 0; f + F <= static_cast<int>(tracks[i].transl.rows()); ++f) {
         if (decoder) {  // the latents themselves: |z_t|^2 (a standard-normal prior) or |z_{t+1} - z_t|^2
           const int L = LatentPoseDecoder::kLatentDim;
@@ -748,7 +763,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
 
   // The world check: every term of config_.world_check over all people and frames, built once over the state's
   // parameter memory and evaluated at the current state before the first stage and after each solve.
-  StageCallback world_check_callback(decoder.get(), nullptr, nullptr);
+  StageCallback world_check_callback(decoder.get(), {}, nullptr, util::ScopedOpenMpLevels::Current());
   ceres::Problem::Options world_check_options;
   world_check_options.evaluation_callback = &world_check_callback;
   ceres::Problem world_check(world_check_options);
@@ -775,33 +790,72 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       continue;
     }
     const auto start = std::chrono::steady_clock::now();
-    // The motion prior's blocks share one batched evaluation per point (declared before the problem: it must
-    // outlive it).
-    std::unique_ptr<HumorTransitionBatch> humor_batch;
-    if (motion_prior_ != nullptr && stage.weights.count("motion_prior") && stage.weights.at("motion_prior") > 0) {
-      humor_batch = std::make_unique<HumorTransitionBatch>(model_, motion_prior_, fps_, config_.num_threads);
+    const bool with_humor =
+        motion_prior_ != nullptr && stage.weights.count("motion_prior") && stage.weights.at("motion_prior") > 0;
+    bool extra_terms = false;  // a term added by AddTerm: its builder sees every person
+    for (const auto& [term, weight] : stage.weights) extra_terms = extra_terms || (weight > 0 && find_extra(term));
+    const bool shared_free = (stage.scale && !cameras.static_camera) || (stage.offset && config_.optimize_offset);
+    // People share nothing in a stage that holds the camera scale and offset: each person's problem is solved on
+    // its own, side by side (a part's result is that of optimising the person alone). Ceres forms J^T J on one
+    // thread, and with one problem over everyone the 600-frame bench's joint-smoothness stage took the same time
+    // on one thread as on two (27.4 / 26.3 s); as two parts, 12.8 s. Each part stops on its own convergence and
+    // iteration cap. Not with VPoser latents (one decoder for everyone) nor with the HuMoR batch: split, its
+    // stage ran 84 -> 59 s but the call's peak memory rose 934 -> 984 MiB (bench/optimizer_memory.py), the
+    // parts' network batches overlapping the other's factorization.
+    std::vector<std::vector<size_t>> part_people;
+    if (!shared_free && !extra_terms && !decoder && !with_humor && tracks.size() > 1) {
+      for (size_t i = 0; i < tracks.size(); ++i) part_people.push_back({i});
+    } else {
+      part_people.emplace_back();
+      for (size_t i = 0; i < tracks.size(); ++i) part_people.back().push_back(i);
     }
+    const int P = static_cast<int>(part_people.size());
+    const int part_threads = std::max(1, config_.num_threads / P);
+    report.parts = P;
     split_body = !decoder && stage.body;
-    StageCallback callback(decoder.get(), split_body ? &shared_joints : nullptr, humor_batch.get());
-    ceres::Problem::Options problem_options;
-    problem_options.evaluation_callback = &callback;
-    ceres::Problem problem(problem_options);
+    // Per part: the motion prior's batch and the callback are declared before the problem, which must not
+    // outlive them.
+    struct Part {
+      std::unique_ptr<HumorTransitionBatch> humor;
+      std::unique_ptr<StageCallback> callback;
+      std::unique_ptr<ceres::Problem> problem;
+      std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks
+      ceres::Solver::Summary summary;
+    };
+    std::vector<Part> parts(P);
     std::vector<std::string> missing;
-    std::vector<std::vector<ceres::ResidualBlockId>> term_blocks;  // per reported term, its residual blocks
-    for (const auto& [term, weight] : stage.weights) {
-      if (weight <= 0) continue;
-      const int first = problem.NumResidualBlocks();
-      if (!add_term(term, weight, humor_batch.get(), &problem)) {
-        missing.push_back(term);
-        continue;
+    for (int p = 0; p < P; ++p) {
+      Part& part = parts[p];
+      std::fill(in_part.begin(), in_part.end(), 0);
+      std::vector<SharedJoints*> joints;
+      for (size_t i : part_people[p]) {
+        in_part[i] = 1;
+        if (split_body) joints.push_back(shared_joints[i].get());
       }
-      std::vector<ceres::ResidualBlockId> ids;
-      problem.GetResidualBlocks(&ids);  // in the order they were added
-      term_blocks.emplace_back(ids.begin() + first, ids.end());
-      report.terms.push_back({term, 0.0, 0.0});
+      if (with_humor) part.humor = std::make_unique<HumorTransitionBatch>(model_, motion_prior_, fps_, part_threads);
+      part.callback = std::make_unique<StageCallback>(decoder.get(), std::move(joints), part.humor.get(),
+                                                      part_threads > 1 ? util::ScopedOpenMpLevels::Current() : 0);
+      ceres::Problem::Options problem_options;
+      problem_options.evaluation_callback = part.callback.get();
+      part.problem = std::make_unique<ceres::Problem>(problem_options);
+      for (const auto& [term, weight] : stage.weights) {
+        if (weight <= 0) continue;
+        const int first = part.problem->NumResidualBlocks();
+        if (!add_term(term, weight, part.humor.get(), part.problem.get())) {
+          if (p == 0) missing.push_back(term);
+          continue;
+        }
+        std::vector<ceres::ResidualBlockId> ids;
+        part.problem->GetResidualBlocks(&ids);  // in the order they were added
+        part.term_blocks.emplace_back(ids.begin() + first, ids.end());
+        if (p == 0) report.terms.push_back({term, 0.0, 0.0});
+      }
     }
+    std::fill(in_part.begin(), in_part.end(), 1);
     for (const auto& term : missing) report.message += (report.message.empty() ? "" : "; ") + term + " unavailable";
-    if (problem.NumResidualBlocks() == 0) {
+    int residual_blocks = 0;
+    for (const Part& part : parts) residual_blocks += part.problem->NumResidualBlocks();
+    if (residual_blocks == 0) {
       report.status = "skipped";
       report.message += (report.message.empty() ? "" : "; ") + std::string("no active residuals");
       result.stages.push_back(report);
@@ -822,43 +876,93 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     last_terms = terms;
     last_free = free;
     last_name = stage.name;
-    std::vector<double*> blocks;
-    problem.GetParameterBlocks(&blocks);
-    for (double* block : blocks) {
-      const Group g = groups.at(block);
-      const bool free = (g == Group::kTransl && stage.transl) || (g == Group::kRoot && stage.root) ||
-                        (g == Group::kBody && stage.body && !decoder) || (g == Group::kLatent && stage.body) ||
-                        (g == Group::kBetas && stage.betas) ||
-                        (g == Group::kScale && stage.scale && !cameras.static_camera) ||
-                        (g == Group::kOffset && stage.offset && config_.optimize_offset);
-      if (!free) problem.SetParameterBlockConstant(block);
-      if (g == Group::kScale && free) problem.SetParameterLowerBound(block, 0, 1e-3);
+    for (Part& part : parts) {
+      std::vector<double*> blocks;
+      part.problem->GetParameterBlocks(&blocks);
+      for (double* block : blocks) {
+        const Group g = groups.at(block);
+        const bool free = (g == Group::kTransl && stage.transl) || (g == Group::kRoot && stage.root) ||
+                          (g == Group::kBody && stage.body && !decoder) || (g == Group::kLatent && stage.body) ||
+                          (g == Group::kBetas && stage.betas) ||
+                          (g == Group::kScale && stage.scale && !cameras.static_camera) ||
+                          (g == Group::kOffset && stage.offset && config_.optimize_offset);
+        if (!free) part.problem->SetParameterBlockConstant(block);
+        if (g == Group::kScale && free) part.problem->SetParameterLowerBound(block, 0, 1e-3);
+      }
     }
+    // Each term's cost and the objective, summed over the parts.
+    auto stage_costs = [&](double* total) {
+      std::vector<double> costs(report.terms.size(), 0.0);
+      *total = 0.0;
+      for (Part& part : parts) {
+        double part_total = 0.0;
+        const std::vector<double> part_costs = terms_cost(part.problem.get(), part.term_blocks, &part_total);
+        for (size_t k = 0; k < costs.size(); ++k) costs[k] += part_costs[k];
+        *total += part_total;
+      }
+      return costs;
+    };
     const State checkpoint = state;
     report.world_before = world_now;
-    std::vector<double> term_costs = terms_cost(&problem, term_blocks, &report.objective_before);
+    std::vector<double> term_costs = stage_costs(&report.objective_before);
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = term_costs[k];
 
-    ceres::Solver::Options options;
-    options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
-    options.max_num_iterations = stage.max_iterations;
-    options.num_threads = config_.num_threads;
-    options.logging_type = ceres::SILENT;
-    options.callbacks.push_back(&callback);
-    ceres::Solver::Summary summary;
     std::string failure;
     if (!std::isfinite(report.objective_before)) {
       failure = "the objective is not finite at the stage's start";
     } else {
-      SolveSerial(options, &problem, &summary);
-      report.iterations = static_cast<int>(summary.iterations.size()) - 1;
-      report.objective_after = summary.final_cost;
-      if (summary.termination_type == ceres::FAILURE) {
-        failure = "solver failure: " + summary.message;
-      } else if (!state.AllFinite() || !std::isfinite(summary.final_cost)) {
+      auto solve = [&](Part& part) {
+        if (part.problem->NumResidualBlocks() == 0) return;
+        ceres::Solver::Options options;
+        options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+        options.max_num_iterations = stage.max_iterations;
+        options.num_threads = part_threads;
+        options.logging_type = ceres::SILENT;
+        options.callbacks.push_back(part.callback.get());
+        SolveSerial(options, part.problem.get(), &part.summary);
+      };
+      if (P == 1) {
+        solve(parts[0]);
+      } else {  // a pool of num_threads workers over the parts; the BLAS one thread per part
+        const util::ScopedBlasThreads part_blas(part_threads);
+        std::atomic<int> next{0};
+        std::vector<std::exception_ptr> errors(P);
+        auto work = [&]() {
+          for (int p = next++; p < P; p = next++) {
+            try {
+              solve(parts[p]);
+            } catch (...) {
+              errors[p] = std::current_exception();
+            }
+          }
+        };
+        std::vector<std::thread> workers;
+        for (int w = 1; w < std::min(P, config_.num_threads); ++w) workers.emplace_back(work);
+        work();
+        for (std::thread& worker : workers) worker.join();
+#ifdef __GLIBC__
+        // A worker's solve allocates its Jacobian, J^T J and factor in that thread's malloc arena, which keeps
+        // them when freed; a later stage on this thread would not reuse that memory (without this trim the 600 x 2
+        // bench's call with the HuMoR stage peaked at 1013 MiB instead of 934, bench/optimizer_memory.py).
+        malloc_trim(0);
+#endif
+        for (const std::exception_ptr& error : errors) {
+          if (error) std::rethrow_exception(error);
+        }
+      }
+      report.objective_after = 0.0;
+      for (const Part& part : parts) {
+        if (part.problem->NumResidualBlocks() == 0) continue;
+        report.iterations = std::max(report.iterations, static_cast<int>(part.summary.iterations.size()) - 1);
+        report.objective_after += part.summary.final_cost;
+        if (part.summary.termination_type == ceres::FAILURE && failure.empty()) {
+          failure = "solver failure: " + part.summary.message;
+        }
+      }
+      if (failure.empty() && (!state.AllFinite() || !std::isfinite(report.objective_after))) {
         failure = "non-finite values after the solve";
-      } else if (summary.final_cost > report.objective_before * (1.0 + 1e-9) + 1e-12) {  // beyond round-off
-        failure = "the objective increased";
+      } else if (failure.empty() && report.objective_after > report.objective_before * (1.0 + 1e-9) + 1e-12) {
+        failure = "the objective increased";  // beyond round-off
       }
     }
     if (decoder) decoder->DecodeAll(false);  // the body blocks may hold a rejected trial point's pose
@@ -882,7 +986,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
     world_now = report.world_after;
     double unused_total;
-    term_costs = terms_cost(&problem, term_blocks, &unused_total);
+    term_costs = stage_costs(&unused_total);
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].after = term_costs[k];
     report.scale = state.scale;
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -106,7 +106,8 @@ struct StageReport {
   std::string status;  // "ok", "reverted", "skipped"
   double world_before = 0.0, world_after = 0.0;  // the world check (OptimizerConfig::world_check)
   std::string message;
-  int iterations = 0;
+  int iterations = 0;  // with several parts, the most any part took
+  int parts = 1;       // problems the stage was solved as: one per person where they share no free parameter
   double seconds = 0.0;
   double objective_before = 0.0, objective_after = 0.0;
   double scale = 1.0;  // camera scale after the stage

@@ -334,6 +334,9 @@ class StageReport:
     def objective_before(self) -> float:
         ...
     @property
+    def parts(self) -> int:
+        ...
+    @property
     def scale(self) -> float:
         ...
     @property

@@ -95,6 +95,36 @@ def test_every_stage_lowers_its_objective_and_reports_terms(result):
     assert "motion_prior unavailable" in result.stages[-1].message
 
 
+def test_people_are_solved_apart_where_they_share_nothing(model, start, result):
+    """With the camera scale held (the recipe), each person's problem is solved on its own, side by side: the
+    people's results are those of optimising each person alone, and the stage reports the parts. A stage that
+    frees the scale couples everyone: one problem."""
+    tracks, cameras = start
+    ran = [s for s in result.stages if s.status == "ok"]
+    assert ran and all(s.parts == len(tracks) for s in ran)
+    # One thread: the parts run one after the other, each as the one-person run does (same threads, same BLAS).
+    config = dataclasses.replace(OptimizerConfig.default(), num_threads=1)
+    config.stages = config.stages[:5]  # through joint_smoothness
+    both = optimize(model, tracks, cameras, config)
+    for i, track in enumerate(tracks):
+        alone = optimize(model, [track], cameras, config)
+        assert [s.status for s in alone.stages] == [s.status for s in both.stages] == ["ok"] * 5
+        for name in ("transl", "root_orient", "body_pose", "betas"):
+            np.testing.assert_array_equal(getattr(both.tracks[i], name), getattr(alone.tracks[0], name), name)
+    # The stage objectives are the people's sums.
+    singles = [optimize(model, [t], cameras, config).stages for t in tracks]
+    for k, stage in enumerate(both.stages):
+        assert stage.objective_after == pytest.approx(sum(s[k].objective_after for s in singles), rel=1e-12)
+        assert stage.iterations == max(s[k].iterations for s in singles)
+    # Threads change nothing but the time: two workers over the two parts.
+    two = optimize(model, tracks, cameras, dataclasses.replace(config, num_threads=2))
+    for a, b in zip(two.tracks, both.tracks):
+        np.testing.assert_allclose(a.transl, b.transl, rtol=0, atol=1e-9)
+    scaled = dataclasses.replace(config, stages=[StageSpec("scaled", ["transl", "scale"],
+                                                           {"reprojection": 1e-3, "scale_prior": 1.0}, 5)])
+    assert optimize(model, tracks, cameras, scaled).stages[0].parts == 1
+
+
 def test_static_camera_keeps_the_scale(model, scene):
     cams = Cameras(scene.cameras_vo.world_from_cam, scene.cameras_vo.intrinsics, static=True, initial_scale=1.5)
     config = OptimizerConfig.default()

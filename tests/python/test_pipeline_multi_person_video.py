@@ -36,6 +36,8 @@ def test_two_person_clip_finishes_with_finite_plausible_results(tmp_path):
     # Every stage ran, but those that would repeat the objective before them (no network weights here).
     assert all(stage["status"] == "ok" or (stage["status"] == "skipped" and "the same objective" in stage["message"])
                for stage in summary["optimization"]["stages"])
+    # The two people share nothing the stages free (the scale is held): each stage solved them apart.
+    assert all(stage["parts"] == 2 for stage in summary["optimization"]["stages"] if stage["status"] == "ok")
     cams = arrays["world_from_cam"]
     lift_cams = arrays["lift_world_from_cam"]
     for p in range(len(arrays["track_ids"])):

@@ -227,8 +227,10 @@ def describe(folder: str | Path) -> str:
                              f"{figures['step_length_m']:.2f} m a step ({figures['step_length_legs']:.2f} leg "
                              f"lengths){_slow_gait_hint(figures)}")
     for stage in summary["optimization"]["stages"]:
+        parts = stage.get("parts", 1)  # runs before parts were reported have none
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "
-                     f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}")
+                     f"{stage['objective_before']:.4g} -> {stage['objective_after']:.4g}"
+                     + (f"  ({parts} problems)" if parts > 1 else ""))
     files = [name for name in PUBLISHED_FILES if (folder / name).is_file()]
     vouched = set(state.files)
     lines.append(f"files       {', '.join(f if f in vouched or not state.complete else f + ' (stray)' for f in files)}")

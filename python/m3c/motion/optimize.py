@@ -85,6 +85,9 @@ class StageResult:
     world_before: float  # the world check (OptimizerConfig.world_check) before and after the stage
     world_after: float
     terms: dict  # term -> (before, after)
+    # Problems the stage was solved as: one per person where they share no free parameter (the camera scale
+    # held), solved side by side; iterations is then the most any of them took.
+    parts: int = 1
 
 
 @dataclass
@@ -187,7 +190,7 @@ def optimize(model: BodyModel, tracks: list[Track], cameras: Cameras, config: Op
                                   betas=res.betas.copy()))
     stages = [StageResult(s.name, s.status, s.message, s.iterations, s.seconds, s.objective_before,
                           s.objective_after, s.scale, s.world_before, s.world_after,
-                          {t.term: (t.before, t.after) for t in s.terms})
+                          {t.term: (t.before, t.after) for t in s.terms}, s.parts)
               for s in result.stages]
     latents = [res.latent.copy() if res.latent.size else None for res in result.tracks]
     return WorldResult(out_tracks, float(result.scale), np.asarray(result.offset), stages, bool(result.stopped_early),

@@ -216,7 +216,7 @@ def _blend_latent(track: Track, p: int, ranges, weights: np.ndarray, latents: li
 
 
 def _merge_stages(results: list[WorldResult]) -> list[StageResult]:
-    """One report per stage over the windows: iterations, seconds, objectives and term costs summed (the windows'
+    """One report per stage over the windows: iterations, parts, seconds, objectives and term costs summed (the windows'
     problems are independent, so the sum is the objective of their union), the first non-"ok" status, every
     distinct message."""
     merged: dict[str, StageResult] = {}
@@ -226,7 +226,7 @@ def _merge_stages(results: list[WorldResult]) -> list[StageResult]:
                 merged[stage.name] = StageResult(stage.name, stage.status, stage.message, stage.iterations,
                                                  stage.seconds, stage.objective_before, stage.objective_after,
                                                  stage.camera_scale, stage.world_before, stage.world_after,
-                                                 {k: tuple(v) for k, v in stage.terms.items()})
+                                                 {k: tuple(v) for k, v in stage.terms.items()}, stage.parts)
                 continue
             m = merged[stage.name]
             if m.status == "ok" and stage.status != "ok":
@@ -235,6 +235,7 @@ def _merge_stages(results: list[WorldResult]) -> list[StageResult]:
             parts += [part for part in stage.message.split("; ") if part and part not in parts]
             m.message = "; ".join(parts)
             m.iterations += stage.iterations
+            m.parts += stage.parts
             m.seconds += stage.seconds
             m.objective_before += stage.objective_before
             m.objective_after += stage.objective_after

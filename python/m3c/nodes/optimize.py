@@ -216,11 +216,13 @@ class OptimizeNode(Node):
             out_tracks.append(out)
         stages = []
         for stage in result.stages:
-            ctx.log.info("stage %-12s %-10s %3d iterations, objective %.4g -> %.4g (%.2f s)", stage.name,
-                         stage.status, stage.iterations, stage.objective_before, stage.objective_after, stage.seconds)
+            ctx.log.info("stage %-12s %-10s %3d iterations, objective %.4g -> %.4g (%.2f s%s)", stage.name,
+                         stage.status, stage.iterations, stage.objective_before, stage.objective_after, stage.seconds,
+                         f", {stage.parts} problems" if stage.parts > 1 else "")
             # Stage times stay in the log: results depend only on the inputs.
             stages.append({"name": stage.name, "status": stage.status, "message": stage.message,
-                           "iterations": int(stage.iterations), "objective_before": float(stage.objective_before),
+                           "iterations": int(stage.iterations), "parts": int(stage.parts),
+                           "objective_before": float(stage.objective_before),
                            "objective_after": float(stage.objective_after), "scale": float(stage.camera_scale),
                            "world_before": float(stage.world_before), "world_after": float(stage.world_after),
                            "terms": {k: [float(v[0]), float(v[1])] for k, v in stage.terms.items()}})
