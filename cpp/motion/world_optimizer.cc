@@ -811,7 +811,6 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     }
     const int P = static_cast<int>(part_people.size());
     const int part_threads = std::max(1, config_.num_threads / P);
-    report.parts = P;
     split_body = !decoder && stage.body;
     // Per part: the motion prior's batch and the callback are declared before the problem, which must not
     // outlive them.
@@ -903,6 +902,7 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
       return costs;
     };
     const State checkpoint = state;
+    report.parts = P;  // set only for a stage that is solved
     report.world_before = world_now;
     std::vector<double> term_costs = stage_costs(&report.objective_before);
     for (size_t k = 0; k < report.terms.size(); ++k) report.terms[k].before = term_costs[k];

@@ -108,6 +108,7 @@ struct StageReport {
   std::string message;
   int iterations = 0;  // with several parts, the most any part took
   int parts = 1;       // problems the stage was solved as: one per person where they share no free parameter
+                       // (1 for a skipped stage)
   double seconds = 0.0;
   double objective_before = 0.0, objective_after = 0.0;
   double scale = 1.0;  // camera scale after the stage
