@@ -102,20 +102,21 @@ def test_people_are_solved_apart_where_they_share_nothing(model, start, result):
     tracks, cameras = start
     ran = [s for s in result.stages if s.status == "ok"]
     assert ran and all(s.parts == len(tracks) for s in ran)
-    # One thread: the parts run one after the other, each as the one-person run does (same threads, same BLAS).
+    # One thread: the parts run one after the other, each as the one-person run does (same threads and
+    # BLAS).
     config = dataclasses.replace(OptimizerConfig.default(), num_threads=1)
     config.stages = config.stages[:5]  # through joint_smoothness
     both = optimize(model, tracks, cameras, config)
-    for i, track in enumerate(tracks):
-        alone = optimize(model, [track], cameras, config)
+    singles = [optimize(model, [track], cameras, config) for track in tracks]
+    for i, alone in enumerate(singles):
         assert [s.status for s in alone.stages] == [s.status for s in both.stages] == ["ok"] * 5
         for name in ("transl", "root_orient", "body_pose", "betas"):
             np.testing.assert_array_equal(getattr(both.tracks[i], name), getattr(alone.tracks[0], name), name)
     # The stage objectives are the people's sums.
-    singles = [optimize(model, [t], cameras, config).stages for t in tracks]
     for k, stage in enumerate(both.stages):
-        assert stage.objective_after == pytest.approx(sum(s[k].objective_after for s in singles), rel=1e-12)
-        assert stage.iterations == max(s[k].iterations for s in singles)
+        people = sum(a.stages[k].objective_after for a in singles)
+        assert stage.objective_after == pytest.approx(people, rel=1e-12)
+        assert stage.iterations == max(a.stages[k].iterations for a in singles)
     # Threads change nothing but the time: two workers over the two parts.
     two = optimize(model, tracks, cameras, dataclasses.replace(config, num_threads=2))
     for a, b in zip(two.tracks, both.tracks):

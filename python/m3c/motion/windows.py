@@ -216,9 +216,9 @@ def _blend_latent(track: Track, p: int, ranges, weights: np.ndarray, latents: li
 
 
 def _merge_stages(results: list[WorldResult]) -> list[StageResult]:
-    """One report per stage over the windows: iterations, parts, seconds, objectives and term costs summed (the windows'
-    problems are independent, so the sum is the objective of their union), the first non-"ok" status, every
-    distinct message."""
+    """One report per stage over the windows: iterations, parts, seconds, objectives and term costs summed (the
+    windows' problems are independent, so the sum is the objective of their union), the first non-"ok" status,
+    every distinct message."""
     merged: dict[str, StageResult] = {}
     for result in results:
         for stage in result.stages:

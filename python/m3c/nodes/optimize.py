@@ -217,8 +217,8 @@ class OptimizeNode(Node):
         stages = []
         for stage in result.stages:
             ctx.log.info("stage %-12s %-10s %3d iterations, objective %.4g -> %.4g (%.2f s%s)", stage.name,
-                         stage.status, stage.iterations, stage.objective_before, stage.objective_after, stage.seconds,
-                         f", {stage.parts} problems" if stage.parts > 1 else "")
+                         stage.status, stage.iterations, stage.objective_before, stage.objective_after,
+                         stage.seconds, f", {stage.parts} problems" if stage.parts > 1 else "")
             # Stage times stay in the log: results depend only on the inputs.
             stages.append({"name": stage.name, "status": stage.status, "message": stage.message,
                            "iterations": int(stage.iterations), "parts": int(stage.parts),
