@@ -41,6 +41,7 @@ void BindMotion(py::module_& m) {
       .def_readwrite("max_world_increase", &OptimizerConfig::max_world_increase)
       .def_readwrite("latent_pose", &OptimizerConfig::latent_pose)
       .def_readwrite("num_threads", &OptimizerConfig::num_threads)
+      .def_readwrite("minimizer", &OptimizerConfig::minimizer)
       .def_readwrite("stages", &OptimizerConfig::stages);
   m.def("default_optimizer_config", &DefaultOptimizerConfig,
         "The thesis's staged recipe with SLAHMR's weights (REFERENCE.md B).");

@@ -15,6 +15,7 @@
 #include "body/kinematics.h"
 #include "motion/humor_term.h"
 #include "motion/joint_blocks.h"
+#include "motion/lm_solver.h"
 #include "motion/vposer_term.h"
 #include "util/blas_threads.h"
 #include "util/check.h"
@@ -233,6 +234,8 @@ WorldOptimizer::WorldOptimizer(const body::BodyModel* model, const body::Keypoin
   }
   // Ceres aborts the process on num_threads < 1, so it is refused here.
   M3C_CHECK(config_.num_threads >= 1) << "num_threads must be >= 1, got " << config_.num_threads;
+  M3C_CHECK(config_.minimizer == "m3c" || config_.minimizer == "ceres")
+      << "minimizer must be \"m3c\" or \"ceres\", got \"" << config_.minimizer << "\"";
   for (const auto& stage : config_.stages) {
     M3C_CHECK(stage.max_iterations >= 0) << "stage " << stage.name << ": max_iterations must be >= 0";
     for (const auto& [term, weight] : stage.weights) {
@@ -796,10 +799,10 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     for (const auto& [term, weight] : stage.weights) extra_terms = extra_terms || (weight > 0 && find_extra(term));
     const bool shared_free = (stage.scale && !cameras.static_camera) || (stage.offset && config_.optimize_offset);
     // People share nothing in a stage that holds the camera scale and offset: each person's problem is solved on
-    // its own, side by side (a part's result is that of optimising the person alone). Ceres forms J^T J on one
-    // thread, and with one problem over everyone the 600-frame bench's joint-smoothness stage took the same time
-    // on one thread as on two (27.4 / 26.3 s); as two parts, 12.8 s. Each part stops on its own convergence and
-    // iteration cap. Not with VPoser latents (one decoder for everyone) nor with the HuMoR batch: split, its
+    // its own, side by side (a part's result is that of optimising the person alone). J^T J is formed and
+    // factorized on one thread, and with one problem over everyone the 600-frame bench's joint-smoothness stage
+    // took the same time on one thread as on two (27.4 / 26.3 s, Ceres's solver); as two parts, 12.8 s. Each part
+    // stops on its own convergence and iteration cap. Not with VPoser latents (one decoder for everyone) nor with the HuMoR batch: split, its
     // stage ran 84 -> 59 s but the call's peak memory rose 934 -> 984 MiB (bench/optimizer_memory.py), the
     // parts' network batches overlapping the other's factorization.
     std::vector<std::vector<size_t>> part_people;
@@ -913,6 +916,15 @@ OptimizerResult WorldOptimizer::Optimize(const std::vector<TrackInput>& tracks, 
     } else {
       auto solve = [&](Part& part) {
         if (part.problem->NumResidualBlocks() == 0) return;
+        if (config_.minimizer == "m3c" && LmUnsupported(*part.problem).empty()) {
+          LmOptions options;
+          options.max_iterations = stage.max_iterations;
+          options.num_threads = part_threads;
+          options.evaluation_callback = part.callback.get();
+          options.callbacks.push_back(part.callback.get());
+          SolveLm(options, part.problem.get(), &part.summary);
+          return;
+        }
         ceres::Solver::Options options;
         options.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
         options.max_num_iterations = stage.max_iterations;

@@ -1,5 +1,6 @@
 // Staged world-frame optimization of every person's motion (thesis 4.1.4 / SLAHMR), all people in one problem
-// sharing the camera scale. Stage k is a Ceres solve over the terms active in it; a stage that fails (solver
+// sharing the camera scale. Stage k is a Levenberg-Marquardt solve of a Ceres problem over the terms active in it
+// (Ceres's iteration, motion/lm_solver.h, or ceres::Solve: OptimizerConfig::minimizer); a stage that fails (solver
 // failure, non-finite values, a worse objective) is reverted to the last good state and the run stops cleanly.
 #pragma once
 
@@ -89,6 +90,10 @@ struct OptimizerConfig {
   // under the VPoser prior on the encoded pose.
   bool latent_pose = true;
   int num_threads = 2;
+  // Which minimizer solves a stage: "m3c", Ceres's Levenberg-Marquardt iteration with M3C's assembly of the
+  // normal equations (motion/lm_solver.h, the same steps and costs, faster), or "ceres", ceres::Solve itself
+  // (the reference; a stage with a bounded parameter, a freed camera scale, always takes it).
+  std::string minimizer = "m3c";
   std::vector<StageConfig> stages;
 };
 

@@ -126,6 +126,53 @@ def test_people_are_solved_apart_where_they_share_nothing(model, start, result):
     assert optimize(model, tracks, cameras, scaled).stages[0].parts == 1
 
 
+def test_m3c_minimizer_takes_ceres_steps(model, start, result):
+    """The default minimizer (Ceres's Levenberg-Marquardt iteration with M3C's assembly of the normal equations,
+    motion/lm_solver.h) against ceres::Solve on the recipe: every stage the same iterations, objective and
+    result (round-off apart: J^T J is summed in another order)."""
+    tracks, cameras = start
+    assert OptimizerConfig.default().minimizer == "m3c"
+    reference = optimize(model, tracks, cameras, dataclasses.replace(OptimizerConfig.default(), minimizer="ceres"))
+    assert [s.status for s in result.stages] == [s.status for s in reference.stages]
+    for ours, theirs in zip(result.stages, reference.stages):
+        assert ours.iterations == theirs.iterations, ours.name
+        assert ours.objective_before == pytest.approx(theirs.objective_before, rel=1e-12), ours.name
+        assert ours.objective_after == pytest.approx(theirs.objective_after, rel=1e-9), ours.name
+    for a, b in zip(result.tracks, reference.tracks):
+        for name in ("transl", "root_orient", "body_pose", "betas"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=0, atol=1e-6, err_msg=name)
+    with pytest.raises(ValueError, match="minimizer must be one of"):
+        optimize(model, tracks, cameras, dataclasses.replace(OptimizerConfig.default(), minimizer="lbfgs"))
+
+
+def test_m3c_minimizer_with_learned_priors(model, tmp_path):
+    """The same with the learned terms' evaluation callbacks: HuMoR's batched transitions and VPoser latents
+    (random weights in the official layouts)."""
+    torch = pytest.importorskip("torch")
+    from m3c.models.export import export_weights
+    from m3c.models.humor import HumorModel
+    from m3c.models.vposer import VPoserV2
+
+    torch.manual_seed(3)
+    export_weights(tmp_path, humor=HumorModel().eval(), vposer=VPoserV2().double().eval(), dtype="float64")
+    scene = make_scene(model, num_people=2, num_frames=10, seed=4)
+    config = OptimizerConfig.default()
+    for stage in config.stages:
+        stage.max_iterations = min(stage.max_iterations, 6)
+    runs = [optimize(model, scene.init, scene.cameras_vo, dataclasses.replace(config, minimizer=m), fps=scene.fps,
+                     motion_prior=tmp_path / "humor.safetensors", pose_prior=tmp_path / "vposer.safetensors")
+            for m in ("m3c", "ceres")]
+    ours, theirs = runs
+    assert [s.status for s in ours.stages] == [s.status for s in theirs.stages]
+    assert {"pose_prior", "motion_prior"} <= {s.name for s in ours.stages if s.status == "ok"}
+    for a, b in zip(ours.stages, theirs.stages):
+        assert a.iterations == b.iterations, a.name
+        assert a.objective_after == pytest.approx(b.objective_after, rel=1e-9), a.name
+    for a, b in zip(ours.tracks, theirs.tracks):
+        np.testing.assert_allclose(a.body_pose, b.body_pose, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(a.transl, b.transl, rtol=0, atol=1e-6)
+
+
 def test_static_camera_keeps_the_scale(model, scene):
     cams = Cameras(scene.cameras_vo.world_from_cam, scene.cameras_vo.intrinsics, static=True, initial_scale=1.5)
     config = OptimizerConfig.default()

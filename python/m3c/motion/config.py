@@ -66,6 +66,7 @@ import yaml
 from m3c import _core
 
 PARAMETER_GROUPS = ("transl", "root", "body", "betas", "scale", "offset")
+MINIMIZERS = ("m3c", "ceres")  # OptimizerConfig.minimizer
 
 
 @dataclass
@@ -96,6 +97,9 @@ class OptimizerConfig:
     # axis-angle poses under the VPoser prior on their encoding.
     latent_pose: bool = True
     num_threads: int = 2
+    # "m3c": Ceres's Levenberg-Marquardt iteration with M3C's assembly of the normal equations (the same steps and
+    # costs, faster); "ceres": ceres::Solve itself, the reference (a stage with a bounded parameter takes it).
+    minimizer: str = "m3c"
     stages: list[StageSpec] = field(default_factory=list)
 
     @classmethod
@@ -111,6 +115,8 @@ class OptimizerConfig:
         would abort the process on num_threads < 1)."""
         if isinstance(self.num_threads, bool) or not isinstance(self.num_threads, Integral) or self.num_threads < 1:
             raise ValueError(f"num_threads must be an integer >= 1, got {self.num_threads!r}")
+        if self.minimizer not in MINIMIZERS:
+            raise ValueError(f"minimizer must be one of {MINIMIZERS}, got {self.minimizer!r}")
         if isinstance(self.well_seen_keypoints, bool) or not isinstance(self.well_seen_keypoints, Integral) \
                 or self.well_seen_keypoints < 1:
             raise ValueError(f"well_seen_keypoints must be an integer >= 1, got {self.well_seen_keypoints!r}")
