@@ -6,9 +6,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # libopenblas-dev: the system BLAS (Debian's alternatives rank it above ATLAS, which libceres-dev brings): the
-# optimizer's sparse Cholesky and the motion prior's networks run on it (CMakeLists.txt).
-APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libceres-dev libopencv-dev
-              libgtest-dev nlohmann-json3-dev graphviz libopenblas-dev)
+# optimizer's sparse Cholesky and the motion prior's networks run on it (CMakeLists.txt). libsuitesparse-dev:
+# CHOLMOD and AMD, which the world optimizer's solver calls itself (cpp/motion/lm_solver.cc; Ceres needs them too).
+APT_PACKAGES=(build-essential cmake ninja-build pkg-config libeigen3-dev libceres-dev libsuitesparse-dev
+              libopencv-dev libgtest-dev nlohmann-json3-dev graphviz libopenblas-dev)
 if command -v apt-get >/dev/null 2>&1; then
   missing=()
   for pkg in "${APT_PACKAGES[@]}"; do
