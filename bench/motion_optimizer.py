@@ -1,4 +1,5 @@
-"""Staged world optimizer: Ceres per stage against SLAHMR's way (torch L-BFGS, lr 1, max_iter 20, strong Wolfe, on
+"""Staged world optimizer: its Levenberg-Marquardt ("Ceres" below: Ceres's iteration, by M3C's minimizer unless
+--minimizer ceres) per stage against SLAHMR's way (torch L-BFGS, lr 1, max_iter 20, strong Wolfe, on
 the CPU) on the same objective, on a synthetic multi-person scene (m3c.eval.scenes), with and without the HuMoR
 motion-prior term (random weights of the official size, exported to safetensors: the timing is what a real
 checkpoint costs, the motion it prefers is not).
@@ -140,7 +141,9 @@ class Chain:
 
     def header(self, label):
         print(f"\n{label}")
-        print(f"  {'':<18}{'--- Ceres (LM, sparse normal Cholesky)':<66}"
+        solver = ("M3C's LM (Ceres's iteration, CHOLMOD)" if self.config.minimizer == "m3c"
+                  else "Ceres (LM, sparse normal Cholesky)")
+        print(f"  {'':<18}{'--- ' + solver:<66}"
               f"{'--- torch L-BFGS (lr 1, max_iter 20, strong Wolfe)'}")
         print(f"  {'stage':<18}{'status':<9}{'iters':>5}{'seconds':>9}{'cost start':>11}{'cost end':>11}"
               f"{'W-MPJPE':>7}{'scale':>7}{'steps':>6}{'evals':>6}{'s->cost':>9}{'cost end':>11}{'W-MPJPE':>7}"
@@ -163,6 +166,9 @@ def main() -> None:
     add_scene_arguments(parser)
     parser.add_argument("--no-humor", action="store_true", help="only the variant without the motion prior")
     parser.add_argument("--no-torch", action="store_true", help="Ceres stages only")
+    parser.add_argument("--minimizer", choices=("m3c", "ceres"), default="m3c",
+                        help="the optimizer's minimizer (OptimizerConfig.minimizer): M3C's Levenberg-Marquardt, "
+                             "Ceres's iteration with M3C's normal equations (default), or ceres::Solve")
     parser.add_argument("--full-run", action="store_true",
                         help="also time the staged optimizer in one call (as the pipeline runs it)")
     parser.add_argument("--max-iterations", type=int, default=None, help="cap every stage's Ceres iterations")
@@ -176,6 +182,7 @@ def main() -> None:
     torch.set_num_threads(2)
     config = OptimizerConfig.default()
     config.num_threads = 2
+    config.minimizer = args.minimizer
     if args.max_iterations is not None:
         for spec in config.stages:
             spec.max_iterations = min(spec.max_iterations, args.max_iterations)

@@ -3,8 +3,10 @@
 #include <algorithm>
 #include <chrono>
 #include <climits>
+#include <cstdint>
 #include <cmath>
 #include <limits>
+#include <numeric>
 #include <unordered_map>
 
 #include <amd.h>
@@ -33,7 +35,7 @@ struct Row {
   int rows = 0, width = 0;
   size_t residual = 0;  // its first residual in the stacked residuals
   size_t jacobian = 0;  // its first value in its chunk's Jacobian buffer
-  size_t pairs = 0;     // its first pair offset: n(n-1)/2 of them for n free blocks, (k, l > k) at l(l-1)/2 + k
+  size_t runs = 0;      // its first entry in run_ptr_: n + 1 of them for n free blocks
 };
 
 // The upper triangle (b >= a) of J^T J of one dense row-major rows x width Jacobian, added into g (width x width,
@@ -94,8 +96,16 @@ class LmSolver {
   // no more than a chunk's Jacobian is held: chunk c is rows [chunks_[c], chunks_[c + 1]).
   std::vector<size_t> chunks_;
   std::vector<double> chunk_jacobian_;
-  std::vector<int> pair_offsets_;    // per row and pair (k, l > k): where block l's rows start in block k's
-                                     // columns, after the diagonal block's part
+  // Where a row's J^T J goes in block k's columns below the diagonal block: runs of the later blocks l > k that
+  // lie next to each other both in the row and in the column, each copied as one span. Row r's runs for block k
+  // are runs_[run_ptr_[r.runs + k] .. run_ptr_[r.runs + k + 1]).
+  struct Run {
+    int offset;             // rows into the column, after the diagonal block's part
+    std::uint16_t local;    // first column in the row's dense Jacobian
+    std::uint16_t length;
+  };
+  std::vector<Run> runs_;
+  std::vector<size_t> run_ptr_;
   std::vector<int> diagonal_at_;     // per column, the position of its diagonal in the normal matrix
   std::vector<double> residuals_;    // at x
   std::vector<double> scratch_residuals_;  // at a candidate
@@ -282,7 +292,7 @@ bool LmSolver::Setup(std::string* why) {
 
   // The rows: free blocks in column order, chunks, pair offsets.
   constexpr size_t kChunkValues = size_t{1} << 19;  // 4 MiB of Jacobian per chunk
-  size_t residual = 0, chunk_values = 0, largest_chunk = 0, pairs = 0;
+  size_t residual = 0, chunk_values = 0, largest_chunk = 0;
   chunks_.assign(1, 0);
   for (size_t r = 0; r < rows_.size(); ++r) {
     Row& row = rows_[r];
@@ -311,17 +321,23 @@ bool LmSolver::Setup(std::string* why) {
     largest_chunk = std::max(largest_chunk, chunk_values);
     row.residual = residual;
     residual += row.rows;
-    row.pairs = pairs;
-    pairs += mine.size() * (mine.size() - 1) / 2;
-    pair_offsets_.resize(pairs);
+    row.runs = run_ptr_.size();
     for (size_t k = 0; k < mine.size(); ++k) {
+      run_ptr_.push_back(runs_.size());
       const int column = mine[k].first;
       for (size_t l = k + 1; l < mine.size(); ++l) {
         const auto e = std::lower_bound(lower.begin() + lower_ptr[column], lower.begin() + lower_ptr[column + 1],
                                         mine[l].first) - lower.begin();
-        pair_offsets_[row.pairs + l * (l - 1) / 2 + k] = below[e];
+        Run* last = runs_.size() > run_ptr_.back() ? &runs_.back() : nullptr;
+        if (last && last->offset + last->length == below[e] && last->local + last->length == row.local[l] &&
+            last->length + row.size[l] <= UINT16_MAX) {
+          last->length = static_cast<std::uint16_t>(last->length + row.size[l]);
+        } else {
+          runs_.push_back({below[e], static_cast<std::uint16_t>(row.local[l]), static_cast<std::uint16_t>(row.size[l])});
+        }
       }
     }
+    run_ptr_.push_back(runs_.size());
   }
   chunks_.push_back(rows_.size());
   chunk_jacobian_.assign(largest_chunk, 0.0);
@@ -419,15 +435,17 @@ bool LmSolver::Linearize(double* cost) {
       const double* jac = chunk_jacobian_.data() + row.jacobian;
       const double* res = residuals_.data() + row.residual;
       const int w = row.width;
-      for (int i = 0; i < row.rows; ++i) {  // J^T r
+      g.assign(static_cast<size_t>(w) * (w + 1), 0.0);  // J^T J, then J^T r in the last row
+      double* jtr = g.data() + static_cast<size_t>(w) * w;
+      for (int i = 0; i < row.rows; ++i) {
         const double ri = res[i];
         const double* ji = jac + static_cast<size_t>(i) * w;
-        for (size_t k = 0; k < row.col.size(); ++k) {
-          double* out = rhs_values_.data() + row.col[k];
-          for (int s = 0; s < row.size[k]; ++s) out[s] += ji[row.local[k] + s] * ri;
-        }
+        for (int a = 0; a < w; ++a) jtr[a] += ji[a] * ri;
       }
-      g.assign(static_cast<size_t>(w) * w, 0.0);
+      for (size_t k = 0; k < row.col.size(); ++k) {
+        double* out = rhs_values_.data() + row.col[k];
+        for (int t = 0; t < row.size[k]; ++t) out[t] += jtr[row.local[k] + t];
+      }
       AddRowGram(jac, row.rows, w, g.data());
       // Column q of block k, on and below the diagonal: its own block's rows q.. first, then each later block's.
       const size_t blocks = row.col.size();
@@ -438,10 +456,11 @@ bool LmSolver::Linearize(double* cost) {
           const double* from = g.data() + static_cast<size_t>(row.local[k] + q) * w;
           for (int t = q; t < sk; ++t) column[t - q] += from[row.local[k] + t];
           column += sk - q;
-          for (size_t l = k + 1; l < blocks; ++l) {
-            double* to = column + pair_offsets_[row.pairs + l * (l - 1) / 2 + k];
-            const double* src = from + row.local[l];
-            for (int t = 0; t < row.size[l]; ++t) to[t] += src[t];
+          for (size_t u = run_ptr_[row.runs + k]; u < run_ptr_[row.runs + k + 1]; ++u) {
+            const Run& run = runs_[u];
+            double* to = column + run.offset;
+            const double* src = from + run.local;
+            for (int t = 0; t < run.length; ++t) to[t] += src[t];
           }
         }
       }
@@ -770,6 +789,10 @@ std::string LmUnsupported(const ceres::Problem& problem) {
   problem.GetResidualBlocks(&ids);
   for (const ceres::ResidualBlockId id : ids) {
     if (problem.GetLossFunctionForResidualBlock(id) != nullptr) return "a residual block has a loss function";
+    const std::vector<int32_t>& sizes = problem.GetCostFunctionForResidualBlock(id)->parameter_block_sizes();
+    if (std::accumulate(sizes.begin(), sizes.end(), 0LL) > UINT16_MAX) {
+      return "a residual block reads more than 65535 parameters";  // the runs' 16-bit columns
+    }
   }
   return "";
 }
