@@ -46,7 +46,26 @@ struct Row {
 __attribute__((target_clones("arch=x86-64-v3", "default")))
 #endif
 void AddRowGram(const double* __restrict jacobian, int rows, int width, double* __restrict g) {
-  for (int i = 0; i < rows; ++i) {
+  int i = 0;
+  // Four rows at a time: one pass over g instead of four, each entry summed in the same order as row by row.
+  for (; i + 3 < rows; i += 4) {
+    const double* r0 = jacobian + static_cast<size_t>(i) * width;
+    const double *r1 = r0 + width, *r2 = r1 + width, *r3 = r2 + width;
+    for (int a = 0; a < width; ++a) {
+      const double v0 = r0[a], v1 = r1[a], v2 = r2[a], v3 = r3[a];
+      if (v0 == 0.0 && v1 == 0.0 && v2 == 0.0 && v3 == 0.0) continue;
+      double* ga = g + static_cast<size_t>(a) * width;
+      for (int b = a; b < width; ++b) {
+        double t = ga[b];
+        t += v0 * r0[b];
+        t += v1 * r1[b];
+        t += v2 * r2[b];
+        t += v3 * r3[b];
+        ga[b] = t;
+      }
+    }
+  }
+  for (; i < rows; ++i) {
     const double* row = jacobian + static_cast<size_t>(i) * width;
     for (int a = 0; a < width; ++a) {
       const double v = row[a];
