@@ -129,6 +129,7 @@ class StageConfig:
         ...
 class OptimizerConfig:
     latent_pose: bool
+    minimizer: str
     optimize_offset: bool
     def __init__(self) -> None:
         ...
