@@ -155,17 +155,19 @@ bool LmSolver::Setup(std::string* why) {
   std::unordered_map<const double*, int> id;  // free block -> its number
   std::vector<double*> free;
   std::vector<size_t> row_block_ptr = {0};
-  std::vector<int> row_block;  // per row: the numbers of its free blocks, row_block_ptr[r]..
+  // Per row, from row_block_ptr[r]: the numbers of its free blocks and their indices among its parameters.
+  std::vector<int> row_block, row_param;
   for (const ceres::ResidualBlockId rid : ids) {
     Row row;
     row.cost = problem_->GetCostFunctionForResidualBlock(rid);
     problem_->GetParameterBlocksForResidualBlock(rid, &row.params);
     const size_t first = row_block.size();
-    for (double* p : row.params) {
-      if (problem_->IsParameterBlockConstant(p)) continue;
-      const auto [it, added] = id.emplace(p, static_cast<int>(free.size()));
-      if (added) free.push_back(p);
+    for (size_t q = 0; q < row.params.size(); ++q) {
+      if (problem_->IsParameterBlockConstant(row.params[q])) continue;
+      const auto [it, added] = id.emplace(row.params[q], static_cast<int>(free.size()));
+      if (added) free.push_back(row.params[q]);
       row_block.push_back(it->second);
+      row_param.push_back(static_cast<int>(q));
     }
     if (row_block.size() == first) {
       fixed_.emplace_back(row.cost, row.params);
@@ -309,16 +311,15 @@ bool LmSolver::Setup(std::string* why) {
   }
   colptr[n_] = at;
 
-  // The rows: free blocks in column order, chunks, pair offsets.
+  // The rows: free blocks in column order, chunks, runs.
   constexpr size_t kChunkValues = size_t{1} << 19;  // 4 MiB of Jacobian per chunk
   size_t residual = 0, chunk_values = 0, largest_chunk = 0;
   chunks_.assign(1, 0);
   for (size_t r = 0; r < rows_.size(); ++r) {
     Row& row = rows_[r];
     std::vector<std::pair<int, int>> mine;  // (position, parameter index)
-    for (size_t q = 0; q < row.params.size(); ++q) {
-      const auto it = id.find(row.params[q]);
-      if (it != id.end()) mine.emplace_back(position[it->second], static_cast<int>(q));
+    for (size_t e = row_block_ptr[r]; e < row_block_ptr[r + 1]; ++e) {
+      mine.emplace_back(position[row_block[e]], row_param[e]);
     }
     std::sort(mine.begin(), mine.end());
     row.rows = row.cost->num_residuals();
