@@ -14,6 +14,7 @@ from m3c.models import humor_state as hs
 from m3c.models.humor import (HumorModel, gaussian_nll, latent_nll, load_humor, sequence_transition_nll,
                               transition_nll)
 from m3c.models.rotations import axis_angle_to_matrix
+from pickled_names import importable, named_class
 
 
 @pytest.fixture(scope="module")
@@ -269,11 +270,23 @@ class _Config:
         self.lr = 1e-3
 
 
-def test_foreign_objects_in_checkpoint_are_inert(model, tmp_path):
-    """Pickled objects other than tensors become stand-ins: a config loads, code in the file never runs."""
+def test_foreign_objects_in_checkpoint_are_refused(model, tmp_path):
+    """A checkpoint that pickles anything besides tensors, containers and the official files' config containers
+    is refused with the class it names, and code in it never runs."""
     marker = tmp_path / "ran"
-    path = tmp_path / "with_objects.pth"
-    save_official(model, path, extra={"config": _Config(), "hook": _Exploit(marker)})
-    loaded = load_humor(path)
+    for extra, named in (({"hook": _Exploit(marker)}, "system"), ({"config": _Config()}, "_Config")):
+        path = tmp_path / "with_objects.pth"
+        save_official(model, path, extra=extra)
+        with pytest.raises(ckpt.CheckpointError, match=f"refused.*{named}"):
+            load_humor(path)
     assert not marker.exists()
+
+
+def test_official_config_containers_in_checkpoint_load(model, tmp_path):
+    """A config pickled as one of the official files' containers (here yacs' CfgNode) loads as a plain one."""
+    cfg = named_class("yacs.config.CfgNode")
+    path = tmp_path / "with_config.pth"
+    with importable(cfg):
+        save_official(model, path, extra={"config": cfg(lr=1e-3)})
+    loaded = load_humor(path)
     torch.testing.assert_close(loaded.encoder.net[12].bias, model.encoder.net[12].bias.float())

@@ -17,6 +17,7 @@ from m3c.models.vit import ViT, ViTConfig, normalize_images, parameter_count
 from m3c.models.vitpose import (COCO_FLIP_PAIRS, InputGeometry, ViTPose, decode_heatmaps, flip_back,
                                 heatmap_to_frame, load_vitpose)
 from m3c.perception.boxes import crop_to_full_camera, network_input
+from pickled_names import importable, named_class
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -237,8 +238,13 @@ def hmr2_file(tmp_path_factory):
     path = root / "checkpoints" / "epoch=35-step=1000000.ckpt"
     state = {**model.state_dict(), "smpl.shapedirs": torch.zeros(6890, 3, 10),
              "discriminator.D_conv1.weight": torch.zeros(32, 9, 1, 1), "initialized": torch.tensor(True)}
-    torch.save({"epoch": 35, "global_step": 1000000, "pytorch-lightning_version": "2.0.0", "state_dict": state}, path)
     d = SMALL_DECODER
+    # 4D-Humans saves its yacs config as the Lightning module's hyper-parameters (save_hyperparameters)
+    cfg_node = named_class("yacs.config.CfgNode")
+    with importable(cfg_node):
+        hparams = {"cfg": cfg_node(MODEL=cfg_node(IMAGE_SIZE=256)), "init_renderer": False}
+        torch.save({"epoch": 35, "global_step": 1000000, "pytorch-lightning_version": "2.0.0", "state_dict": state,
+                    "hyper_parameters": hparams}, path)
     config = {"MODEL": {"IMAGE_SIZE": 256, "BACKBONE": {"TYPE": "vit"}, "SMPL_HEAD": {
         "TYPE": "transformer_decoder", "IN_CHANNELS": 2048, "TRANSFORMER_DECODER": {
             "depth": d.depth, "heads": d.heads, "mlp_dim": d.mlp_dim, "dim_head": d.dim_head, "dropout": 0.0,

@@ -8,6 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from m3c.models import checkpoint as ckpt
 from m3c.models.vposer import VPoserV1, VPoserV2, load_vposer
+from pickled_names import importable, named_class
 
 
 def randomised(model_cls, seed):
@@ -127,15 +128,16 @@ def save_v1(m, path, legacy=False, with_counter=True):
     torch.save(state, path, _use_new_zipfile_serialization=not legacy)
 
 
-class HParams(dict):
-    """Stands for Lightning's hyper-parameter container, a class torch's safe loader refuses."""
+# Lightning's hyper-parameter container, by the name the official files pickle it under.
+HParams = named_class("pytorch_lightning.utilities.parsing.AttributeDict")
 
 
 def save_v2(m, path):
     state = {"vp_model." + k: v.float() for k, v in m.state_dict().items()}
     state["vp_model.bm_train.v_template"] = torch.zeros(10, 3)  # training body model, not VPoser's
-    torch.save({"epoch": 13, "global_step": 1000, "pytorch-lightning_version": "1.2.0", "state_dict": state,
-                "hyper_parameters": HParams(latentD=32)}, path)
+    with importable(HParams):
+        torch.save({"epoch": 13, "global_step": 1000, "pytorch-lightning_version": "1.2.0", "state_dict": state,
+                    "hyper_parameters": HParams(latentD=32)}, path)
 
 
 @pytest.mark.parametrize("legacy,with_counter", [(False, True), (True, False)])

@@ -21,7 +21,7 @@ from m3c.io.results import PUBLISHED_FILES
 from m3c.nodes import register_builtin_nodes
 from m3c.perception.mediapipe_pose import mediapipe_available
 from m3c.pipeline import Needs, PipelineConfig, PipelineError, node_type
-from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch, video_needs
+from m3c.pipeline.batch import SUMMARY, collect_videos, result_names, run_batch, start_local_ray, video_needs
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
 # The subprocess imports the same m3c as this process (the source tree in development, the installed package in CI).
@@ -128,7 +128,7 @@ def test_sequential_batch_reports_the_failure_and_reuses_the_cache(videos, refer
 def local_ray():
     ray = pytest.importorskip("ray", reason="needs Ray (pip install 'm3c[batch]')")
     # address="local": a new instance of the test's own, even when another Ray runs on this machine.
-    ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+    start_local_ray(num_cpus=2, logging_level="WARNING", log_to_driver=False)  # as m3c batch starts it
     yield ray
     ray.shutdown()
 

@@ -65,7 +65,7 @@ def test_second_run_reuses_everything(tmp_path, run_log):
     ({"slow_b.steps": 5}, {"slow_b", "total", "report"}),
     ({"other.seed": 9}, {"other", "total", "report"}),
     ({"report.fail": False}, set()),  # the default value written out: same config, same key
-    ({"settings.device": "cuda"}, set()),  # no node reads the device
+    ({"settings.device": "cpu:0"}, set()),  # no node reads the device
 ])
 def test_changed_setting_reruns_exactly_its_dependents(tmp_path, run_log, override, expected):
     config = PipelineConfig.from_yaml(pipeline_yaml())

@@ -56,6 +56,9 @@ def test_result_files_follow_the_schema(scene_run):
     assert arrays["world_from_cam"].shape == (T, 4, 4) and arrays["fps"].shape == ()
     np.testing.assert_array_equal(arrays["frame_ids"], np.arange(T))
     assert summary["video"]["fps"] == pytest.approx(scene.fps)
+    # every frame the container lists decodes (a cut file says so: test_robust_lying_input.py)
+    assert summary["video"]["total_frames"] == summary["video"]["frames_in_container"] == T
+    assert summary["video"]["truncated"] is False
     # Spans and detections: a track is valid from its first to its last detection, visible where detected.
     for p, init in enumerate(scene.init):
         detected = (init.keypoints[:, :, 2] > 0).any(axis=1)

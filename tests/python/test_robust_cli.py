@@ -106,10 +106,14 @@ def test_folder_given_as_the_video(tmp_path, capsys):
     assert code == 2 and "is a folder" in err and "not found" not in err
 
 
-def test_implausible_focal_length_is_warned_of(small_video, tmp_path, capsys, caplog):
+def test_implausible_focal_length_is_refused_unless_forced(small_video, tmp_path, capsys, caplog):
+    code, _, err = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
+                           frames_only_config(tmp_path), "--intrinsics", "0.001", "0.001", "32", "24")
+    assert code == 2 and "fx = 0.001 px" in err and "times the image diagonal" in err
     with caplog.at_level(logging.WARNING, logger="m3c.nodes.camera"):
         code, _, _ = run_cli(capsys, "run", small_video, "--out", tmp_path / "out", "--config",
-                             frames_only_config(tmp_path), "--intrinsics", "0.001", "0.001", "32", "24")
+                             frames_only_config(tmp_path), "--intrinsics", "0.001", "0.001", "32", "24",
+                             "--force-intrinsics")
     assert code == 0
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any("fx = 0.001 px" in w and "times the image diagonal" in w for w in warnings), warnings

@@ -3,14 +3,13 @@ M3C's own model files (same keys, .npz). Everything is returned as plain float64
 
 from __future__ import annotations
 
-import io
-import pickle
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from m3c.body.joint_names import SMPL_PARENTS
+from m3c.io import safe_pickle
 
 OBTAIN_HINT = (
     "SMPL model files are licensed and cannot ship with M3C: register at https://smpl.is.tue.mpg.de and "
@@ -76,35 +75,9 @@ class _ChumpyStandIn:
         raise BodyModelFileError("a chumpy object in the file holds no array (no 'x' in its state)")
 
 
-def _numpy_module(module: str) -> str:
-    # Pickles written by numpy 1.x name numpy.core; numpy 2 moved it to numpy._core (the old name warns).
-    if module.startswith("numpy.core") and hasattr(np, "_core"):
-        return "numpy._core" + module[len("numpy.core"):]
-    return module
-
-
-class _RestrictedUnpickler(pickle.Unpickler):
-    """Resolves only what a body-model pickle needs (numpy, scipy.sparse, chumpy stand-ins): a model file can
-    not run arbitrary code."""
-
-    _SPARSE = {"csc_matrix", "csr_matrix", "coo_matrix"}
-    # _codecs.encode rebuilds bytes in protocol-2 pickles.
-    _HARMLESS = {("copyreg", "_reconstructor"), ("builtins", "object"), ("builtins", "set"),
-                 ("builtins", "frozenset"), ("_codecs", "encode")}
-
-    def find_class(self, module: str, name: str):
-        if module.split(".")[0] == "chumpy":
-            return _ChumpyStandIn
-        if module.startswith("scipy.sparse") and name in self._SPARSE:
-            import scipy.sparse
-
-            return getattr(scipy.sparse, name)
-        if module.startswith("numpy"):
-            return super().find_class(_numpy_module(module), name)
-        module = {"__builtin__": "builtins", "copy_reg": "copyreg"}.get(module, module)  # Python 2 pickles
-        if (module, name) in self._HARMLESS:
-            return super().find_class(module, name)
-        raise BodyModelFileError(f"body model pickle references {module}.{name}, which a model file never needs")
+# What a body-model pickle needs: numpy arrays, scipy.sparse matrices (SMPL's J_regressor), plain containers;
+# chumpy objects (SMPL's .pkl pickles chumpy.Ch) become inert stand-ins (m3c.io.safe_pickle).
+_MODEL_GLOBALS = {**safe_pickle.DATA_GLOBALS, **safe_pickle.SPARSE_GLOBALS}
 
 
 def _to_dense(value, key: str) -> np.ndarray:
@@ -121,13 +94,13 @@ def _to_dense(value, key: str) -> np.ndarray:
 def _read_raw(path: Path) -> dict:
     suffix = path.suffix.lower()
     if suffix == ".pkl":
-        with open(path, "rb") as fh:
-            try:
-                raw = _RestrictedUnpickler(io.BytesIO(fh.read()), encoding="latin1").load()
-            except BodyModelFileError:
-                raise
-            except Exception as err:
-                raise BodyModelFileError(f"{path} is not a readable body model pickle: {err}") from err
+        try:
+            raw = safe_pickle.load_restricted(path, _MODEL_GLOBALS, source=f"body model {path}",
+                                              stand_ins={"chumpy": _ChumpyStandIn}, encoding="latin1")
+        except safe_pickle.UnsafePickleError as err:
+            raise BodyModelFileError(str(err)) from None
+        except Exception as err:
+            raise BodyModelFileError(f"{path} is not a readable body model pickle: {err}") from err
         if not isinstance(raw, dict):
             raise BodyModelFileError(f"{path} holds a {type(raw).__name__}, expected a dict of model arrays")
         return raw

@@ -46,12 +46,18 @@ def _add_video_options(parser, many: bool) -> None:
                         help="the camera's horizontal field of view, instead of --intrinsics (square pixels, principal "
                              "point at the image centre); worth giving for a camera that does not move, whose focal "
                              "length its motion cannot tell (a phone's main camera: about 60-70)")
+    parser.add_argument("--force-intrinsics", action="store_true",
+                        help="use --intrinsics even where they are not those of a physical camera (focal length "
+                             "outside 0.2..10 image diagonals, principal point outside the image)")
     parser.add_argument("--static-camera", action="store_true",
                         help=f"the camera{'s do' if many else ' does'} not move (no visual odometry)")
     parser.add_argument("--slow-motion", type=float, metavar="FACTOR",
                         help="the video plays FACTOR times slower than it was filmed (a phone's 120 fps slow motion "
                              "at 30 fps: 4; 50 fps played at 23.976: 2.085): times, speeds and the exported animation "
                              "are then real time")
+    parser.add_argument("--fps", type=float, metavar="RATE",
+                        help="the video's true frame rate, where its file states an implausible one or one its "
+                             "timestamps contradict (frame times are then frame id / RATE)")
     parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
                         help="process frames START..STOP-1 (every STEP-th)" + (" of each video" if many else ""))
     parser.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "

@@ -19,6 +19,10 @@ def pipeline_config(args):
         overrides["camera.intrinsics"] = list(args.intrinsics)
     if getattr(args, "hfov", None) is not None:
         overrides["camera.hfov"] = float(args.hfov)
+    if getattr(args, "force_intrinsics", False):
+        overrides["camera.force_intrinsics"] = True
+    if getattr(args, "fps", None) is not None:
+        overrides["frames.fps"] = float(args.fps)
     if getattr(args, "static_camera", False):
         overrides["vo.static"] = True
         for name, entry in config.nodes.items():

@@ -4,6 +4,9 @@ people do (a walker moves at 1-1.5 m/s, a planted foot stands still, nobody walk
 Per track, from its world joints (SMPL 24, metres), the frame rate and its ground plane (n . x + d = 0, the normal
 pointing up; y = 0 when none is given):
   mean_speed_mps, peak_speed_mps   horizontal pelvis speed after a 0.5 s smoothing (the gait's sway out)
+  sustained_speed_mps              the fastest 1 s average of that speed; implausible_speed: over
+                                   MAX_HUMAN_SPEED_MPS (12 m/s, faster than any sprinter holds for a second):
+                                   the camera scale or the frame rate is wrong
   path_length_m, displacement_m    the smoothed pelvis path and the straight line from its start to its end
   path_ratio                       path length / displacement (1 for a straight walk; large for a wandering pelvis)
   slow_foot_speed_mps              median over frames of the slower foot's speed (a foot: the slower of its ankle
@@ -28,6 +31,8 @@ from scipy.signal import savgol_filter
 PELVIS = (1, 2)              # the hips
 FEET = ((7, 10), (8, 11))    # (ankle, foot) joints of the left and right foot
 SMOOTHING_S = 0.5
+MAX_HUMAN_SPEED_MPS = 12.0
+SUSTAINED_S = 1.0
 BELOW_GROUND_TOLERANCE = 0.02
 LEGS = ((1, 4, 7), (2, 5, 8))  # (hip, knee, ankle) of the left and right leg
 # The gait's stride frequencies searched (Hz; 30-240 steps a minute), and when a track counts as stepping: the
@@ -146,6 +151,9 @@ def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, groun
     step = np.diff(pelvis, axis=0)
     step -= (step * unit[1:]).sum(-1, keepdims=True) * unit[1:]
     speed = np.linalg.norm(step, axis=-1) * fps
+    width = max(1, round(SUSTAINED_S * fps))
+    sustained = float(np.convolve(speed, np.full(width, 1.0 / width), "valid").max()) if len(speed) >= width \
+        else float(speed.mean())
     path = float(np.linalg.norm(step, axis=-1).sum())
     line = pelvis[-1] - pelvis[0]
     line -= (line @ unit[-1]) * unit[-1]
@@ -161,6 +169,8 @@ def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, groun
         "frames": int(n),
         "mean_speed_mps": float(speed.mean()),
         "peak_speed_mps": float(speed.max()),
+        "sustained_speed_mps": sustained,
+        "implausible_speed": bool(sustained > MAX_HUMAN_SPEED_MPS),
         "path_length_m": path,
         "displacement_m": displacement,
         "path_ratio": float(path / displacement) if displacement > 1e-3 else None,

@@ -190,7 +190,9 @@ def describe(folder: str | Path) -> str:
              f"{MANIFEST})",
              f"video       {video['name']}: {video['width']} x {video['height']}, {_rate(video)}, frames "
              f"{video['frame_range'][0]}..{video['frame_range'][1] - 1} step {video['frame_range'][2]} "
-             f"({video['frames']} processed)",
+             f"({video['frames']} processed)" + (
+                 f"\n            WARNING: only {video['total_frames']} of the {video['frames_in_container']} frames "
+                 "its container lists decode (a cut or damaged file)" if video.get("truncated") else ""),
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
              f"camera      {_camera_motion(camera)}, intrinsics {camera['intrinsics_source']} "
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
@@ -222,6 +224,10 @@ def describe(folder: str | Path) -> str:
                          f"{figures['slow_foot_speed_mps']:.2f} m/s; below ground "
                          f"{100 * figures['below_ground_fraction']:.0f}% of frames, "
                          f"{100 * figures['penetration_m']:.0f} cm deep")
+            if figures.get("implausible_speed"):
+                lines.append(f"         IMPLAUSIBLE: {figures['sustained_speed_mps']:.1f} m/s held for a second, faster "
+                             "than any person moves (12 m/s): the camera scale, the intrinsics or the frame rate "
+                             "is wrong (--intrinsics, --hfov, --fps)")
             if figures.get("step_rate_spm") is not None:
                 lines.append(f"         gait {figures['step_rate_spm']:.0f} steps/min, "
                              f"{figures['step_length_m']:.2f} m a step ({figures['step_length_legs']:.2f} leg "

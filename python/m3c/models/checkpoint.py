@@ -5,12 +5,13 @@ architecture, with errors that name the file, what was expected and where the fi
 from __future__ import annotations
 
 import os
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Mapping
 
 import torch
+
+from m3c.io import safe_pickle
 
 MODELS_ENV = "M3C_MODELS"
 
@@ -72,71 +73,14 @@ def newest_file(folder: Path, pattern: str, source: CheckpointSource) -> Path:
     return found[-1]
 
 
-class _Opaque:
-    """Stands in for any class a checkpoint pickles besides tensors and containers (training configs,
-    Lightning hyper-parameters): it keeps the state, runs nothing."""
-
-    def __init__(self, *args, **kwargs):
-        self.args, self.kwargs = args, kwargs
-
-    def __setstate__(self, state):
-        self.state = state
-
-    def __setitem__(self, key, value):  # some dict subclasses are rebuilt item by item
-        self.__dict__.setdefault("items", {})[key] = value
-
-
-def _allowed(module: str, name: str) -> bool:
-    if module == "torch._utils" and name.startswith("_rebuild"):
-        return True
-    if module == "torch._tensor" and name == "_rebuild_from_type_v2":
-        return True
-    if module == "torch" and (name.endswith("Storage") or name in {"Size", "device", "Tensor"}):
-        return True
-    if module == "torch.nn.parameter" and name == "Parameter":
-        return True
-    if module == "collections" and name in {"OrderedDict", "defaultdict"}:
-        return True
-    if module.startswith("numpy") and name in {"_reconstruct", "scalar", "dtype", "ndarray"}:
-        return True
-    return module in {"builtins", "__builtin__"} and name in {"set", "frozenset", "slice", "complex"}
-
-
-class _LenientUnpickler(pickle.Unpickler):
-    def find_class(self, module: str, name: str):
-        if _allowed(module, name):
-            if module.startswith("numpy.core"):
-                import numpy as np
-
-                if hasattr(np, "_core"):
-                    module = "numpy._core" + module[len("numpy.core"):]
-            return super().find_class(module, name)
-        return _Opaque
-
-
-class _LenientPickleModule:
-    """A pickle module for torch.load that rebuilds tensors and containers and turns every other class into
-    an inert stand-in, for checkpoints that torch's weights_only loader refuses (e.g. Lightning files that
-    pickle their config objects)."""
-
-    Unpickler = _LenientUnpickler
-    __name__ = "m3c_lenient_pickle"
-
-    @staticmethod
-    def load(file, **kwargs):
-        return _LenientUnpickler(file, **kwargs).load()
-
-
 def read_checkpoint(path: Path, source: CheckpointSource) -> object:
-    """Unpickles a torch checkpoint onto the CPU without executing code from the file."""
+    """Unpickles a torch checkpoint onto the CPU through torch's weights-only loader (m3c.io.safe_pickle): a
+    file that names anything besides tensors, containers and the official files' config containers is refused
+    with the global it names, and nothing of it runs."""
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        pass  # torch's safe loader refuses pickled config objects; read them as inert stand-ins
-    except Exception as err:
-        raise CheckpointError(f"{path} is not a readable torch checkpoint ({err}). {source.hint()}") from err
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False, pickle_module=_LenientPickleModule)
+        return safe_pickle.load_torch_checkpoint(path)
+    except safe_pickle.UnsafePickleError as err:
+        raise CheckpointError(f"{err}. {source.hint()}") from None
     except Exception as err:
         raise CheckpointError(f"{path} is not a readable torch checkpoint ({err}). {source.hint()}") from err
 

@@ -11,7 +11,8 @@ from m3c.io.video import default_intrinsics
 from m3c.pipeline import InputError, Node, register_node
 
 # Focal lengths of real cameras in units of the image diagonal: 0.2 is a ~136 degree diagonal field of view
-# (beyond action-camera fisheye), 10 is ~6 degrees (a long telephoto). Outside this range --intrinsics is warned of.
+# (beyond action-camera fisheye), 10 is ~6 degrees (a long telephoto). --intrinsics outside this range, or with the
+# principal point outside the image, are refused unless forced (camera.force_intrinsics, --force-intrinsics).
 PLAUSIBLE_FOCAL = (0.2, 10.0)
 
 
@@ -31,6 +32,7 @@ class CameraNode(Node):
     class Config:
         intrinsics: list[float] | None = None  # fx fy cx cy, pixels
         hfov: float | None = None  # degrees: the horizontal field of view (instead of intrinsics)
+        force_intrinsics: bool = False  # use intrinsics outside a physical camera's range anyway (a warning)
 
     def check(self, ctx) -> None:
         k, hfov = self.config.intrinsics, self.config.hfov
@@ -56,12 +58,17 @@ class CameraNode(Node):
         fx, fy, cx, cy = self.config.intrinsics
         diagonal = float(np.hypot(video["width"], video["height"]))
         low, high = PLAUSIBLE_FOCAL
-        for name, f in (("fx", fx), ("fy", fy)):
-            if not low * diagonal <= f <= high * diagonal:
-                ctx.log.warning("%s = %g px is %.3g times the image diagonal (%.0f px); focal lengths of real cameras "
-                                "lie within %g..%g times it (%.0f..%.0f px): check --intrinsics (pixels, not mm)",
-                                name, f, f / diagonal, diagonal, low, high, low * diagonal, high * diagonal)
+        problems = [f"{name} = {f:g} px is {f / diagonal:.3g} times the image diagonal ({diagonal:.0f} px); focal "
+                    f"lengths of real cameras lie within {low:g}..{high:g} times it ({low * diagonal:.0f}.."
+                    f"{high * diagonal:.0f} px)" for name, f in (("fx", fx), ("fy", fy))
+                    if not low * diagonal <= f <= high * diagonal]
         if not (0 <= cx <= video["width"] and 0 <= cy <= video["height"]):
-            ctx.log.warning("principal point (%.1f, %.1f) lies outside the %d x %d image", cx, cy, video["width"],
-                            video["height"])
+            problems.append(f"the principal point ({cx:g}, {cy:g}) lies outside the {video['width']} x "
+                            f"{video['height']} image")
+        if problems and not self.config.force_intrinsics:
+            raise InputError("--intrinsics are not those of a physical camera: " + "; ".join(problems) +
+                             ". Check them (pixels, not mm; fx fy cx cy), or use them anyway with "
+                             "--force-intrinsics (camera.force_intrinsics=true)")
+        for problem in problems:
+            ctx.log.warning("%s (used as given: --force-intrinsics)", problem)
         return {"camera": {"intrinsics": np.array([fx, fy, cx, cy], dtype=np.float64), "source": "given"}}

@@ -42,6 +42,7 @@ class FramesNode(Node):
         stop: int | None = None  # exclusive; None = to the end
         step: int = 1
         slow_motion: float = 1.0  # the video plays this many times slower than real time (see the class docstring)
+        fps: float | None = None  # the video's true frame rate when its file's is wrong (--fps); None: the file's
 
     def check(self, ctx) -> None:
         c = self.config
@@ -52,6 +53,8 @@ class FramesNode(Node):
             raise InputError(f"frames.slow_motion must be a number > 0, got {c.slow_motion!r}: how many times slower "
                              "than it was filmed the video plays (1: real time; 4: 120 fps slow motion played at 30 "
                              "fps; --slow-motion FACTOR)")
+        if c.fps is not None and not (np.isfinite(c.fps) and MIN_FPS <= c.fps <= MAX_FPS):
+            raise InputError(f"frames.fps (--fps) must be a frame rate in [{MIN_FPS:g}, {MAX_FPS:g}], got {c.fps!r}")
         try:
             probe_video(ctx.source("video"))
         except VideoError as err:
@@ -82,17 +85,32 @@ class FramesNode(Node):
         ctx.log.info("%s: %d x %d%s, %.3f fps, %d frames; processing %d", Path(path).name, info.width, info.height,
                      f" (turned {info.rotation} degrees as its metadata says)" if info.rotation else "", info.fps,
                      total, len(frame_ids))
-        times, fps, variable = self._times(ctx, Path(path).name, all_times, frame_ids, info.fps)
+        truncated = _truncation(info.frame_count_hint, total)
+        if truncated:
+            ctx.log.warning("%s: only %d of the %d frames its container lists decode (a cut or damaged file); the "
+                            "run covers frames 0..%d, and results.json records it (video.frames_in_container)",
+                            Path(path).name, total, info.frame_count_hint, total - 1)
+        if self.config.fps is not None:
+            fps = float(self.config.fps)
+            ctx.log.info("%s: frame rate %.3f fps as given (--fps; the file states %.3f), frame times from frame ids",
+                         Path(path).name, fps, info.fps)
+            times, fps, variable = frame_ids / fps, fps / self.config.step, False
+            source_fps = float(self.config.fps)
+        else:
+            _check_frame_rate(Path(path).name, info.fps, all_times)
+            times, fps, variable = self._times(ctx, Path(path).name, all_times, frame_ids, info.fps)
+            source_fps = info.fps
         slow = float(self.config.slow_motion)
         if slow != 1.0:
             ctx.log.info("slow motion x%g: the processed frames' %.3f fps of playback are %.3f fps of real time; "
                          "times, speeds and the exported animation are real time", slow, fps, fps * slow)
         return {"video": {"path": info.path, "name": Path(info.path).name, "fps": fps * slow,
-                          "source_fps": info.fps, "width": info.width, "height": info.height,
+                          "source_fps": source_fps, "width": info.width, "height": info.height,
                           "rotation": info.rotation, "num_frames": int(len(frame_ids)), "total_frames": int(total),
                           "frame_ids": frame_ids, "times": times / slow, "variable_rate": variable,
                           "start": self.config.start, "stop": int(stop), "step": self.config.step,
-                          "slow_motion": slow, "playback_fps": fps}}
+                          "slow_motion": slow, "playback_fps": fps,
+                          "frames_in_container": int(info.frame_count_hint), "truncated": truncated}}
 
     def _times(self, ctx, name: str, all_times: np.ndarray, frame_ids: np.ndarray, source_fps: float) \
             -> tuple[np.ndarray, float, bool]:
@@ -116,6 +134,37 @@ class FramesNode(Node):
             name, 1000 * rate.min_step, 1000 * rate.max_step, 1000 * rate.median_step, source_fps, rate.fps,
             round(rate.fps))
         return times, rate.fps, True
+
+
+# A person's motion is tracked from frame to frame: a stated rate outside these is a broken header (a zero
+# sample delta gave 1.2 fps), not a camera; --fps overrides it.
+MIN_FPS, MAX_FPS = 5.0, 1000.0
+# A constant-rate file whose timestamps step at a rate this far (relative) from the one it states is lying in one
+# of the two; speeds would be off by the ratio.
+FPS_MISMATCH = 0.1
+
+
+def _truncation(container_frames: int, decoded: int) -> bool:
+    """The container lists more frames than decode (beyond the slack of containers that count a frame or two
+    more than they hold)."""
+    return container_frames > 0 and container_frames - decoded > max(2, 0.01 * container_frames)
+
+
+def _check_frame_rate(name: str, stated_fps: float, all_times: np.ndarray) -> None:
+    """Refuses a stated frame rate that no camera has, or that the file's own constant-rate timestamps
+    contradict, naming --fps as the way to give the true one."""
+    if not MIN_FPS <= stated_fps <= MAX_FPS:
+        raise InputError(f"{name} states {stated_fps:.4g} fps, which is not a plausible video frame rate "
+                         f"([{MIN_FPS:g}, {MAX_FPS:g}]): its header is probably damaged, and every speed would be "
+                         "off by the error. Give the true rate with --fps RATE (e.g. --fps 30), or re-encode the "
+                         "file (ffmpeg -i IN -r 30 OUT.mp4)")
+    rate = frame_rate(all_times)
+    if rate is None or rate.variable:
+        return
+    if abs(rate.fps - stated_fps) > FPS_MISMATCH * stated_fps:
+        raise InputError(f"{name} states {stated_fps:.3f} fps but its frame timestamps step at {rate.fps:.3f} fps; "
+                         "one of the two is wrong and speeds would be off by their ratio "
+                         f"({rate.fps / stated_fps:.2f}x). Give the true rate with --fps RATE")
 
 
 def stream_frames(ctx, video: dict) -> Iterator[tuple[int, np.ndarray]]:

@@ -118,7 +118,11 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                   "variable_frame_rate": bool(video.get("variable_rate", False)), "width": int(video["width"]),
                   "height": int(video["height"]), "frames": T,
                   "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])],
-                  "slow_motion": float(video.get("slow_motion", 1.0))},
+                  "slow_motion": float(video.get("slow_motion", 1.0)),
+                  # frames 0 .. total_frames - 1 exist; a cut file lists more in its container
+                  "total_frames": int(video.get("total_frames", video["stop"])),
+                  "frames_in_container": int(video.get("frames_in_container", 0)),
+                  "truncated": bool(video.get("truncated", False))},
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
                            "viewing direction", "ground": "y = 0" if ground["up_source"] == "ground" else
                   "not found (up from the first camera)", "ground_source": ground.get("ground_source"),
@@ -154,8 +158,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
     # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
-    # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean
-    version = "9"
+    # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean;
+    # 10: video.total_frames, frames_in_container, truncated
+    version = "10"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")

@@ -176,6 +176,32 @@ def ray_available() -> bool:
     return True
 
 
+# Ray takes a node's address from the interface that routes outwards and serves its GCS, raylet, object store and
+# workers on it, so a single-machine batch would be reachable from the network (Ray's job API was
+# CVE-2023-48022). With this variable off (as Ray runs on Windows and macOS), the node's address is the loopback
+# one and every server listens there. Read by ray._private.ray_constants when ray is imported, and inherited by the
+# raylet and its workers from the environment ray.init starts them in.
+_RAY_LOOPBACK_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+def start_local_ray(**init_kwargs) -> None:
+    """ray.init of a new Ray on this machine alone: every server on 127.0.0.1, no dashboard."""
+    import ray
+    from ray._private import ray_constants
+
+    previous = os.environ.get(_RAY_LOOPBACK_ENV)
+    os.environ[_RAY_LOOPBACK_ENV] = "0"
+    enabled, ray_constants.ENABLE_RAY_CLUSTER = ray_constants.ENABLE_RAY_CLUSTER, False  # ray imported before
+    try:
+        ray.init(address="local", include_dashboard=False, _node_ip_address="127.0.0.1", **init_kwargs)
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = enabled
+        if previous is None:
+            os.environ.pop(_RAY_LOOPBACK_ENV, None)
+        else:
+            os.environ[_RAY_LOOPBACK_ENV] = previous
+
+
 def video_needs(config: PipelineConfig) -> Needs:
     """What one video's run needs: its nodes run one after another, so the most cores and the most memory that any
     node of the pipeline needs (each node's Needs: its type's, or its config entry's `needs`)."""
@@ -248,8 +274,10 @@ def _run_on_ray(config, videos, names, out_dir, address, cpus_per_video, memory_
         # address None: a new local instance, never one Ray finds by itself (a stale record of a stopped cluster
         # makes ray.init() wait for it for ever); "auto" joins the one running here. The m3c of this process must be
         # importable on the workers (installed there, or on PYTHONPATH, which local workers inherit).
-        local = {} if address else {"include_dashboard": False}
-        ray.init(address=address or "local", logging_level=logging.WARNING, log_to_driver=False, **local)
+        if address:
+            ray.init(address=address, logging_level=logging.WARNING, log_to_driver=False)
+        else:
+            start_local_ray(logging_level=logging.WARNING, log_to_driver=False)
     try:
         resources = {"num_cpus": cpus_per_video, "memory": int(memory_per_video_gb * 2**30)}
         if config.settings.device.startswith("cuda"):

@@ -102,13 +102,27 @@ def decode(obj: Any, arrays, files_dir: Path) -> Any:
         if "__array__" in obj:
             return arrays[obj["__array__"]]
         if "__file__" in obj:
-            return FileRef(str(files_dir / obj["__file__"]))
+            return FileRef(str(_inside(files_dir, obj["__file__"])))
         if "__float__" in obj:
             return float(obj["__float__"])
         return {k: decode(v, arrays, files_dir) for k, v in obj.items()}
     if isinstance(obj, list):
         return [decode(v, arrays, files_dir) for v in obj]
     return obj
+
+
+def _inside(files_dir: Path, name: Any) -> Path:
+    """files_dir / name, refused unless it stays inside files_dir (a cache entry could be edited or handed over:
+    its file names are data, not paths to follow)."""
+    if not isinstance(name, str) or not name or Path(name).is_absolute():
+        raise PipelineError(f"cache entry {files_dir.parent}: file name {name!r} is not a relative path inside "
+                            "its files/ folder; delete that entry to recompute it")
+    path = files_dir / name
+    root = files_dir.resolve()
+    if not path.resolve().is_relative_to(root):
+        raise PipelineError(f"cache entry {files_dir.parent}: file {name!r} points outside its files/ folder "
+                            f"({path.resolve()}); delete that entry to recompute it")
+    return path
 
 
 class CacheEntryWriter:

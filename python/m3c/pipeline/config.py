@@ -25,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from m3c.pipeline.node import Needs, PipelineError, config_from_dict
+from m3c.pipeline.node import InputError, Needs, PipelineError, config_from_dict
 
 
 @dataclass
@@ -42,6 +42,45 @@ class Settings:
     models_dir: str | None = None
     device: str = "cpu"
     visualize: bool = False
+
+
+def check_settings(settings: Settings) -> None:
+    """Settings that name something on this machine: it must exist, or the run stops before any node (a missing
+    checkpoint folder would otherwise quietly run every network on its fallback; a missing GPU fail late)."""
+    if settings.models_dir is not None:
+        folder = Path(settings.models_dir).expanduser()
+        if not folder.is_dir():
+            raise InputError(f"settings.models_dir (--checkpoints) {folder} is not a folder; give the folder that "
+                             "holds the checkpoints, or leave it out to use $M3C_MODELS")
+    check_device(settings.device)
+
+
+def check_device(device: str) -> None:
+    """settings.device names a torch device this machine has (cpu; cuda / cuda:N with N below the GPU count;
+    mps where it is available)."""
+    if device == "cpu":
+        return
+    try:
+        import torch
+    except ImportError:
+        raise InputError(f"settings.device={device!r} needs torch, which is not installed; use cpu") from None
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, TypeError, ValueError) as err:
+        raise InputError(f"settings.device={device!r} is not a torch device ({err}); use cpu or cuda:N") from None
+    if parsed.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise InputError(f"settings.device={device!r}: this machine has no CUDA GPU that torch can use "
+                             f"(torch {torch.__version__}); use --set settings.device=cpu")
+        if parsed.index is not None and parsed.index >= count:
+            raise InputError(f"settings.device={device!r}: this machine has {count} CUDA GPU(s), cuda:0 .. "
+                             f"cuda:{count - 1}")
+    elif parsed.type == "mps":
+        if not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+            raise InputError(f"settings.device={device!r}: MPS is not available on this machine; use cpu")
+    elif parsed.type != "cpu":
+        raise InputError(f"settings.device={device!r}: M3C runs its networks on cpu, cuda or mps")
 
 
 @dataclass

@@ -24,7 +24,7 @@ import m3c
 from m3c.io import atomic_path
 from m3c.io import manifest as manifest_io
 from m3c.pipeline.cache import Cache, digest, file_digest
-from m3c.pipeline.config import PipelineConfig, Settings
+from m3c.pipeline.config import PipelineConfig, Settings, check_settings
 from m3c.pipeline.finite import check_outputs
 from m3c.pipeline.graph import Graph
 from m3c.pipeline.node import (
@@ -222,6 +222,7 @@ class Runner:
 
     def run(self, targets: list[str] | None = None) -> RunReport:
         try:
+            check_settings(self.config.settings)
             plan = self.plan(targets)
             to_run = [n for n, _, cached in plan if not cached]
             problems = []

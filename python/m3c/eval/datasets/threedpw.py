@@ -19,11 +19,12 @@ The video runs at 30 fps.
 
 from __future__ import annotations
 
-import pickle
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from m3c.io import safe_pickle
 
 FPS = 30.0
 SPLITS = ("train", "validation", "test")
@@ -92,11 +93,13 @@ def read_sequence(path: str | Path, split: str = "") -> ThreeDPWSequence:
     if not path.is_file():
         raise FileNotFoundError(f"3DPW sequence file not found: {path} (3DPW is obtained from "
                                 "https://virtualhumans.mpi-inf.mpg.de/3DPW/ and read from sequenceFiles/<split>/)")
-    with open(path, "rb") as fh:
-        try:
-            data = pickle.load(fh, encoding="latin1")
-        except (pickle.UnpicklingError, EOFError) as err:
-            raise ValueError(f"{path}: not a readable pickle ({err})") from None
+    try:  # numpy arrays, lists and strings: nothing else is resolved (m3c.io.safe_pickle)
+        data = safe_pickle.load_restricted(path, safe_pickle.DATA_GLOBALS, source=f"3DPW sequence {path}",
+                                           encoding="latin1")
+    except safe_pickle.UnsafePickleError:
+        raise
+    except Exception as err:
+        raise ValueError(f"{path}: not a readable pickle ({err})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a 3DPW sequence file holds a dict, this one holds {type(data).__name__}")
     poses = _field(data, path, "poses")
