@@ -72,4 +72,10 @@ if [ "${M3C_NO_BLENDER:-0}" != "1" ] && "$PY" -c 'import sys; sys.exit(sys.versi
       echo "setup: bpy not installed in $BLENDER_VENV; FBX export and the Blender tests will skip" >&2
   fi
 fi
+# The documentation site's toolchain (the m3c[docs] extra: mkdocs-material, mkdocstrings; pure Python, no torch):
+# tests/python/test_docs.py builds the site with --strict. Failure only skips that test. M3C_NO_DOCS=1 leaves it out.
+if [ "${M3C_NO_DOCS:-0}" != "1" ]; then
+  "$PY" -m pip install --quiet "mkdocs-material>=9.5" "mkdocstrings[python]>=0.25" ||
+    echo "setup: the docs toolchain not installed; the docs build test will skip" >&2
+fi
 "$PY" -c "import m3c._core; print('setup: m3c', __import__('m3c').__version__, 'installed')"

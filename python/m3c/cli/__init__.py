@@ -20,6 +20,7 @@ def main(argv: list[str] | None = None) -> int:
     from m3c.pipeline import ComponentUnavailable, PipelineError, PipelineUnavailable
 
     args = build_parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # the command as given, for benchmark provenance
     try:
         return args.func(args)
     except PipelineUnavailable as err:

@@ -43,3 +43,26 @@ def output_folder(path: str | Path) -> Path:
 
 def log_to_stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
+
+
+def provenance(args) -> dict:
+    """Where a benchmark's JSON came from: the command line, M3C's version and, in a git checkout, the commit
+    (tools/benchmark_tables.py prints them above every table it makes from the JSON)."""
+    import subprocess
+
+    from m3c import __version__
+
+    commit = None
+    try:
+        done = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10)
+        if done.returncode == 0:
+            commit = done.stdout.strip() or None
+            dirty = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "status", "--porcelain",
+                                    "--untracked-files=no"], capture_output=True, text=True, timeout=10)
+            if commit and dirty.returncode == 0 and dirty.stdout.strip():
+                commit += "+changes"  # uncommitted edits: the commit alone does not reproduce it
+    except (OSError, subprocess.SubprocessError):
+        pass
+    argv = getattr(args, "argv", None)
+    return {"command": "m3c " + " ".join(argv) if argv else None, "m3c_version": __version__, "commit": commit}

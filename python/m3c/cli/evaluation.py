@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from m3c.cli.common import log_to_stderr
+from m3c.cli.common import log_to_stderr, provenance
 
 
 def _frame_slice(text: str | None):
@@ -66,7 +66,7 @@ def eval_benchmark(args) -> int:
     print(report.tables())
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(report.summary(), indent=1))
+            tmp.write_text(json.dumps({**report.summary(), "provenance": provenance(args)}, indent=1))
         print(f"wrote {args.json}")
     return 0
 
@@ -89,7 +89,7 @@ def eval_video_benchmark(args) -> int:
     report = run_video_benchmark(model, config, args.out, log, show_progress=not args.quiet)
     print(report.text())
     if args.json:
-        write_json(report, args.json)
+        write_json(report, args.json, provenance(args))
         print(f"wrote {args.json}")
     return 0 if not any(s.error for s in report.sequences) else 1
 
@@ -107,7 +107,7 @@ def eval_multiview(args) -> int:
     print(report.text())
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps(report.summary(), indent=1) + "\n")
+            tmp.write_text(json.dumps({**report.summary(), "provenance": provenance(args)}, indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0 if not any(v.error for v in report.views) else 1
 
@@ -132,7 +132,7 @@ def eval_3dpw(args) -> int:
                                None if args.quiet else log_to_stderr)
     print(format_3dpw_tables(evaluation))
     if args.json:
-        summary = {"joints": evaluation["joints"], "methods": evaluation["methods"],
+        summary = {"provenance": provenance(args), "joints": evaluation["joints"], "methods": evaluation["methods"],
                    "sequences": {name: {"people": row["people"],
                                         **{m: {k: r.mean(k) for k in r.values} for m, r in row.items()
                                            if m != "people"}}

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from m3c import __version__
 from m3c.cli import body as body_commands
 from m3c.cli import evaluation as eval_commands
 from m3c.cli import perception as perception_commands
@@ -85,6 +86,7 @@ def _add_report_options(parser, body_model: bool = True) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="m3c", description="M3C: world-grounded human motion capture.")
+    parser.add_argument("--version", action="version", version=f"m3c {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     body = sub.add_parser("body", help="inspect or convert SMPL-layout body model files").add_subparsers(
         dest="body_command", required=True)

@@ -573,11 +573,13 @@ def run_video_benchmark(
     return VideoBenchmarkReport(config, scores, getattr(model.data, "name", ""), time.perf_counter() - start)
 
 
-def write_json(report: VideoBenchmarkReport, path: str | Path) -> None:
+def write_json(report: VideoBenchmarkReport, path: str | Path, provenance: dict | None = None) -> None:
+    """The report's summary as JSON; provenance (the command, M3C's version, the commit) goes with it."""
     from m3c.io.atomic import atomic_path
 
+    summary = report.summary() if provenance is None else {**report.summary(), "provenance": provenance}
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(report.summary(), indent=1, default=float) + "\n")
+        tmp.write_text(json.dumps(summary, indent=1, default=float) + "\n")
 
 
 __all__ = [

@@ -75,7 +75,7 @@ class VOConfig:
     # explains its own measurements best (least keyframe reprojection rms): on rendered video one run in 12-18
     # starts on a wrong motion that it then keeps (a camera that pans read as one that rolls, 50-130 degrees off
     # after 5 s), and such a run fits its measurements 2-8x worse than a sound one from its first 30-60 frames
-    # on (docs/vo.md). 1: one run.
+    # on (docs/notes/visual-odometry.md). 1: one run.
     hypotheses: int = 3
     # Streaming (VisualOdometry, the vo node), the runs are compared after this many frames and only the best
     # goes on, so a long video costs one run's time and memory after them; shorter videos, and run_vo (whose
