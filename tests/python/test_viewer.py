@@ -150,3 +150,30 @@ def test_viewer_picks_the_processed_frames_of_the_source_video(results, tmp_path
         assert abs(float(viewer.image.image.mean()) - levels[2 * frame]) < 4
     with pytest.raises(FileNotFoundError, match="video not found"):
         ResultViewer(server, results, video=tmp_path / "missing.mp4")
+
+
+def test_follow_camera_is_the_world_views_chase_camera(results, server, monkeypatch):
+    """In "follow" mode every connected browser's camera sits where the world view's chase camera is."""
+    import contextlib
+    import types
+
+    from m3c.viz.chase import ChaseView
+
+    viewer = ResultViewer(server, results)
+    client = types.SimpleNamespace(camera=types.SimpleNamespace(position=None, look_at=None),
+                                   atomic=contextlib.nullcontext)
+    monkeypatch.setattr(server, "get_clients", lambda: {0: client})
+    viewer.set_frame(4)
+    assert client.camera.position is None  # "free": the browser's camera is left alone
+    viewer.camera_mode.value = "follow"
+    viewer.set_frame(6)
+    source = viewer.source
+    people = [[] for _ in range(source.num_frames)]
+    for track in source.tracks:
+        for frame, joints in zip(track.frames, track.world_joints):
+            people[int(frame)].append(joints[[1, 2]].mean(axis=0))
+    chase = ChaseView([np.array(p).reshape(-1, 3) for p in people], source.arrays["world_from_cam"][:, :3, 3],
+                      0.0 if source.ground_found else min(float(t.world_joints[..., 1].min()) for t in source.tracks),
+                      float(source.fps))
+    np.testing.assert_allclose(client.camera.position, chase.poses[6][:3, 3], atol=1e-9)
+    np.testing.assert_allclose(client.camera.look_at, chase.targets[6], atol=1e-9)

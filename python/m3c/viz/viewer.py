@@ -2,7 +2,8 @@
 
 The 3D view shows the ground (y = 0 when the run found one), every person's mesh (optimized motion, and the
 world lift before optimization), the video
-camera's frustum with the current frame on it, and the camera's path. The panel beside it has the timeline
+camera's frustum with the current frame on it, and the camera's path; its camera is free or follows the people
+as the world view's chase camera does ("View" > camera: follow). The panel beside it has the timeline
 (slider, play/pause, frame steps), the video frame (overlay.mp4 of the folder, or the source video when
 given), toggles for each layer, and per-track figures from results.json.
 """
@@ -189,6 +190,11 @@ class ResultViewer:
         steps.on_click(lambda event: self.set_frame(self.frame + int(event.target.value)))
         self.slider.on_update(lambda _: int(self.slider.value) != self.frame and self.set_frame(int(self.slider.value)))
         self.image = gui.add_image(self.images[0], label="video") if self.images else None
+        self.chase = self._chase_view()
+        with gui.add_folder("View"):
+            # "follow": the camera of the world view (m3c.viz.chase), framed on the people, smoothed over time.
+            self.camera_mode = gui.add_dropdown("camera", ("free", "follow"), initial_value="free")
+        self.camera_mode.on_update(lambda _: self.set_frame(self.frame))
         with gui.add_folder("Show"):
             self.show = {"optimized": gui.add_checkbox("optimized motion", initial_value=True),
                          "lift": gui.add_checkbox("world lift (before optimization)", initial_value=False),
@@ -198,6 +204,28 @@ class ResultViewer:
         with gui.add_folder("Tracks"):
             gui.add_markdown(track_table(source.summary, [t.track_id for t in source.tracks]))
         self.set_frame(0)
+
+    def _chase_view(self):
+        from m3c.viz.chase import ChaseView
+
+        source = self.source
+        people = [[] for _ in range(self.num_frames)]
+        for track in source.tracks:
+            pelvis = track.world_joints[:, [1, 2]].mean(axis=1)
+            for frame, point in zip(track.frames, pelvis):
+                people[int(frame)].append(point)
+        lowest = min(float(np.min(t.world_joints[..., 1])) for t in source.tracks) if source.tracks else 0.0
+        return ChaseView([np.array(p, dtype=np.float64).reshape(-1, 3) for p in people],
+                         source.arrays["world_from_cam"][:, :3, 3].astype(np.float64),
+                         0.0 if source.ground_found else lowest, float(source.fps))
+
+    def follow(self, frame: int) -> None:
+        """Puts every connected browser's camera where the world view's chase camera is at `frame`."""
+        pose = self.chase.poses[frame]
+        for client in self.server.get_clients().values():
+            with client.atomic():
+                client.camera.position = pose[:3, 3]
+                client.camera.look_at = self.chase.targets[frame]
 
     def _add_ground(self) -> None:
         source = self.source
@@ -247,6 +275,8 @@ class ResultViewer:
                 image = self.images[frame]
                 self.frustum.image = image
                 self.image.image = image
+            if self.camera_mode.value == "follow":
+                self.follow(frame)
             video_frame = int(self.source.arrays["frame_ids"][frame])
             self.label.content = (f"processed frame {frame} of {self.num_frames} (video frame {video_frame}, "
                                   f"t = {frame / self.source.fps:.2f} s)")
