@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from m3c.cli import body as body_commands
+from m3c.cli import data as data_commands
 from m3c.cli import evaluation as eval_commands
 from m3c.cli import perception as perception_commands
 from m3c.cli import pipeline as pipeline_commands
@@ -179,6 +180,27 @@ def build_parser() -> argparse.ArgumentParser:
     perceive.add_argument("--pose2d", help="2D pose estimator name")
     perceive.add_argument("--body", help="camera-local body estimator name")
     perceive.set_defaults(func=perception_commands.perceive)
+
+    data = sub.add_parser("data", help="training data: motion capture retargeted onto the body model")
+    data = data.add_subparsers(dest="data_command", required=True)
+    mc = data.add_parser("mocap", help="retarget every BVH of CORPUS (files, folders, .tar.xz archives) onto the "
+                         "body model: one .npz per clip, a held-out split by clip",
+                         description="Each clip: pose (T, 24, 3) axis-angle, world root translation (y up, ground "
+                                     "y = 0), betas fitted to its bone lengths, foot contacts, source and licence, "
+                                     "at --fps. Cached per clip (a re-run skips finished clips); a bad file is "
+                                     "reported and skipped. The clips the benchmarks render are left out.")
+    mc.add_argument("corpus", nargs="+", metavar="CORPUS", help="BVH files, folders of them, or tar archives")
+    mc.add_argument("--out", required=True, help="output folder (clips/, index.json, split.json)")
+    mc.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30)")
+    mc.add_argument("--held-out", type=float, default=10.0, metavar="PERCENT",
+                    help="share of clips held out of training, chosen by a hash of the clip id (default 10)")
+    mc.add_argument("--exclude", action="append", metavar="BVH_OR_DIR",
+                    help="also leave out clips of these names (a BVH file, or every BVH under a folder); repeatable")
+    mc.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    mc.add_argument("--limit", type=int, help="only the first N clips (a quick look)")
+    mc.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mc.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    mc.set_defaults(func=data_commands.data_mocap)
 
     ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
         dest="eval_command", required=True)
