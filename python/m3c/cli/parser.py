@@ -11,6 +11,7 @@ from m3c.cli import evaluation as eval_commands
 from m3c.cli import perception as perception_commands
 from m3c.cli import pipeline as pipeline_commands
 from m3c.cli import results as results_commands
+from m3c.cli import training as train_commands
 
 
 # The video benchmark's camera motions (m3c.synth.cameras.CAMERA_KINDS; listed here so --help imports nothing).
@@ -201,6 +202,29 @@ def build_parser() -> argparse.ArgumentParser:
     mc.add_argument("--body-model", help="body model file (default: the shipped open model)")
     mc.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     mc.set_defaults(func=data_commands.data_mocap)
+
+    train = sub.add_parser("train", help="train M3C's own priors on a corpus of `m3c data mocap`")
+    train = train.add_subparsers(dest="train_command", required=True)
+    pp = train.add_parser("pose-prior", help="the pose prior: VPoser v2's architecture, on the corpus's training "
+                          "clips; evaluated on its held-out clips against a Gaussian baseline",
+                          description="Writes OUT/vposer_v2.ckpt (load_vposer(path, version='v2') reads it; "
+                                      "python -m m3c.models.export --vposer OUT/vposer_v2.ckpt exports it for the "
+                                      "optimizer), OUT/checkpoint.pt (every --checkpoint-minutes; --resume "
+                                      "continues from it), OUT/train.json and OUT/metrics.json.")
+    pp.add_argument("corpus", help="a folder written by `m3c data mocap`")
+    pp.add_argument("--out", required=True, help="output folder")
+    pp.add_argument("--steps", type=int, default=20000, help="optimiser steps (default 20000)")
+    pp.add_argument("--batch-size", type=int, default=256)
+    pp.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate, decayed by a cosine (default 1e-3)")
+    pp.add_argument("--kl-weight", type=float, default=5e-4, help="weight of the KL term (default 5e-4)")
+    pp.add_argument("--no-mirror", action="store_true", help="do not add the left-right mirrored poses")
+    pp.add_argument("--seed", type=int, default=0)
+    pp.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
+    pp.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    pp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    pp.add_argument("--body-model", help="body model file for the joint loss (default: the shipped open model)")
+    pp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    pp.set_defaults(func=train_commands.train_pose_prior_command)
 
     ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
         dest="eval_command", required=True)
