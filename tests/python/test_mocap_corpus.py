@@ -15,7 +15,6 @@ from m3c.eval.retarget import JOINT_MAPS, RetargetedMotion
 from m3c.io.bvh import read_bvh
 from m3c.mocap.corpus import foot_contacts, held_out, load_corpus
 from m3c.mocap.fast_retarget import FastRetargetConfig, fast_retarget, fit_betas_to_bones
-
 from test_eval_retarget import SHARED_MOCAP
 
 needs_mocap = pytest.mark.skipif(not (SHARED_MOCAP / "cmu" / "131_01.bvh").is_file(),
@@ -26,7 +25,7 @@ needs_mocap = pytest.mark.skipif(not (SHARED_MOCAP / "cmu" / "131_01.bvh").is_fi
 def test_fast_retarget_agrees_with_the_ik_retarget_on_the_shipped_clip(open_model):
     """The shipped cmu_131_01.npz is m3c eval retarget's fit of 131_01.bvh (BVH frames 1-993): the fast
     retarget, given the same metres per BVH unit, puts the joints where it does."""
-    ref = RetargetedMotion.load([p for p in shipped_clip_paths() if p.name == "cmu_131_01.npz"][0])
+    ref = RetargetedMotion.load(next(p for p in shipped_clip_paths() if p.name == "cmu_131_01.npz"))
     bvh = read_bvh(SHARED_MOCAP / "cmu" / "131_01.bvh")
     names = list(JOINT_MAPS["cmu_3dsmax"])
     # The IK retarget's metres per BVH unit: the distance its pelvis travels over the distance the BVH's hips
@@ -37,7 +36,7 @@ def test_fast_retarget_agrees_with_the_ik_retarget_on_the_shipped_clip(open_mode
     hips = pos.mean(axis=1)[: ref.num_frames]
     scale = float(np.linalg.norm(np.diff(ref_joints[:, 0], axis=0), axis=-1).sum()
                   / np.linalg.norm(np.diff(hips, axis=0), axis=-1).sum())
-    assert 0.056 < scale < 0.07  # the IK retarget sized the performer up to the body model (1/0.45 inch: 0.0564)
+    assert 0.056 < scale < 0.07  # the IK retarget sized the performer up to the model (1/0.45 inch: 0.0564)
     fast = fast_retarget(open_model, bvh, None, FastRetargetConfig(scale=scale), frames=slice(1, None))
     assert fast.num_frames == ref.num_frames == 248
     assert fast.fit_error_mm.mean() < 15.0
@@ -70,8 +69,8 @@ def test_fit_betas_to_bones_recovers_the_lengths(open_model, rng):
     pairs = [("left_hip", "left_knee"), ("left_knee", "left_ankle"), ("left_shoulder", "left_elbow"),
              ("left_elbow", "left_wrist"), ("left_hip", "right_hip"), ("left_shoulder", "right_shoulder"),
              ("left_hip", "neck"), ("neck", "head"), ("left_ankle", "left_foot")]
-    lengths = {p: float(np.linalg.norm(rest[SMPL_JOINT_NAMES.index(p[0])] - rest[SMPL_JOINT_NAMES.index(p[1])]))
-               for p in pairs}
+    index = SMPL_JOINT_NAMES.index
+    lengths = {p: float(np.linalg.norm(rest[index(p[0])] - rest[index(p[1])])) for p in pairs}
     betas = fit_betas_to_bones(open_model, lengths, prior=1e-4)
     fitted = open_model.joints(np.zeros((1, 24, 3)), betas)[0]
     for (a, b), length in lengths.items():
@@ -117,12 +116,14 @@ def test_data_mocap_cli(tmp_path, capsys):
             "--exclude", str(src / "walks" / "benchmark_named.bvh")]
     assert main(args) == 0
     printed = capsys.readouterr()
-    assert "2 clips" in printed.out and "1 failed" in printed.out and "2 benchmark clips left out" in printed.out
+    assert "2 clips" in printed.out and "1 failed" in printed.out
+    assert "2 benchmark clips left out" in printed.out
     assert "walks__broken" in printed.out and "FAILED" in printed.err
     index = json.loads((out / "index.json").read_text())
     assert sorted(index["clips"]) == ["pack__pack__data__walk_b", "walks__run_a"]
     assert index["failed"]["walks__broken"]["error"].startswith("BVHError")
-    assert sorted(index["excluded_benchmark_clips"]) == ["walks__benchmark_named", "walks__dataset-1_walk_normal_001"]
+    assert sorted(index["excluded_benchmark_clips"]) == ["walks__benchmark_named",
+                                                          "walks__dataset-1_walk_normal_001"]
     split = json.loads((out / "split.json").read_text())
     assert sorted(split["train"] + split["held_out"]) == sorted(index["clips"])
     assert split["held_out"] == sorted(c for c in index["clips"] if held_out(c, 50.0))

@@ -1,5 +1,5 @@
-"""`m3c train pose-prior` on a tiny corpus (the two shipped CMU clips): the loss falls, a resumed run ends where
-the uninterrupted one does, the weights load through load_vposer, and the held-out evaluation's Gaussian
+"""`m3c train pose-prior` on a tiny corpus (the two shipped CMU clips): the loss falls, a resumed run ends
+where the uninterrupted one does, the weights load through load_vposer, and the held-out evaluation's Gaussian
 baseline is checked against a hand computation."""
 
 import json
@@ -37,7 +37,8 @@ def test_mirror_poses_is_an_involution(rng):
     assert np.allclose(mirror_poses(pose)[:, 1, 0], pose[:, 2, 0])   # left hip's flexion <- right hip's
 
 
-def test_train_pose_prior_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, open_model, one_torch_thread):
+def test_train_pose_prior_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, open_model,
+                                                              one_torch_thread):
     from m3c.mocap.corpus import load_corpus
 
     poses = body_poses(load_corpus(tiny_corpus, "train"), mirror=True)
@@ -54,8 +55,8 @@ def test_train_pose_prior_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_p
     b = torch.load(tmp_path / "split" / "vposer_v2.ckpt", weights_only=False)["state_dict"]
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
     with pytest.raises(ValueError, match="other settings"):
-        train_pose_prior(poses, tmp_path / "split", open_model, PosePriorConfig(steps=61, batch_size=64,
-                                                                                hidden=64), resume=True, log=None)
+        other = PosePriorConfig(steps=61, batch_size=64, hidden=64)
+        train_pose_prior(poses, tmp_path / "split", open_model, other, resume=True, log=None)
 
 
 def test_gaussian_baseline_and_errors_hand_computed(open_model, rng):
@@ -72,7 +73,8 @@ def test_gaussian_baseline_and_errors_hand_computed(open_model, rng):
     errors = reconstruction_errors(bent, rot, kin)
     assert errors["rotation_deg"] == pytest.approx(30.0 / 21.0, rel=1e-5)
     rest = open_model.joints(np.zeros((1, 24, 3)), np.zeros(10))[0]
-    # Ankle and toe swing about the knee's x axis: each moves by the chord of 30 degrees at its distance from it.
+    # Ankle and toe swing about the knee's x axis: each moves by the chord of 30 degrees at its distance
+    # from it.
     shin, foot = np.linalg.norm((rest[7] - rest[4])[1:]), np.linalg.norm((rest[10] - rest[4])[1:])
     chord = 2 * np.sin(np.radians(15))
     assert errors["joint_mm"] == pytest.approx((shin + foot) * chord / 24 * 1000, rel=1e-4)

@@ -20,12 +20,14 @@ def data_mocap(args) -> int:
     exclude = set(BENCHMARK_CLIP_NAMES)
     for item in args.exclude or []:
         path = Path(item)
-        exclude |= {p.stem for p in path.rglob("*.bvh")} if path.is_dir() else {path.name.removesuffix(".bvh")}
+        exclude |= ({p.stem for p in path.rglob("*.bvh")} if path.is_dir()
+                    else {path.name.removesuffix(".bvh")})
     model = default_body_model(args.body_model)
     config = CorpusConfig(retarget=FastRetargetConfig(fps=args.fps), held_out_percent=args.held_out,
                           exclude=frozenset(exclude))
-    index = build_corpus(args.corpus, out, model, config, workers=args.workers, model_file=args.body_model or "",
-                         log=None if args.quiet else log_to_stderr, limit=args.limit)
+    index = build_corpus(args.corpus, out, model, config, workers=args.workers,
+                         model_file=args.body_model or "", log=None if args.quiet else log_to_stderr,
+                         limit=args.limit)
     clips, failed = index["clips"], index["failed"]
     held = sum(c["split"] == "held_out" for c in clips.values())
     print(f"wrote {out}: {len(clips)} clips ({held} held out), {index['frames']} frames "

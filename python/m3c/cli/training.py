@@ -25,8 +25,9 @@ def train_pose_prior_command(args) -> int:
 
     _threads(args)
     out = output_folder(args.out)
-    config = PosePriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, kl_weight=args.kl_weight,
-                             seed=args.seed, checkpoint_minutes=args.checkpoint_minutes, mirror=not args.no_mirror)
+    config = PosePriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                             kl_weight=args.kl_weight, seed=args.seed,
+                             checkpoint_minutes=args.checkpoint_minutes, mirror=not args.no_mirror)
     if config.steps < 1 or config.batch_size < 1:
         raise ValueError("--steps and --batch-size must be positive")
     model = default_body_model(args.body_model)
@@ -41,7 +42,8 @@ def train_pose_prior_command(args) -> int:
     vposer = load_vposer(out / "vposer_v2.ckpt", version="v2")
     report = {"corpus": str(args.corpus), "train_clips": len(train_clips), "train_frames":
               int(sum(len(c["pose"]) for c in train_clips)), "held_out_clips": len(held_clips),
-              "steps": summary["steps_done"], "final_loss": summary["history"][-1] if summary["history"] else None}
+              "steps": summary["steps_done"],
+              "final_loss": summary["history"][-1] if summary["history"] else None}
     if held_clips:
         held = body_poses(held_clips, mirror=False)
         report["held_out"] = evaluate_pose_prior(vposer, train, held, JointKinematics.from_model(model))

@@ -1,5 +1,5 @@
-"""A training corpus from motion capture: every BVH of the given files, folders and tar archives retargeted onto
-the body model (m3c.mocap.fast_retarget), one .npz per clip, with a held-out split by clip.
+"""A training corpus from motion capture: every BVH of the given files, folders and tar archives retargeted
+onto the body model (m3c.mocap.fast_retarget), one .npz per clip, with a held-out split by clip.
 
 Layout of OUT (`m3c data mocap`):
     clips/<clip id>.npz   pose (T, 24, 3) axis-angle root first, transl (T, 3) (the body model's translation
@@ -42,7 +42,8 @@ CONTACT_JOINTS = (7, 8, 10, 11)
 CONTACT_NAMES = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 LICENCES = {
     "bandai_namco": "CC BY-NC 4.0 (Bandai Namco Research Motiondataset; non-commercial)",
-    "cmu": "CMU Graphics Lab Motion Capture Database terms (research and commercial use; no resale of the data)",
+    "cmu": "CMU Graphics Lab Motion Capture Database terms (research and commercial use; no resale of the "
+           "data)",
 }
 _ARCHIVES = (".tar.xz", ".tar.gz", ".tgz", ".tar.bz2", ".tar")
 FORMAT_VERSION = 1  # part of the cache key: bump when the retarget or the stored fields change
@@ -59,7 +60,8 @@ class CorpusConfig:
 
 
 def held_out(clip_id: str, percent: float) -> bool:
-    """Deterministic held-out membership of a clip: the first 8 hex digits of SHA-1(clip id) below percent%."""
+    """Deterministic held-out membership of a clip: the first 8 hex digits of SHA-1(clip id) below
+    percent%."""
     return int(hashlib.sha1(clip_id.encode()).hexdigest()[:8], 16) < percent / 100.0 * 16 ** 8
 
 
@@ -98,8 +100,8 @@ def _is_archive(path: Path) -> bool:
 
 
 def iter_corpus(inputs) -> list[tuple[str, Path, Path]]:
-    """(kind, path, base) for each input in order: kind "file" or "archive", base the folder ids are relative to. Folders expand to their BVH files
-    and archives (sorted); a missing input raises FileNotFoundError."""
+    """(kind, path, base) for each input in order: kind "file" or "archive", base the folder ids are relative
+    to. Folders expand to their BVH files and archives (sorted); a missing input raises FileNotFoundError."""
     out = []
     for given in inputs:
         path = Path(given).expanduser()
@@ -174,7 +176,8 @@ def convert_clip(model: BodyModel, text: str, clip_id: str, source: str, config:
             "fps": np.float32(motion.fps), "fit_error_mm": motion.fit_error_mm.astype(np.float32),
             "clip": np.array(clip_id), "source": np.array(source),
             "licence": np.array(licence_of(clip_id, convention)), "convention": np.array(convention),
-            "scale": np.float64(motion.info["scale"]), "refined_frames": np.int64(motion.info["refined_frames"])}
+            "scale": np.float64(motion.info["scale"]),
+            "refined_frames": np.int64(motion.info["refined_frames"])}
 
 
 def _work(args):
@@ -187,7 +190,7 @@ def _work(args):
         arrays = convert_clip(_worker_model(model), data.decode("utf-8", errors="replace"), clip_id, source,
                               config)
         save_npz_atomic(out_path, key=np.array(key), **arrays)
-        return {"clip": clip_id, "ok": True, "frames": int(len(arrays["pose"])), "source": source,
+        return {"clip": clip_id, "ok": True, "frames": len(arrays["pose"]), "source": source,
                 "licence": str(arrays["licence"]), "fit_error_mm": float(arrays["fit_error_mm"].mean()),
                 "refined_frames": int(arrays["refined_frames"]), "seconds": time.perf_counter() - start}
     except Exception as err:  # noqa: BLE001 - a bad file is reported and skipped, never the whole run lost
@@ -226,7 +229,7 @@ def _cached(path: Path, key: str) -> dict | None:
         with np.load(path) as z:
             if str(z["key"]) != key:
                 return None
-            return {"clip": str(z["clip"]), "ok": True, "frames": int(len(z["pose"])), "source": str(z["source"]),
+            return {"clip": str(z["clip"]), "ok": True, "frames": len(z["pose"]), "source": str(z["source"]),
                     "licence": str(z["licence"]), "fit_error_mm": float(z["fit_error_mm"].mean()),
                     "refined_frames": int(z["refined_frames"]), "seconds": 0.0, "cached": True}
     except (OSError, KeyError, ValueError):
@@ -235,8 +238,8 @@ def _cached(path: Path, key: str) -> dict | None:
 
 def build_corpus(inputs, out_dir: str | Path, model: BodyModel, config: CorpusConfig | None = None,
                  workers: int = 1, model_file: str = "", log=print, limit: int | None = None) -> dict:
-    """Converts every BVH of `inputs` (files, folders, tar archives) into out_dir (layout: module docstring) and
-    returns the index. workers > 1 retargets in that many processes (model_file: the body model they load;
+    """Converts every BVH of `inputs` (files, folders, tar archives) into out_dir (layout: module docstring)
+    and returns the index. workers > 1 retargets in that many processes (model_file: the body model they load;
     empty: the default open model)."""
     config = config or CorpusConfig()
     out_dir = Path(out_dir)
@@ -296,7 +299,8 @@ def build_corpus(inputs, out_dir: str | Path, model: BodyModel, config: CorpusCo
         elapsed = time.perf_counter() - start
         if res["ok"]:
             frames_done += res["frames"]
-            what = (f"{res['frames']} frames, fit {res['fit_error_mm']:.1f} mm, {res['refined_frames']} refined, "
+            what = (f"{res['frames']} frames, fit {res['fit_error_mm']:.1f} mm, {res['refined_frames']} "
+                    "refined, "
                     + ("cached" if res.get("cached") else f"{res['seconds']:.2f} s"))
         else:
             what = f"FAILED: {res['error']}"
@@ -312,7 +316,8 @@ def build_corpus(inputs, out_dir: str | Path, model: BodyModel, config: CorpusCo
              "clips": {r["clip"]: {k: r[k] for k in ("frames", "source", "licence", "fit_error_mm",
                                                      "refined_frames")}
                        | {"split": "held_out" if r["clip"] in split["held_out"] else "train"} for r in ok},
-             "failed": {r["clip"]: {"source": r["source"], "error": r["error"]} for r in results if not r["ok"]},
+             "failed": {r["clip"]: {"source": r["source"], "error": r["error"]}
+                        for r in results if not r["ok"]},
              "frames": int(sum(r["frames"] for r in ok)), "seconds": time.perf_counter() - start}
     with atomic_path(out_dir / "index.json") as tmp:
         tmp.write_text(json.dumps(index, indent=1) + "\n")

@@ -1,22 +1,22 @@
-"""Fast retargeting of BVH motion capture onto the body model's 24 SMPL-layout joints: the source skeleton's own
-joint rotations carried over, an inverse-kinematics fit only on the frames where that leaves an error.
+"""Fast retargeting of BVH motion capture onto the body model's 24 SMPL-layout joints: the source skeleton's
+own joint rotations carried over, an inverse-kinematics fit only on the frames where that leaves an error.
 
 m3c.eval.retarget fits every frame by inverse kinematics (30-70 s a clip); a training corpus of thousands of
 clips needs something faster. Each SMPL joint j is driven by one BVH joint d(j) placed alike (the thigh by the
-upper leg, the knee by the lower leg, ...): its world rotation is the BVH joint's world rotation times a constant
-rotation A_j, G_j(t) = R_d(j)(t) A_j, which carries the rest-pose offsets of the source skeleton (its bones'
-directions in each joint's own frame) over to the SMPL rest pose. A_j is calibrated per clip from inverse-
-kinematics fits of a few frames spread over the clip (the chordal mean of R_d(j)^T G_j over those frames), so it
-holds whatever local-frame conventions the file uses. The SMPL joints no BVH joint drives keep the rotation of
-their parent (spine2: halfway between the BVH joints that drive spine1 and spine3).
+upper leg, the knee by the lower leg, ...): its world rotation is the BVH joint's world rotation times a
+constant rotation A_j, G_j(t) = R_d(j)(t) A_j, which carries the rest-pose offsets of the source skeleton (its
+bones' directions in each joint's own frame) over to the SMPL rest pose. A_j is calibrated per clip from
+inverse-kinematics fits of a few frames spread over the clip (the chordal mean of R_d(j)^T G_j over those
+frames), so it holds whatever local-frame conventions the file uses. The SMPL joints no BVH joint drives keep
+the rotation of their parent (spine2: halfway between the BVH joints that drive spine1 and spine3).
 
 Betas are fitted to the skeleton's bone lengths (Gauss-Newton least squares on the body model's shape space,
-the rest joints being linear in the betas); the root translation follows the matched joints in closed form; the
-per-joint offsets between where the two skeletons place a joint are the mean residuals in the carrying bone's
-frame (as m3c.eval.retarget calibrates them). Frames whose matched joints still miss by more than
-refine_threshold_mm get m3c.eval.retarget's per-frame fit, started from and pulled towards the carried-over pose.
-The output is m3c.eval.retarget's RetargetedMotion: world frame y up (m3c.ground.world_frame), ground y = 0,
-metres, `fps` frames per second.
+the rest joints being linear in the betas); the root translation follows the matched joints in closed form;
+the per-joint offsets between where the two skeletons place a joint are the mean residuals in the carrying
+bone's frame (as m3c.eval.retarget calibrates them). Frames whose matched joints still miss by more than
+refine_threshold_mm get m3c.eval.retarget's per-frame fit, started from and pulled towards the carried-over
+pose. The output is m3c.eval.retarget's RetargetedMotion: world frame y up (m3c.ground.world_frame), ground
+y = 0, metres, `fps` frames per second.
 """
 
 from __future__ import annotations
@@ -39,45 +39,49 @@ from m3c.io.bvh import BVHMotion, read_bvh
 DRIVER_MAPS = {
     "bandai_namco": {
         "pelvis": "Hips", "spine1": "Spine", "spine2": ("Spine", "Chest"), "spine3": "Chest", "neck": "Neck",
-        "head": "Head", "left_collar": "Shoulder_L", "right_collar": "Shoulder_R", "left_shoulder": "UpperArm_L",
-        "right_shoulder": "UpperArm_R", "left_elbow": "LowerArm_L", "right_elbow": "LowerArm_R",
-        "left_wrist": "Hand_L", "right_wrist": "Hand_R", "left_hip": "UpperLeg_L", "right_hip": "UpperLeg_R",
-        "left_knee": "LowerLeg_L", "right_knee": "LowerLeg_R", "left_ankle": "Foot_L", "right_ankle": "Foot_R",
-        "left_foot": "Toes_L", "right_foot": "Toes_R",
+        "head": "Head", "left_collar": "Shoulder_L", "right_collar": "Shoulder_R",
+        "left_shoulder": "UpperArm_L", "right_shoulder": "UpperArm_R", "left_elbow": "LowerArm_L",
+        "right_elbow": "LowerArm_R", "left_wrist": "Hand_L", "right_wrist": "Hand_R",
+        "left_hip": "UpperLeg_L", "right_hip": "UpperLeg_R", "left_knee": "LowerLeg_L",
+        "right_knee": "LowerLeg_R", "left_ankle": "Foot_L", "right_ankle": "Foot_R", "left_foot": "Toes_L",
+        "right_foot": "Toes_R",
     },
     "cmu_3dsmax": {
         "pelvis": "Hips", "spine1": "lowerback", "spine2": "Chest", "spine3": "Chest2", "neck": "lowerneck",
         "head": "Head", "left_collar": "LeftCollar", "right_collar": "RightCollar",
         "left_shoulder": "LeftShoulder", "right_shoulder": "RightShoulder", "left_elbow": "LeftElbow",
-        "right_elbow": "RightElbow", "left_wrist": "LeftWrist", "right_wrist": "RightWrist", "left_hip": "LeftHip",
-        "right_hip": "RightHip", "left_knee": "LeftKnee", "right_knee": "RightKnee", "left_ankle": "LeftAnkle",
-        "right_ankle": "RightAnkle", "left_foot": "LeftToe", "right_foot": "RightToe",
+        "right_elbow": "RightElbow", "left_wrist": "LeftWrist", "right_wrist": "RightWrist",
+        "left_hip": "LeftHip", "right_hip": "RightHip", "left_knee": "LeftKnee", "right_knee": "RightKnee",
+        "left_ankle": "LeftAnkle", "right_ankle": "RightAnkle", "left_foot": "LeftToe",
+        "right_foot": "RightToe",
     },
     "cmu_motionbuilder": {
         "pelvis": "Hips", "spine1": "LowerBack", "spine2": "Spine", "spine3": "Spine1", "neck": "Neck",
-        "head": "Head", "left_collar": "LeftShoulder", "right_collar": "RightShoulder", "left_shoulder": "LeftArm",
-        "right_shoulder": "RightArm", "left_elbow": "LeftForeArm", "right_elbow": "RightForeArm",
-        "left_wrist": "LeftHand", "right_wrist": "RightHand", "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg",
-        "left_knee": "LeftLeg", "right_knee": "RightLeg", "left_ankle": "LeftFoot", "right_ankle": "RightFoot",
-        "left_foot": "LeftToeBase", "right_foot": "RightToeBase",
+        "head": "Head", "left_collar": "LeftShoulder", "right_collar": "RightShoulder",
+        "left_shoulder": "LeftArm", "right_shoulder": "RightArm", "left_elbow": "LeftForeArm",
+        "right_elbow": "RightForeArm", "left_wrist": "LeftHand", "right_wrist": "RightHand",
+        "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg", "left_knee": "LeftLeg", "right_knee": "RightLeg",
+        "left_ankle": "LeftFoot", "right_ankle": "RightFoot", "left_foot": "LeftToeBase",
+        "right_foot": "RightToeBase",
     },
     "cmu_daz": {  # no toe joint: the foot keeps the ankle's rotation
-        "pelvis": "hip", "spine1": "abdomen", "spine2": ("abdomen", "chest"), "spine3": "chest", "neck": "neck",
-        "head": "head", "left_collar": "lCollar", "right_collar": "rCollar", "left_shoulder": "lShldr",
-        "right_shoulder": "rShldr", "left_elbow": "lForeArm", "right_elbow": "rForeArm", "left_wrist": "lHand",
-        "right_wrist": "rHand", "left_hip": "lThigh", "right_hip": "rThigh", "left_knee": "lShin",
-        "right_knee": "rShin", "left_ankle": "lFoot", "right_ankle": "rFoot",
+        "pelvis": "hip", "spine1": "abdomen", "spine2": ("abdomen", "chest"), "spine3": "chest",
+        "neck": "neck", "head": "head", "left_collar": "lCollar", "right_collar": "rCollar",
+        "left_shoulder": "lShldr", "right_shoulder": "rShldr", "left_elbow": "lForeArm",
+        "right_elbow": "rForeArm", "left_wrist": "lHand", "right_wrist": "rHand", "left_hip": "lThigh",
+        "right_hip": "rThigh", "left_knee": "lShin", "right_knee": "rShin", "left_ankle": "lFoot",
+        "right_ankle": "rFoot",
     },
 }
 # Bones whose lengths the betas are fitted to (SMPL joint pairs, both matched), with their weights: the trunk
 # and the head sit less alike across skeletons than the limbs.
-_SHAPE_BONES = (("left_hip", "left_knee", 1.0), ("left_knee", "left_ankle", 1.0), ("right_hip", "right_knee", 1.0),
-                ("right_knee", "right_ankle", 1.0), ("left_ankle", "left_foot", 0.5),
-                ("right_ankle", "right_foot", 0.5), ("left_shoulder", "left_elbow", 1.0),
-                ("left_elbow", "left_wrist", 1.0), ("right_shoulder", "right_elbow", 1.0),
-                ("right_elbow", "right_wrist", 1.0), ("left_hip", "right_hip", 0.5),
-                ("left_shoulder", "right_shoulder", 0.5), ("neck", "head", 0.3), ("left_hip", "neck", 0.5),
-                ("right_hip", "neck", 0.5))
+_SHAPE_BONES = (("left_hip", "left_knee", 1.0), ("left_knee", "left_ankle", 1.0),
+                ("right_hip", "right_knee", 1.0), ("right_knee", "right_ankle", 1.0),
+                ("left_ankle", "left_foot", 0.5), ("right_ankle", "right_foot", 0.5),
+                ("left_shoulder", "left_elbow", 1.0), ("left_elbow", "left_wrist", 1.0),
+                ("right_shoulder", "right_elbow", 1.0), ("right_elbow", "right_wrist", 1.0),
+                ("left_hip", "right_hip", 0.5), ("left_shoulder", "right_shoulder", 0.5),
+                ("neck", "head", 0.3), ("left_hip", "neck", 0.5), ("right_hip", "neck", 0.5))
 # Lengths units the file may use (metres per unit): a limb-length scale within 12% of one snaps to it, so a
 # clip's size is the performer's and not the body model's. (1 / 0.45) inch: CMU's cgspeed conversion.
 _UNITS = (1.0, 0.01, 0.001, 0.0254, 0.0254 / 0.45)
@@ -139,9 +143,10 @@ _BASES: dict[int, _ShapeBasis] = {}
 
 
 def fit_betas_to_bones(model: BodyModel, lengths: dict[tuple[str, str], float], prior: float = 0.01,
-                       weights: dict[tuple[str, str], float] | None = None, iterations: int = 15) -> np.ndarray:
-    """Betas whose rest skeleton has the given bone lengths (metres, keyed by SMPL joint-name pairs), by Gauss-
-    Newton least squares with a pull of `prior` (metres per unit beta) towards zero."""
+                       weights: dict[tuple[str, str], float] | None = None,
+                       iterations: int = 15) -> np.ndarray:
+    """Betas whose rest skeleton has the given bone lengths (metres, keyed by SMPL joint-name pairs), by
+    Gauss- Newton least squares with a pull of `prior` (metres per unit beta) towards zero."""
     basis = _BASES.get(id(model))
     if basis is None:
         basis = _BASES[id(model)] = _ShapeBasis(model)
@@ -170,7 +175,8 @@ def fit_betas_to_bones(model: BodyModel, lengths: dict[tuple[str, str], float], 
 
 
 def _scale(pos: np.ndarray, joint_map: dict[str, str], model: BodyModel) -> float:
-    """Metres per BVH unit from the limb lengths against the model's at zero betas, snapped to a known unit."""
+    """Metres per BVH unit from the limb lengths against the model's at zero betas, snapped to a known
+    unit."""
     from m3c.eval.retarget import _SCALE_BONES
 
     names = list(joint_map)
@@ -202,9 +208,9 @@ def _resolve_map(bvh: BVHMotion, joint_map) -> tuple[str | None, dict[str, str]]
     return None, dict(joint_map)
 
 
-def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict[str, str] | str | None = None,
-                  config: FastRetargetConfig | None = None, frames=None,
-                  drivers: dict[str, str | tuple[str, str]] | None = None) -> RetargetedMotion:
+def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path,
+                  joint_map: dict[str, str] | str | None = None, config: FastRetargetConfig | None = None,
+                  frames=None, drivers: dict[str, str | tuple[str, str]] | None = None) -> RetargetedMotion:
     """Retargets a BVH clip by carrying its rotations over (see the module docstring). joint_map: a JOINT_MAPS
     key, a dict SMPL name -> BVH joint placed alike, or None to detect it; drivers: SMPL name -> the BVH joint
     whose rotation drives it (default: DRIVER_MAPS of the convention); frames: a slice or index array of BVH
@@ -212,7 +218,8 @@ def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict
     start_time = time.perf_counter()
     config = config or FastRetargetConfig()
     if model.num_joints != 24:
-        raise ValueError(f"retargeting needs the SMPL 24-joint layout, the model has {model.num_joints} joints")
+        raise ValueError(f"retargeting needs the SMPL 24-joint layout, the model has {model.num_joints} "
+                         "joints")
     if config.up_axis not in _UP:
         raise ValueError(f"up_axis must be one of {sorted(_UP)}, got {config.up_axis!r}")
     if not isinstance(bvh, BVHMotion):
@@ -220,8 +227,8 @@ def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict
     convention, joint_map = _resolve_map(bvh, joint_map)
     if drivers is None:
         if convention is None:
-            raise ValueError("a joint_map dict needs drivers= too (SMPL joint -> the BVH joint whose rotation "
-                             f"drives it), as in DRIVER_MAPS; or pass one of {sorted(DRIVER_MAPS)}")
+            raise ValueError("a joint_map dict needs drivers= too (SMPL joint -> the BVH joint whose "
+                             f"rotation drives it), as in DRIVER_MAPS; or pass one of {sorted(DRIVER_MAPS)}")
         drivers = DRIVER_MAPS[convention]
     if "pelvis" not in drivers:
         raise ValueError("drivers must name the BVH joint that drives the pelvis")
@@ -265,8 +272,8 @@ def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict
     lengths, bone_w = {}, {}
     for a, b, wt in _SHAPE_BONES:
         if a in names and b in names:
-            lengths[(a, b)] = float(np.median(np.linalg.norm(targets[:, names.index(a)] - targets[:, names.index(b)],
-                                                             axis=-1)))
+            bone = targets[:, names.index(a)] - targets[:, names.index(b)]
+            lengths[(a, b)] = float(np.median(np.linalg.norm(bone, axis=-1)))
             bone_w[(a, b)] = wt
     betas = fit_betas_to_bones(model, lengths, config.shape_prior, bone_w)
 
@@ -276,7 +283,8 @@ def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict
     ik_config = RetargetConfig(max_iterations=config.refine_iterations * 2)
     fitter = _Fitter(model, ids, weights, ik_config)
     sample = np.unique(np.linspace(0, n - 1, min(config.calibration_frames, n)).round().astype(int))
-    fits = np.stack([fitter.solve(fitter.initial(targets[i], betas), targets[i], betas, None) for i in sample])
+    fits = np.stack([fitter.solve(fitter.initial(targets[i], betas), targets[i], betas, None)
+                     for i in sample])
     fit_rot = global_rotations(fits[:, 3:].reshape(len(sample), -1, 3), parents)      # (K, 24, 3, 3)
     align = _mean_rotation(np.einsum("kjba,kjbc->jkac", driven[sample], fit_rot))     # (24, 3, 3)
 
@@ -324,7 +332,7 @@ def fast_retarget(model: BodyModel, bvh: BVHMotion | str | Path, joint_map: dict
     lowest = model.forward(pose[few], betas, transl[few]).vertices[:, :, 1].min(axis=1)
     transl = transl - np.array([0.0, np.quantile(lowest, config.ground_quantile), 0.0])
     root = Rotation.from_rotvec(pose[:, 0]).as_rotvec()
-    info = {"scale": scale, "joint_map": dict(joint_map), "refined_frames": int(len(bad)),
+    info = {"scale": scale, "joint_map": dict(joint_map), "refined_frames": len(bad),
             "seconds": time.perf_counter() - start_time, "offsets_m": offsets}
     return RetargetedMotion(config.fps, transl, root, pose[:, 1:].copy(), betas, err, str(bvh.path),
                             getattr(model.data, "name", ""), info)

@@ -66,7 +66,7 @@ class JointKinematics(torch.nn.Module):
         self.parents = [int(p) for p in parents]
 
     @classmethod
-    def from_model(cls, model, betas=None) -> "JointKinematics":
+    def from_model(cls, model, betas=None) -> JointKinematics:
         betas = np.zeros(model.num_betas) if betas is None else betas
         rest = model.joints(np.zeros((1, model.num_joints, 3)), betas)[0]
         return cls(rest - rest[0], model.parents)

@@ -1,10 +1,10 @@
-"""Training M3C's own pose prior: VPoser v2's architecture (m3c.models.vposer.VPoserV2, so the existing loader,
-the exporter and the C++ runtime take the weights) on a motion-capture corpus of `m3c data mocap`.
+"""Training M3C's own pose prior: VPoser v2's architecture (m3c.models.vposer.VPoserV2, so the existing
+loader, the exporter and the C++ runtime take the weights) on a motion-capture corpus of `m3c data mocap`.
 
 The data are the 21 body-joint rotations (SMPL joints 1-21) of every frame of the corpus's training clips, and
 their left-right mirror images (reflected across the body's sagittal plane). The loss, per pose, is
-    |R_dec - R|_F^2 (mean over joints) + joint_weight * |J_dec - J|^2 (mean over joints, metres, the body model's
-    rest skeleton at zero betas, root fixed) + kl_weight * KL(q(z | pose) || N(0, I)),
+    |R_dec - R|_F^2 (mean over joints) + joint_weight * |J_dec - J|^2 (mean over joints, metres, the body
+    model's rest skeleton at zero betas, root fixed) + kl_weight * KL(q(z | pose) || N(0, I)),
 VPoser's own terms (its mesh term replaced by joints). AdamW, cosine learning-rate decay, a seeded epoch
 permutation: a run is deterministic on one thread, and `--resume` continues from a checkpoint exactly as the
 run would have gone on. The output is a Lightning-style vposer_v2.ckpt ('state_dict' keys 'vp_model.*') that
@@ -112,7 +112,8 @@ def train_pose_prior(train_poses: np.ndarray, out_dir: str | Path, model_for_joi
     dataset = torch.utils.data.TensorDataset(poses, rots)
     model = VPoserV2(hidden=config.hidden, latent_dim=LATENT_DIM)
     optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps, eta_min=config.lr * 0.02)
+    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps,
+                                                           eta_min=config.lr * 0.02)
     loss_fn = _Loss(JointKinematics.from_model(model_for_joints), config)
     step, history = 0, []
     ckpt_path = out_dir / "checkpoint.pt"
@@ -158,10 +159,12 @@ def train_pose_prior(train_poses: np.ndarray, out_dir: str | Path, model_for_joi
             running.append([losses[k].item() for k in ("loss", "rot", "joint", "kl")])
             if step % config.history_every == 0 or step == config.steps:
                 mean = np.mean(running, axis=0)
-                history.append({"step": step, "loss": mean[0], "rot": mean[1], "joint": mean[2], "kl": mean[3]})
+                history.append({"step": step, "loss": mean[0], "rot": mean[1], "joint": mean[2],
+                                "kl": mean[3]})
                 running = []
-            progress.update(step, f"loss {losses['loss'].item():.4f} (rot {losses['rot'].item():.4f}, joint "
-                                  f"{np.sqrt(losses['joint'].item()) * 1000:.1f} mm rms, kl {losses['kl'].item():.1f})")
+            progress.update(step, f"loss {losses['loss'].item():.4f} (rot {losses['rot'].item():.4f}, "
+                                  f"joint {np.sqrt(losses['joint'].item()) * 1000:.1f} mm rms, "
+                                  f"kl {losses['kl'].item():.1f})")
             stop = step >= config.steps or (stop_after is not None and step - start_step >= stop_after)
             if stop or time.perf_counter() - last_ckpt > 60 * config.checkpoint_minutes:
                 checkpoint()
@@ -172,7 +175,7 @@ def train_pose_prior(train_poses: np.ndarray, out_dir: str | Path, model_for_joi
             break
     model.eval()
     save_vposer_ckpt(model, out_dir / "vposer_v2.ckpt")
-    summary = {"config": asdict(config), "steps_done": step, "train_poses": int(len(poses)), "history": history}
+    summary = {"config": asdict(config), "steps_done": step, "train_poses": len(poses), "history": history}
     from m3c.io.atomic import atomic_path
 
     with atomic_path(out_dir / "train.json") as tmp:
@@ -194,8 +197,8 @@ def _geodesic_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def reconstruction_errors(pred_rot: np.ndarray, true_rot: np.ndarray, kinematics: JointKinematics) -> dict:
-    """Mean joint-rotation error (degrees) and mean joint-position error (mm; 24 joints, the root at the origin,
-    hands at rest) of reconstructed body rotations (N, 21, 3, 3)."""
+    """Mean joint-rotation error (degrees) and mean joint-position error (mm; 24 joints, the root at the
+    origin, hands at rest) of reconstructed body rotations (N, 21, 3, 3)."""
     loss = _Loss(kinematics, PosePriorConfig())
     with torch.no_grad():
         jp = loss.joints(torch.as_tensor(pred_rot, dtype=torch.float32)).numpy()
@@ -234,7 +237,7 @@ def evaluate_pose_prior(model: VPoserV2, train_poses: np.ndarray, test_poses: np
     true_rot = axis_angle_to_matrix_np(test_poses.astype(np.float64))
     gauss = GaussianPosePrior(train_poses)
     base_rot = axis_angle_to_matrix_np(gauss.reconstruct(test_poses))
-    return {"held_out_poses": int(len(test_poses)),
+    return {"held_out_poses": len(test_poses),
             "vposer": reconstruction_errors(vposer_reconstruct(model, test_poses), true_rot, kinematics),
             "gaussian_pca32": reconstruction_errors(base_rot, true_rot, kinematics)}
 
