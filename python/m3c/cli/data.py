@@ -9,7 +9,10 @@ from m3c.cli.common import log_to_stderr, output_folder
 
 def data_mocap(args) -> int:
     from m3c.body import default_body_model
-    from m3c.mocap.corpus import BENCHMARK_CLIP_NAMES, CorpusConfig, build_corpus
+    import json
+
+    from m3c.io.atomic import atomic_path
+    from m3c.mocap.corpus import BENCHMARK_CLIP_NAMES, CorpusConfig, build_corpus, corpus_coverage, load_corpus
     from m3c.mocap.fast_retarget import FastRetargetConfig
 
     out = output_folder(args.out)
@@ -35,4 +38,11 @@ def data_mocap(args) -> int:
           f"{len(index['excluded_benchmark_clips'])} benchmark clips left out, {index['seconds']:.0f} s")
     for clip, why in failed.items():
         print(f"  failed {clip}: {why['error']}")
+    if clips:
+        # What the corpus covers (locomotion dominates motion capture): written into index.json too.
+        index["coverage"] = corpus_coverage(load_corpus(out), model)
+        with atomic_path(out / "index.json") as tmp:
+            tmp.write_text(json.dumps(index, indent=1) + "\n")
+        print("  share of frames: " + ", ".join(f"{k} {100 * v:.2f}%" for k, v in index["coverage"].items()
+                                                 if k != "frames"))
     return 0

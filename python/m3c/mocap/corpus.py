@@ -341,3 +341,34 @@ def load_corpus(out_dir: str | Path, split: str | None = None) -> list[dict]:
         with np.load(out_dir / "clips" / f"{name}.npz") as z:
             clips.append({k: z[k] for k in z.files})
     return clips
+
+
+# What the corpus covers: the share of frames in poses a video may show that locomotion-heavy mocap lacks.
+COVERAGE_TESTS = {
+    "pelvis_below_0.6m": "sitting, crouching, kneeling or lying: the pelvis under 0.6 m above the ground",
+    "knee_over_90deg": "either knee bent more than 90 degrees",
+    "trunk_tilt_over_45deg": "the pelvis's up axis more than 45 degrees from vertical (bending over, lying)",
+    "both_feet_off_ground": "no foot contact (jumps and the flight phase of running)",
+    "arm_above_shoulder": "a wrist above its shoulder",
+}
+
+
+def corpus_coverage(clips, model: BodyModel) -> dict:
+    """Share of frames (0-1) of the clips (dicts of a corpus's arrays) meeting each COVERAGE_TESTS test."""
+    from scipy.spatial.transform import Rotation
+
+    counts = dict.fromkeys(COVERAGE_TESTS, 0)
+    total = 0
+    for clip in clips:
+        pose, transl, betas = (np.asarray(clip[k], dtype=np.float64) for k in ("pose", "transl", "betas"))
+        joints = model.joints(pose, betas, transl)
+        knee = np.linalg.norm(pose[:, [4, 5]], axis=-1).max(axis=1)
+        up = Rotation.from_rotvec(pose[:, 0]).as_matrix()[:, :, 1]
+        counts["pelvis_below_0.6m"] += int(np.count_nonzero(joints[:, 0, 1] < 0.6))
+        counts["knee_over_90deg"] += int(np.count_nonzero(knee > np.pi / 2))
+        counts["trunk_tilt_over_45deg"] += int(np.count_nonzero(up[:, 1] < np.cos(np.pi / 4)))
+        counts["both_feet_off_ground"] += int(np.count_nonzero(~np.asarray(clip["contacts"]).any(axis=1)))
+        counts["arm_above_shoulder"] += int(np.count_nonzero((joints[:, [20, 21], 1]
+                                                              > joints[:, [16, 17], 1]).any(axis=1)))
+        total += len(pose)
+    return {"frames": total, **{k: v / max(total, 1) for k, v in counts.items()}}
