@@ -125,7 +125,8 @@ def test_data_mocap_cli(tmp_path, capsys):
     assert sorted(index["excluded_benchmark_clips"]) == ["walks__benchmark_named",
                                                           "walks__dataset-1_walk_normal_001"]
     assert "share of frames: pelvis_below_0.6m 0.00%" in printed.out
-    assert index["coverage"]["frames"] == index["frames"] and 0.0 < index["coverage"]["both_feet_off_ground"] < 0.5
+    assert index["coverage"]["frames"] == index["frames"]
+    assert 0.0 < index["coverage"]["both_feet_off_ground"] < 0.5
     split = json.loads((out / "split.json").read_text())
     assert sorted(split["train"] + split["held_out"]) == sorted(index["clips"])
     assert split["held_out"] == sorted(c for c in index["clips"] if held_out(c, 50.0))

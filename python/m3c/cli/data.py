@@ -12,7 +12,8 @@ def data_mocap(args) -> int:
     import json
 
     from m3c.io.atomic import atomic_path
-    from m3c.mocap.corpus import BENCHMARK_CLIP_NAMES, CorpusConfig, build_corpus, corpus_coverage, load_corpus
+    from m3c.mocap.corpus import (BENCHMARK_CLIP_NAMES, CorpusConfig, build_corpus, corpus_coverage,
+                                  load_corpus)
     from m3c.mocap.fast_retarget import FastRetargetConfig
 
     out = output_folder(args.out)
