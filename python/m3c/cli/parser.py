@@ -225,6 +225,24 @@ def build_parser() -> argparse.ArgumentParser:
     pp.add_argument("--body-model", help="body model file for the joint loss (default: the shipped open model)")
     pp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     pp.set_defaults(func=train_commands.train_pose_prior_command)
+    mp = train.add_parser("motion-prior", help="the motion prior: HuMoR's layout (narrower by --hidden), on the "
+                          "corpus's training clips; one-step prediction on its held-out clips against constant "
+                          "velocity", description="Writes OUT/motion_prior.pt, OUT/checkpoint.pt (every "
+                          "--checkpoint-minutes; --resume continues from it), OUT/train.json, OUT/metrics.json.")
+    mp.add_argument("corpus", help="a folder written by `m3c data mocap`")
+    mp.add_argument("--out", required=True, help="output folder")
+    mp.add_argument("--steps", type=int, default=20000, help="optimiser steps (default 20000)")
+    mp.add_argument("--batch-size", type=int, default=256)
+    mp.add_argument("--hidden", type=int, default=256, help="hidden width (HuMoR's: 1024; default 256)")
+    mp.add_argument("--lr", type=float, default=5e-4, help="AdamW learning rate, cosine decay (default 5e-4)")
+    mp.add_argument("--kl-weight", type=float, default=1e-3, help="weight of the KL term (default 1e-3)")
+    mp.add_argument("--seed", type=int, default=0)
+    mp.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
+    mp.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    mp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    mp.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    mp.set_defaults(func=train_commands.train_motion_prior_command)
 
     ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
         dest="eval_command", required=True)

@@ -56,3 +56,41 @@ def train_pose_prior_command(args) -> int:
                 print(f"  held out ({report['held_out']['held_out_poses']} poses) {name}: "
                       f"{row['joint_mm']:.1f} mm, {row['rotation_deg']:.2f} deg")
     return 0
+
+
+def train_motion_prior_command(args) -> int:
+    from m3c.body import default_body_model
+    from m3c.io.atomic import atomic_path
+    from m3c.mocap.corpus import load_corpus
+    from m3c.training.motion_prior import (MotionPriorConfig, load_motion_prior, one_step_errors, pairs,
+                                           train_motion_prior)
+
+    _threads(args)
+    out = output_folder(args.out)
+    config = MotionPriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, hidden=args.hidden,
+                               kl_weight=args.kl_weight, seed=args.seed,
+                               checkpoint_minutes=args.checkpoint_minutes)
+    if config.steps < 1 or config.batch_size < 1:
+        raise ValueError("--steps and --batch-size must be positive")
+    model = default_body_model(args.body_model)
+    log = None if args.quiet else log_to_stderr
+    train_clips = load_corpus(args.corpus, "train")
+    held_clips = load_corpus(args.corpus, "held_out")
+    data = pairs(train_clips, model, config)
+    if log:
+        log(f"motion prior: {len(train_clips)} training clips, {len(data[0])} state pairs; "
+            f"{len(held_clips)} held-out clips")
+    summary = train_motion_prior(data, out, config, resume=args.resume, log=log)
+    report = {"corpus": str(args.corpus), "train_clips": len(train_clips), "train_pairs": len(data[0]),
+              "held_out_clips": len(held_clips), "steps": summary["steps_done"]}
+    if held_clips:
+        held = pairs(held_clips, model, config)
+        report["held_out_one_step"] = one_step_errors(load_motion_prior(out / "motion_prior.pt"), held[0], held[1])
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1) + "\n")
+    print(f"wrote {out}/motion_prior.pt ({summary['steps_done']} steps)")
+    if "held_out_one_step" in report:
+        r = report["held_out_one_step"]
+        print(f"  held out ({r['pairs']} pairs), next-frame joints: motion prior {r['motion_prior_mm']:.1f} mm, "
+              f"constant velocity {r['constant_velocity_mm']:.1f} mm")
+    return 0
