@@ -1,6 +1,6 @@
-"""`m3c train motion-prior` on a tiny corpus (the two shipped CMU clips): HuMoR-layout networks whose loss falls,
-a resumed run that ends where the uninterrupted one does, states and contact labels checked by hand, and the
-one-step figures against constant velocity computed independently."""
+"""`m3c train motion-prior` on a tiny corpus (the two shipped CMU clips): HuMoR-layout networks whose loss
+falls, a resumed run that ends where the uninterrupted one does, states and contact labels checked by hand,
+and the one-step figures against constant velocity computed independently."""
 
 import json
 
@@ -72,8 +72,8 @@ def test_train_motion_prior_cli(tmp_path, capsys, one_torch_thread):
         save_npz_atomic(corpus / "clips" / f"{clip['clip']}.npz", **clip)
     (corpus / "split.json").write_text(json.dumps({"train": ["cmu_131_01"], "held_out": ["cmu_01_01"]}))
     out = tmp_path / "prior"
-    assert main(["train", "motion-prior", str(corpus), "--out", str(out), "--steps", "5", "--batch-size", "32",
-                 "--hidden", "64", "--quiet"]) == 0
+    assert main(["train", "motion-prior", str(corpus), "--out", str(out), "--steps", "5", "--batch-size",
+                 "32", "--hidden", "64", "--quiet"]) == 0
     assert "constant velocity" in capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["held_out_one_step"]["pairs"] == 300 - 3 and metrics["steps"] == 5

@@ -85,12 +85,14 @@ def train_motion_prior_command(args) -> int:
               "held_out_clips": len(held_clips), "steps": summary["steps_done"]}
     if held_clips:
         held = pairs(held_clips, model, config)
-        report["held_out_one_step"] = one_step_errors(load_motion_prior(out / "motion_prior.pt"), held[0], held[1])
+        prior = load_motion_prior(out / "motion_prior.pt")
+        report["held_out_one_step"] = one_step_errors(prior, held[0], held[1])
     with atomic_path(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {out}/motion_prior.pt ({summary['steps_done']} steps)")
     if "held_out_one_step" in report:
         r = report["held_out_one_step"]
-        print(f"  held out ({r['pairs']} pairs), next-frame joints: motion prior {r['motion_prior_mm']:.1f} mm, "
+        print(f"  held out ({r['pairs']} pairs), next-frame joints: motion prior {r['motion_prior_mm']:.1f} "
+              "mm, "
               f"constant velocity {r['constant_velocity_mm']:.1f} mm")
     return 0

@@ -1,13 +1,14 @@
 """Training M3C's own motion prior: HuMoR's layout (m3c.models.humor: posterior encoder, conditional prior and
-decoder with contacts, GroupNorm MLPs over the 339-d state of m3c.models.humor_state), narrower when asked, on a
-motion-capture corpus of `m3c data mocap`.
+decoder with contacts, GroupNorm MLPs over the 339-d state of m3c.models.humor_state), narrower when asked, on
+a motion-capture corpus of `m3c data mocap`.
 
 Each training sample is a pair of consecutive states (x_t, x_t+1) of a training clip, in HuMoR's ground frame
 (z up: the corpus's y-up world turned by ground_from_plane) and in the canonical frame of x_t, with contact
-labels for HuMoR's 9 contact joints (a joint within contact_height of the floor and slower than contact_speed).
-The loss is HuMoR's: |x_dec - x_t+1|^2 (mean over the state) + contact_weight * BCE(contacts) + kl_weight *
-KL(q(z | x_t, x_t+1) || p(z | x_t)). AdamW, cosine decay, seeded epoch permutations; `--resume` continues a run
-exactly. The weights are saved as {'model': state dict} (HuMoR's checkpoint layout) with the widths beside them.
+labels for HuMoR's 9 contact joints (a joint within contact_height of the floor and slower than
+contact_speed). The loss is HuMoR's: |x_dec - x_t+1|^2 (mean over the state) + contact_weight * BCE(contacts)
++ kl_weight * KL(q(z | x_t, x_t+1) || p(z | x_t)). AdamW, cosine decay, seeded epoch permutations; `--resume`
+continues a run exactly. The weights are saved as {'model': state dict} (HuMoR's checkpoint layout) with the
+widths beside them.
 """
 
 from __future__ import annotations
@@ -50,7 +51,8 @@ class MotionPrior(humor_module.HumorModel):
     def __init__(self, hidden: int = 256):
         torch.nn.Module.__init__(self)
         if hidden % humor_module.GROUP_NORM_GROUPS or hidden // 2 % humor_module.GROUP_NORM_GROUPS:
-            raise ValueError(f"hidden must be a multiple of {2 * humor_module.GROUP_NORM_GROUPS}, got {hidden}")
+            raise ValueError(f"hidden must be a multiple of {2 * humor_module.GROUP_NORM_GROUPS}, "
+                             f"got {hidden}")
         self.hidden = hidden
         latent2 = 2 * hs.LATENT_DIM
         self.encoder = humor_module.GroupNormMLP((2 * hs.STATE_DIM, hidden, hidden, hidden, hidden, latent2))
@@ -78,8 +80,8 @@ def clip_states(clip: dict, model, config: MotionPriorConfig) -> tuple[torch.Ten
 
 
 def pairs(clips, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Canonicalised consecutive state pairs of the clips: (x_prev (N, 339), x_next (N, 339), contacts of x_next
-    (N, 9))."""
+    """Canonicalised consecutive state pairs of the clips: (x_prev (N, 339), x_next (N, 339), contacts of
+    x_next (N, 9))."""
     prev, nxt, cont = [], [], []
     for clip in clips:
         if len(clip["pose"]) < 4:
@@ -109,7 +111,8 @@ def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfi
 
 def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConfig, resume: bool = False,
                        log=print, stop_after: int | None = None) -> dict:
-    """Trains on (x_prev, x_next, contacts) pairs into out_dir (checkpoint.pt, motion_prior.pt, train.json)."""
+    """Trains on (x_prev, x_next, contacts) pairs into out_dir (checkpoint.pt, motion_prior.pt,
+    train.json)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     x_prev, x_next, contacts = data
@@ -151,7 +154,8 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
     while step < config.steps and not stop:
         epoch, offset = divmod(step, n_batches)
         g = torch.Generator().manual_seed(config.seed * 1000003 + epoch)
-        batches = torch.randperm(n, generator=g)[: n_batches * config.batch_size].reshape(n_batches, -1)[offset:]
+        order = torch.randperm(n, generator=g)[: n_batches * config.batch_size]
+        batches = order.reshape(n_batches, -1)[offset:]
         loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
                                              generator=torch.Generator().manual_seed(epoch))
         for a, b, c in loader:
