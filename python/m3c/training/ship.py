@@ -32,7 +32,8 @@ def sample_errors(vposer, sample: np.ndarray, mean: np.ndarray, basis: np.ndarra
             "gaussian_pca32": reconstruction_errors(axis_angle_to_matrix_np(gauss), true_rot, kinematics)}
 
 
-def ship(run_dir: Path, corpus_dir: Path, dest: Path, command: str, eval_dir: Path | None = None) -> dict:
+def ship(run_dir: Path, corpus_dir: Path, dest: Path, command: str, eval_dir: Path | None = None,
+         note: str = "") -> dict:
     """corpus_dir: the corpus the run trained on (its training split fits the baseline); eval_dir: the corpus
     whose held-out split is measured (default corpus_dir; a later, larger conversion of the same sources keeps
     the held-out clips held out, the split being a hash of the clip id)."""
@@ -69,7 +70,7 @@ def ship(run_dir: Path, corpus_dir: Path, dest: Path, command: str, eval_dir: Pa
     card = {"model": "M3C pose prior (VPoser v2 architecture, 512 hidden, 32 latent)", "licence": licence,
             "train_clips": metrics["train_clips"], "train_frames": metrics["train_frames"],
             "held_out_clips": len(held), "steps": metrics["steps"], "config": train_cfg,
-            "command": command, "held_out_all": held_all, "held_out_cmu": cmu_all,
+            "command": command, "note": note, "held_out_all": held_all, "held_out_cmu": cmu_all,
             "sample": {"poses": len(sample), **figures}}
     with atomic_path(dest / "pose_prior.json") as tmp:
         tmp.write_text(json.dumps(card, indent=1) + "\n")
@@ -113,6 +114,7 @@ def model_card(card: dict) -> str:
         f"KL weight {cfg['kl_weight']:g}, joint weight {cfg['joint_weight']:g}, seed {cfg['seed']}, one "
         f"thread.",
         f"- Command: `{card['command']}`",
+        *([f"- {card['note']}"] if card.get("note") else []),
         "",
         "## Held-out figures",
         "",
@@ -147,8 +149,9 @@ def main(argv=None) -> int:
                         default=Path(__file__).resolve().parents[1] / "models" / "weights")
     parser.add_argument("--command", default="", help="the training command, for the card")
     parser.add_argument("--eval-corpus", type=Path, help="corpus whose held-out split is measured")
+    parser.add_argument("--note", default="", help="a remark for the card's training section")
     args = parser.parse_args(argv)
-    card = ship(args.run_dir, args.corpus_dir, args.dest, args.command, args.eval_corpus)
+    card = ship(args.run_dir, args.corpus_dir, args.dest, args.command, args.eval_corpus, args.note)
     print(json.dumps({k: card[k] for k in ("held_out_all", "held_out_cmu", "sample")}, indent=1))
     return 0
 
