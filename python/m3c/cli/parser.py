@@ -7,10 +7,12 @@ import argparse
 
 from m3c import __version__
 from m3c.cli import body as body_commands
+from m3c.cli import data as data_commands
 from m3c.cli import evaluation as eval_commands
 from m3c.cli import perception as perception_commands
 from m3c.cli import pipeline as pipeline_commands
 from m3c.cli import results as results_commands
+from m3c.cli import training as train_commands
 
 
 # The video benchmark's camera motions (m3c.synth.cameras.CAMERA_KINDS; listed here so --help imports nothing).
@@ -189,6 +191,68 @@ def build_parser() -> argparse.ArgumentParser:
     perceive.add_argument("--pose2d", help="2D pose estimator name")
     perceive.add_argument("--body", help="camera-local body estimator name")
     perceive.set_defaults(func=perception_commands.perceive)
+
+    data = sub.add_parser("data", help="training data: motion capture retargeted onto the body model")
+    data = data.add_subparsers(dest="data_command", required=True)
+    mc = data.add_parser("mocap", help="retarget every BVH of CORPUS (files, folders, .tar.xz archives) onto the "
+                         "body model: one .npz per clip, a held-out split by clip",
+                         description="Each clip: pose (T, 24, 3) axis-angle, world root translation (y up, ground "
+                                     "y = 0), betas fitted to its bone lengths, foot contacts, source and licence, "
+                                     "at --fps. Cached per clip (a re-run skips finished clips); a bad file is "
+                                     "reported and skipped. The clips the benchmarks render are left out.")
+    mc.add_argument("corpus", nargs="+", metavar="CORPUS", help="BVH files, folders of them, or tar archives")
+    mc.add_argument("--out", required=True, help="output folder (clips/, index.json, split.json)")
+    mc.add_argument("--fps", type=float, default=30.0, help="output frame rate (default 30)")
+    mc.add_argument("--held-out", type=float, default=10.0, metavar="PERCENT",
+                    help="share of clips held out of training, chosen by a hash of the clip id (default 10)")
+    mc.add_argument("--exclude", action="append", metavar="BVH_OR_DIR",
+                    help="also leave out clips of these names (a BVH file, or every BVH under a folder); repeatable")
+    mc.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    mc.add_argument("--limit", type=int, help="only the first N clips (a quick look)")
+    mc.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mc.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    mc.set_defaults(func=data_commands.data_mocap)
+
+    train = sub.add_parser("train", help="train M3C's own priors on a corpus of `m3c data mocap`")
+    train = train.add_subparsers(dest="train_command", required=True)
+    pp = train.add_parser("pose-prior", help="the pose prior: VPoser v2's architecture, on the corpus's training "
+                          "clips; evaluated on its held-out clips against a Gaussian baseline",
+                          description="Writes OUT/vposer_v2.ckpt (load_vposer(path, version='v2') reads it; "
+                                      "python -m m3c.models.export --vposer OUT/vposer_v2.ckpt exports it for the "
+                                      "optimizer), OUT/checkpoint.pt (every --checkpoint-minutes; --resume "
+                                      "continues from it), OUT/train.json and OUT/metrics.json.")
+    pp.add_argument("corpus", help="a folder written by `m3c data mocap`")
+    pp.add_argument("--out", required=True, help="output folder")
+    pp.add_argument("--steps", type=int, default=20000, help="optimiser steps (default 20000)")
+    pp.add_argument("--batch-size", type=int, default=256)
+    pp.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate, decayed by a cosine (default 1e-3)")
+    pp.add_argument("--kl-weight", type=float, default=5e-4, help="weight of the KL term (default 5e-4)")
+    pp.add_argument("--no-mirror", action="store_true", help="do not add the left-right mirrored poses")
+    pp.add_argument("--seed", type=int, default=0)
+    pp.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
+    pp.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    pp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    pp.add_argument("--body-model", help="body model file for the joint loss (default: the shipped open model)")
+    pp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    pp.set_defaults(func=train_commands.train_pose_prior_command)
+    mp = train.add_parser("motion-prior", help="the motion prior: HuMoR's layout (narrower by --hidden), on the "
+                          "corpus's training clips; one-step prediction on its held-out clips against constant "
+                          "velocity", description="Writes OUT/motion_prior.pt, OUT/checkpoint.pt (every "
+                          "--checkpoint-minutes; --resume continues from it), OUT/train.json, OUT/metrics.json.")
+    mp.add_argument("corpus", help="a folder written by `m3c data mocap`")
+    mp.add_argument("--out", required=True, help="output folder")
+    mp.add_argument("--steps", type=int, default=20000, help="optimiser steps (default 20000)")
+    mp.add_argument("--batch-size", type=int, default=256)
+    mp.add_argument("--hidden", type=int, default=256, help="hidden width (HuMoR's: 1024; default 256)")
+    mp.add_argument("--lr", type=float, default=5e-4, help="AdamW learning rate, cosine decay (default 5e-4)")
+    mp.add_argument("--kl-weight", type=float, default=1e-3, help="weight of the KL term (default 1e-3)")
+    mp.add_argument("--seed", type=int, default=0)
+    mp.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
+    mp.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    mp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    mp.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    mp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    mp.set_defaults(func=train_commands.train_motion_prior_command)
 
     ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
         dest="eval_command", required=True)

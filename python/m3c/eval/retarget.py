@@ -45,6 +45,13 @@ JOINT_MAPS = {
         "neck": "Neck", "head": "Head", "left_shoulder": "UpperArm_L", "right_shoulder": "UpperArm_R",
         "left_elbow": "LowerArm_L", "right_elbow": "LowerArm_R", "left_wrist": "Hand_L", "right_wrist": "Hand_R",
     },
+    "cmu_daz": {  # CMU via the cgspeed converter, Daz/Poser-friendly names (ROOT hip); no toe joint: the foot's
+        # End Site is the toe
+        "left_hip": "lThigh", "right_hip": "rThigh", "left_knee": "lShin", "right_knee": "rShin",
+        "left_ankle": "lFoot", "right_ankle": "rFoot", "left_foot": "lFoot_end", "right_foot": "rFoot_end",
+        "neck": "neck", "head": "head", "left_shoulder": "lShldr", "right_shoulder": "rShldr",
+        "left_elbow": "lForeArm", "right_elbow": "rForeArm", "left_wrist": "lHand", "right_wrist": "rHand",
+    },
 }
 # Neck and head joints sit less alike across skeletons than the limb joints: they count less.
 JOINT_WEIGHTS = {"neck": 0.5, "head": 0.5}

@@ -108,7 +108,11 @@ def read_bvh(path: str | Path) -> BVHMotion:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"BVH file not found: {path}")
-    text = path.read_text(errors="replace")
+    return parse_bvh(path.read_text(errors="replace"), path)
+
+
+def parse_bvh(text: str, path: str | Path = "BVH") -> BVHMotion:
+    """Parses BVH text (e.g. a member of an archive); `path` names it in errors and in BVHMotion.path."""
     head, sep, tail = text.partition("MOTION")
     if not sep:
         raise BVHError(f"{path}: no MOTION section; is this a BVH file?")
@@ -192,7 +196,10 @@ def read_bvh(path: str | Path) -> BVHMotion:
     if len(rows) < frames:
         raise BVHError(f"{path}: the header promises {frames} frames, the file has {len(rows)}")
     try:
-        motion = np.array([[float(v) for v in row.split()] for row in rows], dtype=np.float64).reshape(frames, -1)
+        flat = np.array(" ".join(rows).split(), dtype=np.float64)  # one conversion: fast on long clips
+        if flat.size != frames * num_channels:  # rows of unequal length: the row-wise reading names it
+            flat = np.array([[float(v) for v in row.split()] for row in rows], dtype=np.float64)
+        motion = flat.reshape(frames, -1)
     except ValueError:
         raise BVHError(f"{path}: a motion row is not numeric or rows differ in length") from None
     if motion.shape[1] != num_channels:
