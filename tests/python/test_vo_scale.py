@@ -365,3 +365,16 @@ def test_a_turning_camera_is_told_from_a_moving_one():
     assert not turns_in_place(turning, points, min_baseline=0.0)  # the setting that keeps every translation
     assert translation_baseline(slow, np.zeros((0, 3))) is None
     assert translation_baseline(np.tile(np.eye(4), (5, 1, 1)), points) is None
+
+
+def test_info_warns_when_the_world_size_is_uncertain():
+    from m3c.io.results import _world_size_warning
+
+    apart = fuse([ScaleObservation("planted feet", 0.20, 0.46), ScaleObservation("ground", 2.37, 0.026)])
+    line = _world_size_warning({"scale_estimate": apart.to_dict()})[0]
+    assert "world's size is uncertain" in line and "planted feet 0.2 (+-46%)" in line
+    assert f"factor of {np.exp(2 * apart.sigma):.2f}" in line
+    agree = fuse([ScaleObservation("planted feet", 2.2, 0.2), ScaleObservation("ground", 2.0, 0.02)])
+    assert _world_size_warning({"scale_estimate": agree.to_dict()}) == [] and _world_size_warning({}) == []
+    wide = fuse([ScaleObservation("planted feet", 2.2, 0.4)])
+    assert wide.confidence == "low" and "factor of" in _world_size_warning({"scale_estimate": wide.to_dict()})[0]

@@ -30,10 +30,11 @@ FEET = ((7, 10), (8, 11))    # (ankle, foot) joints of the left and right foot
 SMOOTHING_S = 0.5
 BELOW_GROUND_TOLERANCE = 0.02
 LEGS = ((1, 4, 7), (2, 5, 8))  # (hip, knee, ankle) of the left and right leg
-# The gait's stride frequencies searched (Hz; 30-240 steps a minute), and when a track counts as stepping: the
+# The gait's stride frequencies searched (Hz; 12-240 steps a minute: a walk in 8x slow motion to a sprint), and
+# when a track counts as stepping: the
 # peak holds at least GAIT_MIN_SHARE of the band's power, the feet's fore-aft alternation is at least
 # GAIT_MIN_AMPLITUDE_M, and at least two strides fit in the track.
-GAIT_BAND_HZ = (0.25, 2.0)
+GAIT_BAND_HZ = (0.1, 2.0)
 GAIT_MIN_SHARE = 0.5
 GAIT_MIN_AMPLITUDE_M = 0.1
 # ... and the track gets somewhere: its pelvis ends at least this far (m/s over its duration) from where it began.

@@ -1,0 +1,96 @@
+"""The video's time scale from the people's gait (m3c.motion.time_scale): procedural walkers and runners played at
+1x, 2x and 4x slow motion (the frame rate unchanged), whose true factor the estimate must recover."""
+
+import numpy as np
+import pytest
+
+from m3c.body import default_body_model
+from m3c.eval.plausibility import track_plausibility
+from m3c.motion.time_scale import RUN_CADENCE, WALK_CADENCE, estimate_time_scale, gait_time_scale
+
+
+def _gait(model, strides_per_s, speed, seconds, fps=30.0, phase=0.4):
+    """The procedural walker of m3c.eval.scenes at a known stride frequency, gliding along +z at `speed`."""
+    from m3c.eval.scenes import walking_pose
+
+    t = np.arange(round(seconds * fps)) / fps
+    pose = np.zeros((len(t), 24, 3))
+    pose[:, 1:] = walking_pose(2 * np.pi * strides_per_s * t + phase)
+    transl = np.zeros((len(t), 3))
+    transl[:, 2] = speed * t
+    return model.joints(pose, np.zeros(model.num_betas), transl)
+
+
+def _played(model, strides, speed, slow, real_seconds=2.5):
+    """A gait of `strides` per second at `speed` (real time) played `slow` times slower at 30 fps."""
+    return track_plausibility(_gait(model, strides / slow, speed / slow, real_seconds * slow), 30.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return default_body_model()
+
+
+# (strides a second, speed m/s) in real time: walks at 108 and 114 steps a minute, runs at 168 and 156.
+WALKS = ((0.9, 1.2), (0.95, 1.35))
+RUNS = ((1.4, 4.0), (1.3, 3.2))
+
+
+@pytest.mark.parametrize("slow", [1.0, 2.0, 4.0])
+def test_walks_and_runs_give_their_slow_motion(model, slow):
+    for (strides, speed), cadence in [(g, WALK_CADENCE[0]) for g in WALKS] + [(g, RUN_CADENCE[0]) for g in RUNS]:
+        figures = _played(model, strides, speed, slow, real_seconds=3.0 if slow < 4 else 2.5)
+        assert figures["step_rate_spm"] == pytest.approx(120 * strides / slow, rel=0.01)
+        factor, sigma, gait = gait_time_scale(figures)
+        assert gait == ("walking" if cadence == WALK_CADENCE[0] else "running")
+        # The model's error is the person's cadence against the typical one: exact up to it.
+        assert factor == pytest.approx(slow * cadence / (120 * strides), rel=0.01)
+        assert abs(np.log(factor / slow)) < 2 * sigma and abs(factor / slow - 1) < 0.12
+    tracks = [_played(model, s, v, slow) for s, v in WALKS + RUNS]
+    estimate = estimate_time_scale(tracks)
+    assert estimate["factor"] == pytest.approx(slow, rel=0.1) and len(estimate["tracks"]) == 4
+    assert estimate["confident"] == (slow > 1) and estimate["log_sigma"] < 0.07
+    if slow == 1.0:
+        assert estimate["reason"] == "the people step at a normal rate"
+
+
+def test_time_scale_after_slow_motion_was_applied(model):
+    """--slow-motion 2 on a 2x clip: the figures are in real time, the people say nothing more is needed."""
+    real = track_plausibility(_gait(model, 0.45, 0.6, 6.0), 60.0)  # 30 fps played 2x slow, times at 60 fps
+    estimate = estimate_time_scale([real], applied=2.0)
+    assert estimate["measured"] == pytest.approx(WALK_CADENCE[0] / 108, rel=0.01) and not estimate["confident"]
+    assert estimate["factor"] == pytest.approx(2.0 * estimate["measured"], rel=1e-12)
+
+
+def test_no_gait_no_time_scale(model):
+    standing = np.repeat(_gait(model, 0.9, 1.2, 5.0)[:1], 150, axis=0)
+    shuffle = track_plausibility(_gait(model, 0.45, 0.25, 6.0), 30.0)  # a slow, short step: a stroll, not slow motion
+    estimate = estimate_time_scale([None, track_plausibility(standing, 30.0), shuffle])
+    assert shuffle["step_length_legs"] < 0.6 and gait_time_scale(shuffle) is None
+    assert estimate["factor"] == 1.0 and estimate["log_sigma"] is None and not estimate["confident"]
+    assert "no track" in estimate["reason"]
+    with pytest.raises(ValueError, match="slow motion"):
+        estimate_time_scale([], applied=0.0)
+
+
+def test_people_who_disagree_widen_the_factor(model):
+    """One walker at 2x slow, one at normal speed (a wrong gait): the fused factor's uncertainty covers both."""
+    tracks = [_played(model, 0.9, 1.2, 2.0), _played(model, 0.9, 1.2, 1.0)]
+    estimate = estimate_time_scale(tracks)
+    logs = np.log([t["factor"] for t in estimate["tracks"]])
+    assert np.all(np.abs(logs - np.log(estimate["measured"])) < 2 * estimate["log_sigma"])
+    assert not estimate["confident"]
+
+
+def test_info_says_slow_motion_when_the_gait_is_sure(model):
+    from m3c.io.results import _slow_gait_hint, _time_scale
+
+    slow = _played(model, 0.9, 1.2, 2.0)
+    estimate = estimate_time_scale([slow])
+    line = _time_scale({"time_scale": estimate})[0]
+    assert "slow motion likely" in line and f"--slow-motion {estimate['factor']:.2f}" in line
+    assert "--slow-motion" in _slow_gait_hint(slow)
+    normal = estimate_time_scale([_played(model, 0.9, 1.2, 1.0)])
+    assert _time_scale({"time_scale": normal}) == ["time        the people step at a normal rate (x1.02 +-10% from "
+                                                   "the gait of 1 track)"]
+    assert _time_scale({"time_scale": estimate_time_scale([None])}) == [] and _time_scale({}) == []
