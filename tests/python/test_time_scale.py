@@ -94,3 +94,51 @@ def test_info_says_slow_motion_when_the_gait_is_sure(model):
     assert _time_scale({"time_scale": normal}) == ["time        the people step at a normal rate (x1.02 +-10% from "
                                                    "the gait of 1 track)"]
     assert _time_scale({"time_scale": estimate_time_scale([None])}) == [] and _time_scale({}) == []
+
+
+def _image_keypoints(joints, heading, rng=None, drop=0.0):
+    """COCO keypoints (n, 17, 3) of a body seen by a camera 6 m away, 1 m up, looking along +z (the body walks
+    along `heading` in x-z): nose from the head, hips, knees and ankles; the rest unseen (NaN)."""
+    c, s = np.cos(heading), np.sin(heading)
+    turn = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    world = joints @ turn.T + [0.0, 0.0, 6.0]
+    cam = world * [1, -1, 1] + [0, 1.0, 0]
+    uv = 800 * cam[..., :2] / cam[..., 2:] + [480, 270]
+    out = np.full((len(joints), 17, 3), np.nan)
+    for coco, smpl in {0: 15, 11: 1, 12: 2, 13: 4, 14: 5, 15: 7, 16: 8}.items():
+        out[:, coco, :2] = uv[:, smpl]
+        out[:, coco, 2] = 0.9
+    if rng is not None:
+        out[..., :2] += rng.normal(0, 1.0, out[..., :2].shape)
+        out[rng.uniform(size=len(out)) < drop, 15, 2] = 0.1  # an ankle missed now and then
+    return out
+
+
+@pytest.mark.parametrize("slow", [1.0, 2.0, 4.0])
+@pytest.mark.parametrize("heading", [0.0, np.pi / 2])  # away from the camera (rows), across it (columns)
+def test_image_step_rate_times_the_ankles(model, slow, heading):
+    from m3c.eval.plausibility import image_step_rate
+
+    strides = 0.9 / slow  # 108 steps a minute in real time
+    joints = _gait(model, strides, 1.2 / slow, 3.0 * slow)
+    rate = image_step_rate(_image_keypoints(joints, heading, np.random.default_rng(0), drop=0.1), 30.0)
+    # Walking away, the ankles' image offset shrinks with depth (an amplitude the sinusoid fit does not model): a
+    # few percent, against the 15% spread of people's cadence.
+    assert rate == pytest.approx(120 * strides, rel=0.05)
+    factor, sigma, gait = gait_time_scale({"step_rate_spm": None, "image_step_rate_spm": rate})
+    assert gait == "stepping (image)" and factor == pytest.approx(slow * 110 / 108, rel=0.05)
+    assert abs(np.log(factor / slow)) < sigma
+
+
+def test_image_step_rate_needs_ankles_that_alternate(model):
+    from m3c.eval.plausibility import image_step_rate
+
+    standing = np.repeat(_gait(model, 0.9, 1.2, 5.0)[:1], 150, axis=0)
+    rng = np.random.default_rng(1)
+    assert image_step_rate(_image_keypoints(standing, 0.0, rng), 30.0) is None
+    unseen = _image_keypoints(_gait(model, 0.9, 1.2, 5.0), 0.0)
+    unseen[::2, 16, 2] = 0.0  # half the frames without the right ankle
+    unseen[1::4, 15, 2] = 0.0
+    assert image_step_rate(unseen, 30.0) is None
+    with pytest.raises(ValueError, match="shape"):
+        image_step_rate(np.zeros((10, 17, 2)), 30.0)

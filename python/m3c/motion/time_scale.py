@@ -22,9 +22,11 @@ import numpy as np
 
 from m3c.vo.scale import between_source_variance
 
-# (steps a minute, log-sigma) of people's real cadence: walking and running.
+# (steps a minute, log-sigma) of people's real cadence: walking and running; and of a gait timed from the image
+# alone (no step length to tell a walk from a run: a walk is assumed, and a run, 1.5x faster, lies 2.7 sigma off).
 WALK_CADENCE = (110.0, 0.1)
 RUN_CADENCE = (165.0, 0.12)
+IMAGE_CADENCE = (110.0, 0.15)
 # Step lengths (leg lengths) that classify a gait: walking within WALK_STEP_LEGS, running over RUN_STEP_LEGS.
 WALK_STEP_LEGS = (0.6, 1.05)
 RUN_STEP_LEGS = 1.2
@@ -35,10 +37,14 @@ CONFIDENT_SIGMAS = 3.0
 def gait_time_scale(figures: dict) -> tuple[float, float, str] | None:
     """(factor, log-sigma, gait) of one track's gait figures (step_rate_spm in the video's time, step_length_legs):
     the expected real cadence over the measured one; None where the track has no gait or its step is neither a
-    walk's nor a run's."""
+    walk's nor a run's. A track without a world gait (its fitted feet too rough, or its world too small to travel)
+    falls back on its 2D ankles' step rate (image_step_rate_spm) against IMAGE_CADENCE."""
     rate, legs = figures.get("step_rate_spm"), figures.get("step_length_legs")
     if rate is None or legs is None or not (np.isfinite(rate) and rate > 0 and np.isfinite(legs)):
-        return None
+        image = figures.get("image_step_rate_spm")
+        if image is None or not (np.isfinite(image) and image > 0):
+            return None
+        return IMAGE_CADENCE[0] / float(image), IMAGE_CADENCE[1], "stepping (image)"
     if WALK_STEP_LEGS[0] <= legs <= WALK_STEP_LEGS[1]:
         (cadence, sigma), gait = WALK_CADENCE, "walking"
     elif legs > RUN_STEP_LEGS:
