@@ -109,7 +109,8 @@ def image_step_rate(keypoints: np.ndarray, fps: float) -> float | None:
     if keypoints.ndim != 3 or keypoints.shape[1:] != (17, 3):
         raise ValueError(f"keypoints must have shape (n, 17, 3), got {keypoints.shape}")
     ankles = keypoints[:, list(ANKLES_2D)]
-    seen = np.isfinite(keypoints[..., :2]).all(axis=-1) & (np.nan_to_num(keypoints[..., 2]) >= IMAGE_MIN_CONFIDENCE)
+    confident = np.nan_to_num(keypoints[..., 2]) >= IMAGE_MIN_CONFIDENCE
+    seen = np.isfinite(keypoints[..., :2]).all(axis=-1) & confident
     both = seen[:, ANKLES_2D[0]] & seen[:, ANKLES_2D[1]] & (seen.sum(axis=1) >= 5)
     if n < 8 or both.mean() < 0.5:
         return None

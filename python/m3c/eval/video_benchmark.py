@@ -385,9 +385,11 @@ def run_sequence(
     centres = truth["world_from_cam"][:, :3, 3]
     time_scale = summary["video"].get("time_scale") or {}
     scale = summary["camera"].get("scale_estimate") or {}
+    camera = summary["camera"]
     score.world = {"slow_motion_true": float(truth.get("slow_motion", 1.0)),
-                   "slow_motion_found": time_scale.get("factor"), "slow_motion_confident": time_scale.get("confident"),
-                   "camera_reported": "static" if summary["camera"]["static"] else summary["camera"]["scale_source"],
+                   "slow_motion_found": time_scale.get("factor"),
+                   "slow_motion_confident": time_scale.get("confident"),
+                   "camera_reported": "static" if camera["static"] else camera["scale_source"],
                    "camera_travel_m": float(np.linalg.norm(centres - centres[0], axis=1).max()),
                    "scale_sigma": scale.get("sigma"), "scale_confidence": scale.get("confidence")}
     if log:
@@ -549,10 +551,10 @@ class VideoBenchmarkReport:
                 error = opt.get("scale_error_pct")
                 covered = "-" if error is None or w["scale_sigma"] is None else \
                     ("yes" if abs(np.log1p(error / 100.0)) <= 2 * w["scale_sigma"] else "no")
-                lines.append(f"  {s.name}: slow x{w['slow_motion_true']:g} / "
-                             f"{'-' if found is None else f'x{found:.2f}'}{'*' if w['slow_motion_confident'] else ''}"
-                             f"; camera travel {w['camera_travel_m']:.2f} m, reported {w['camera_reported']}; "
-                             f"scale covered {covered}")
+                found = "-" if found is None else f"x{found:.2f}" + ("*" if w["slow_motion_confident"] else "")
+                lines.append(f"  {s.name}: slow x{w['slow_motion_true']:g} / {found}; camera travel "
+                             f"{w['camera_travel_m']:.2f} m, reported {w['camera_reported']}; scale covered "
+                             f"{covered}")
         failed = [s for s in self.sequences if s.error]
         if failed:
             lines.append(f"failed: {', '.join(s.name for s in failed)}")

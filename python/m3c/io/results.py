@@ -71,9 +71,10 @@ def _world_size_warning(camera: dict) -> list[str]:
     if estimate.get("confidence") != "low":
         return []
     factor = np.exp(2 * estimate["sigma"])
-    text = estimate.get("disagreement") or (f"the camera scale is uncertain by a factor of {factor:.2f} either way "
-                                            "(2 sigma), and the world's size with it")
-    return [f"warning     the world's size is uncertain: {text}; distances and speeds may be off by that factor"]
+    text = estimate.get("disagreement") or (f"the camera scale is uncertain by a factor of {factor:.2f} either "
+                                            "way (2 sigma), and the world's size with it")
+    return [f"warning     the world's size is uncertain: {text}; distances and speeds may be off by that "
+            "factor"]
 
 
 def _rate(video: dict) -> str:
@@ -88,7 +89,8 @@ def _slow_gait_hint(figures: dict) -> str:
     """A track whose walk or run is confidently slower than people step (m3c.motion.time_scale): the clip may play
     slower than it was filmed (slow motion)."""
     measured = gait_time_scale(figures)
-    if measured is not None and measured[0] >= MIN_FACTOR and np.log(measured[0]) > CONFIDENT_SIGMAS * measured[1]:
+    if measured is not None and measured[0] >= MIN_FACTOR \
+            and np.log(measured[0]) > CONFIDENT_SIGMAS * measured[1]:
         return (f"; a {measured[2]} step at a slow rate: if the video is slow motion (x{measured[0]:.1f}?), give "
                 "--slow-motion (then speeds are real time)")
     return ""
@@ -100,7 +102,8 @@ def _time_scale(video: dict) -> list[str]:
     if not estimate or estimate.get("log_sigma") is None:
         return []
     n = len(estimate["tracks"])
-    figure = f"x{estimate['measured']:.2f} +-{100 * estimate['log_sigma']:.0f}% from the gait of {n} track{'s' * (n > 1)}"
+    figure = (f"x{estimate['measured']:.2f} +-{100 * estimate['log_sigma']:.0f}% from the gait of {n} "
+              f"track{'s' * (n > 1)}")
     if estimate["confident"]:
         return [f"time        slow motion likely: {estimate['reason']} ({figure}); give --slow-motion "
                 f"{estimate['factor']:.2f} for real-time speeds"]

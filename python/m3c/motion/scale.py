@@ -63,9 +63,9 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
             else:
                 log.info("camera scale from %s: not measured (%s)", o.source, o.reason)
         if ground.detail.get("camera_height_suspect") if plane is not None else False:
-            log.warning("the ground source puts the moving camera %.2f m above the ground, outside the plausible "
-                        "%.1f-%.1f m: its uncertainty is widened to +-%.0f%%", ground.detail["camera_height_m"],
-                        *PLAUSIBLE_CAMERA_HEIGHT_M, 100 * ground.sigma)
+            log.warning("the ground source puts the moving camera %.2f m above the ground, outside the "
+                        "plausible %.1f-%.1f m: its uncertainty is widened to +-%.0f%%",
+                        ground.detail["camera_height_m"], *PLAUSIBLE_CAMERA_HEIGHT_M, 100 * ground.sigma)
         if not estimate.consistent:
             log.warning("%s", estimate.disagreement())
     return estimate

@@ -65,10 +65,11 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
     for index, figures in enumerate(track_figures):
         measured = gait_time_scale(figures) if figures else None
         if measured is not None:
-            per_track.append({"track": index, "gait": measured[2], "factor": measured[0], "log_sigma": measured[1]})
+            per_track.append({"track": index, "gait": measured[2], "factor": measured[0],
+                              "log_sigma": measured[1]})
     if not per_track:
-        return {"factor": float(applied), "log_sigma": None, "measured": 1.0, "confident": False, "tracks": [],
-                "reason": "no track walks or runs steadily enough to time its steps"}
+        return {"factor": float(applied), "log_sigma": None, "measured": 1.0, "confident": False,
+                "tracks": [], "reason": "no track walks or runs steadily enough to time its steps"}
     logs = np.log([t["factor"] for t in per_track])
     sigmas = np.array([t["log_sigma"] for t in per_track])
     variances = sigmas ** 2 + between_source_variance(logs, sigmas)
@@ -78,11 +79,12 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
     measured = float(np.exp(mean))
     confident = bool(measured >= MIN_FACTOR and mean > CONFIDENT_SIGMAS * sigma)
     if confident:
-        reason = (f"the people step {measured:.2f}x slower than people walk or run: the video plays slower than it "
-                  "was filmed")
+        reason = (f"the people step {measured:.2f}x slower than people walk or run: the video plays slower "
+                  "than it was filmed")
     elif mean < -CONFIDENT_SIGMAS * sigma:
-        reason = f"the people step {1 / measured:.2f}x faster than people walk or run (sped up, or a wrong gait)"
+        reason = (f"the people step {1 / measured:.2f}x faster than people walk or run (sped up, or a wrong "
+                  "gait)")
     else:
         reason = "the people step at a normal rate"
-    return {"factor": float(applied * measured), "log_sigma": sigma, "measured": measured, "confident": confident,
-            "tracks": per_track, "reason": reason}
+    return {"factor": float(applied * measured), "log_sigma": sigma, "measured": measured,
+            "confident": confident, "tracks": per_track, "reason": reason}

@@ -74,7 +74,8 @@ def camera_path(
     """world_from_cam (n, 4, 4), intrinsics (4,) and a description, for people's world joints (P, n, 24, 3).
     follow and tracking film person 0 (the walker); the other kinds the whole group."""
     if kind not in CAMERA_KINDS + EXTRA_CAMERA_KINDS:
-        raise ValueError(f"unknown camera kind {kind!r}; choose from {', '.join(CAMERA_KINDS + EXTRA_CAMERA_KINDS)}")
+        kinds = ", ".join(CAMERA_KINDS + EXTRA_CAMERA_KINDS)
+        raise ValueError(f"unknown camera kind {kind!r}; choose from {kinds}")
     width, height = (int(v) for v in image_size)
     n = joints.shape[1]
     hfov = np.radians(rng.uniform(40.0, 75.0))

@@ -77,7 +77,8 @@ class SequenceSpec:
         if self.fps <= 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
         if not (np.isfinite(self.slow_motion) and 1.0 <= self.slow_motion <= 16.0):
-            raise ValueError(f"slow_motion must be within 1-16 (times slower than real time), got {self.slow_motion}")
+            raise ValueError(f"slow_motion must be within 1-16 (times slower than real time), got "
+                             f"{self.slow_motion}")
         if self.floor not in FLOORS:
             raise ValueError(f"floor must be one of {', '.join(FLOORS)}, got {self.floor!r}")
         if self.camera not in CAMERA_KINDS + EXTRA_CAMERA_KINDS:

@@ -117,7 +117,9 @@ class ScaleEstimate:
             return "none"
         if not self.consistent:
             return "low"
-        return "high" if self.sigma < CONFIDENCE_SIGMA[0] else "medium" if self.sigma < CONFIDENCE_SIGMA[1] else "low"
+        if self.sigma < CONFIDENCE_SIGMA[0]:
+            return "high"
+        return "medium" if self.sigma < CONFIDENCE_SIGMA[1] else "low"
 
     def disagreement(self) -> str:
         """A sentence on sources that disagree beyond their uncertainty ("" when they agree)."""
@@ -126,8 +128,8 @@ class ScaleEstimate:
         sources = ", ".join(f"{o.source} {o.value:.4g} (+-{100 * o.sigma:.0f}%)" for o in self.observations
                             if o.usable())
         return (f"the camera scale's sources disagree beyond their uncertainty ({sources}): the fused "
-                f"{self.value:.4g} m per VO unit is uncertain by a factor of {np.exp(2 * self.sigma):.2f} either way "
-                "(2 sigma), and the world's size with it")
+                f"{self.value:.4g} m per VO unit is uncertain by a factor of {np.exp(2 * self.sigma):.2f} either "
+                "way (2 sigma), and the world's size with it")
 
     def to_dict(self) -> dict:
         return {"value": float(self.value), "sigma": None if self.sigma is None else float(self.sigma),
@@ -397,8 +399,8 @@ def scale_from_camera_height(contact_points_cam: list[list[np.ndarray]], world_f
     height = float(np.exp(np.mean(np.log(heights))))
     low, high = PLAUSIBLE_CAMERA_HEIGHT_M
     outside = max(0.0, float(np.log(height / high)), float(np.log(low / height)))
-    obs.detail = {"people": people, "per_person": [float(np.exp(c)) for c in centres], "camera_height_m": height,
-                  "camera_height_suspect": outside > 0}
+    obs.detail = {"people": people, "per_person": [float(np.exp(c)) for c in centres],
+                  "camera_height_m": height, "camera_height_suspect": outside > 0}
     if outside > 0:  # wrong by at least that ratio (module docstring)
         obs.detail["sampling_sigma"] = obs.sigma
         obs.sigma = float(np.hypot(obs.sigma, outside))
