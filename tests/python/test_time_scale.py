@@ -142,3 +142,30 @@ def test_image_step_rate_needs_ankles_that_alternate(model):
     assert image_step_rate(unseen, 30.0) is None
     with pytest.raises(ValueError, match="shape"):
         image_step_rate(np.zeros((10, 17, 2)), 30.0)
+
+
+def test_image_gait_alone_is_possible_not_confident(model):
+    """The 2D ankles alone, stepping 2x slow: reported as possible slow motion, not confident (a walk that stops
+    can look like a slow stride in the image); with a world gait beside it, confident."""
+    from m3c.io.results import _time_scale
+
+    image_only = {"step_rate_spm": None, "image_step_rate_spm": 54.0}
+    estimate = estimate_time_scale([image_only])
+    assert estimate["possible"] and not estimate["confident"]
+    assert estimate["factor"] == pytest.approx(110 / 54, rel=1e-12) and estimate["log_sigma"] == 0.15
+    assert _time_scale({"time_scale": estimate})[0].startswith("time        slow motion possible")
+    both = estimate_time_scale([image_only, _played(model, 0.9, 1.2, 2.0)])
+    assert both["confident"] and both["factor"] == pytest.approx(2.04, rel=0.03)
+
+
+def test_stride_fit_stays_near_its_peak():
+    """A flat least-squares fit near the spectrum's peak once extrapolated to a negative rate (a walk that stops:
+    the hard suite's seq00 truth gave -35 steps a minute); the refined rate stays within a bin of the peak."""
+    from m3c.eval.plausibility import _fit_frequency
+
+    t = np.arange(150) / 30.0
+    rng = np.random.default_rng(0)
+    signal = np.where(t < 3.5, 0.3 * np.sin(2 * np.pi * 0.6 * t), 0.0) + 0.02 * rng.standard_normal(150)
+    for guess in (0.11, 0.4, 0.79):
+        f = _fit_frequency(signal, t, guess, min(0.2, 0.5 * guess))
+        assert guess - min(0.2, 0.5 * guess) - 1e-9 <= f <= guess + min(0.2, 0.5 * guess) + 1e-9

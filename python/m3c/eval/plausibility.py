@@ -66,6 +66,7 @@ def _fit_frequency(signal: np.ndarray, t: np.ndarray, guess: float, half_width: 
     i = int(np.clip(np.argmin(residual), 1, len(candidates) - 2))
     a, b, c = residual[i - 1:i + 2]
     shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
+    shift = float(np.clip(shift, -1.0, 1.0))  # a flat parabola's vertex lies anywhere: within one candidate
     return float(candidates[i] + shift * (candidates[1] - candidates[0]))
 
 
@@ -87,8 +88,10 @@ def _stride_frequency(signal: np.ndarray, fps: float) -> float | None:
     lobe = np.abs(freq[band] - freq[peak]) <= 2.0 * fps / n
     if power[band][lobe].sum() < GAIT_MIN_SHARE * power[band].sum():
         return None
-    stride = _fit_frequency(signal, t, freq[peak], fps / n)
-    return stride if n / fps >= 2.0 / stride else None
+    # The fit searches +- one bin of the unpadded spectrum, at most half the peak's frequency (never through 0).
+    stride = _fit_frequency(signal, t, freq[peak], min(fps / n, 0.5 * freq[peak]))
+    inside = GAIT_BAND_HZ[0] <= stride <= GAIT_BAND_HZ[1]
+    return stride if inside and n / fps >= 2.0 / stride else None
 
 
 # The image gait: COCO ankles, the keypoint confidence they need, and the least swing of their difference (in the

@@ -107,6 +107,9 @@ def _time_scale(video: dict) -> list[str]:
     if estimate["confident"]:
         return [f"time        slow motion likely: {estimate['reason']} ({figure}); give --slow-motion "
                 f"{estimate['factor']:.2f} for real-time speeds"]
+    if estimate.get("possible"):
+        return [f"time        slow motion possible: {estimate['reason']} ({figure}); if the video is slow motion, "
+                f"give --slow-motion {estimate['factor']:.2f}"]
     return [f"time        {estimate['reason']} ({figure})"]
 
 

@@ -12,8 +12,9 @@ one person's cadence not shrinking with the number of frames.
 
 The estimate is reported (results.json video.time_scale, `m3c info`), not applied: the frames node fixes the
 frame times before anyone is tracked, and every later node (the motion prior's rate, smoothness, speeds) depends on
-them, so `--slow-motion FACTOR` reruns with real time. `confident`: the factor is at least MIN_FACTOR and over
-CONFIDENT_SIGMAS of its uncertainty above 1.
+them, so `--slow-motion FACTOR` reruns with real time. `possible`: the factor is at least MIN_FACTOR and over
+CONFIDENT_SIGMAS of its uncertainty above 1; `confident`: possible, with at least one track's world gait (the
+image gait alone misreads a walk that stops for a slow stride: the hard suite's still camera at normal speed).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from m3c.vo.scale import between_source_variance
 WALK_CADENCE = (110.0, 0.1)
 RUN_CADENCE = (165.0, 0.12)
 IMAGE_CADENCE = (110.0, 0.15)
+IMAGE_GAIT = "stepping (image)"
 # Step lengths (leg lengths) that classify a gait: walking within WALK_STEP_LEGS, running over RUN_STEP_LEGS.
 WALK_STEP_LEGS = (0.6, 1.05)
 RUN_STEP_LEGS = 1.2
@@ -44,7 +46,7 @@ def gait_time_scale(figures: dict) -> tuple[float, float, str] | None:
         image = figures.get("image_step_rate_spm")
         if image is None or not (np.isfinite(image) and image > 0):
             return None
-        return IMAGE_CADENCE[0] / float(image), IMAGE_CADENCE[1], "stepping (image)"
+        return IMAGE_CADENCE[0] / float(image), IMAGE_CADENCE[1], IMAGE_GAIT
     if WALK_STEP_LEGS[0] <= legs <= WALK_STEP_LEGS[1]:
         (cadence, sigma), gait = WALK_CADENCE, "walking"
     elif legs > RUN_STEP_LEGS:
@@ -69,7 +71,7 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
                               "log_sigma": measured[1]})
     if not per_track:
         return {"factor": float(applied), "log_sigma": None, "measured": 1.0, "confident": False,
-                "tracks": [], "reason": "no track walks or runs steadily enough to time its steps"}
+                "possible": False, "tracks": [], "reason": "no track walks or runs steadily enough to time its steps"}
     logs = np.log([t["factor"] for t in per_track])
     sigmas = np.array([t["log_sigma"] for t in per_track])
     variances = sigmas ** 2 + between_source_variance(logs, sigmas)
@@ -77,14 +79,19 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
     mean = float(np.sum(weights * logs) / np.sum(weights))
     sigma = float(np.sqrt(1.0 / np.sum(weights)))
     measured = float(np.exp(mean))
-    confident = bool(measured >= MIN_FACTOR and mean > CONFIDENT_SIGMAS * sigma)
+    possible = bool(measured >= MIN_FACTOR and mean > CONFIDENT_SIGMAS * sigma)
+    image_only = all(t["gait"] == IMAGE_GAIT for t in per_track)
+    confident = possible and not image_only
     if confident:
         reason = (f"the people step {measured:.2f}x slower than people walk or run: the video plays slower "
                   "than it was filmed")
+    elif possible:
+        reason = (f"the people's ankles step {measured:.2f}x slower than people walk (timed from the image "
+                  "alone, a walk assumed: not confident)")
     elif mean < -CONFIDENT_SIGMAS * sigma:
         reason = (f"the people step {1 / measured:.2f}x faster than people walk or run (sped up, or a wrong "
                   "gait)")
     else:
         reason = "the people step at a normal rate"
     return {"factor": float(applied * measured), "log_sigma": sigma, "measured": measured,
-            "confident": confident, "tracks": per_track, "reason": reason}
+            "confident": confident, "possible": possible, "tracks": per_track, "reason": reason}
