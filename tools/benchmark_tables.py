@@ -21,7 +21,7 @@ from. What the benchmarks measure and how to run them: [Evaluation](../evaluatio
 """
 
 COLUMNS = (("pa_mpjpe", "PA-MPJPE mm"), ("mpjpe", "MPJPE mm"), ("w_mpjpe", "W-MPJPE100 mm"),
-           ("wa_mpjpe", "WA-MPJPE100 mm"), ("rte", "RTE %"), ("jitter", "jitter 10 m/s^3"),
+           ("wa_mpjpe", "WA-MPJPE100 mm"), ("rte", "RTE %"), ("jitter", "jitter m/s^3"),
            ("foot_sliding", "foot sliding mm"))
 
 
@@ -51,14 +51,25 @@ def _table(rows: list[tuple[str, dict]], columns=COLUMNS) -> list[str]:
 
 def video_benchmark_section(data: dict, name: str) -> list[str]:
     config = data.get("config", {})
-    lines = [f"## Video benchmark, seed {config.get('seed')}", "", _provenance(data, name), "",
+    suite = config.get("suite") or "default"
+    lines = [f"## Video benchmark, {suite} set, seed {config.get('seed')}", "", _provenance(data, name), "",
              f"{len(data.get('sequences', []))} sequences x {config.get('num_frames')} frames, body model "
              f"{data.get('body_model')}; Lift: the world lift before optimization, Global Opt: the result.", ""]
     rows = [(f"All, {method}", row) for method, row in data.get("overall", {}).items()]
     for seq in data.get("sequences", []):
         for method, row in (seq.get("methods") or {}).items():
             rows.append((f"{seq['name']} ({seq.get('camera_motion')}, {seq.get('people')}p), {method}", row))
-    return lines + _table(rows) + [""]
+    lines += _table(rows) + [""]
+    worlds = [(seq["name"], seq["world"]) for seq in data.get("sequences", []) if seq.get("world")]
+    if worlds:  # the hard suite: slow motion and how the camera was reported, against the truth
+        lines += ["| sequence | slow motion true | found | confident | camera reported | true travel m | "
+                  "scale confidence |", "|---|---|---|---|---|---|---|"]
+        for seq_name, world in worlds:
+            lines.append(f"| {seq_name} | " + " | ".join(_cell(world.get(k)) for k in (
+                "slow_motion_true", "slow_motion_found", "slow_motion_confident", "camera_reported",
+                "camera_travel_m", "scale_confidence")) + " |")
+        lines.append("")
+    return lines
 
 
 def offline_benchmark_section(data: dict, name: str) -> list[str]:

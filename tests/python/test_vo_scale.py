@@ -6,7 +6,8 @@ import pytest
 
 from m3c.vo import (fuse, map_ground_plane, relative_ate, run_vo, scale_from_camera_height, scale_from_depth,
                     scale_from_planted_feet, umeyama_sim3)
-from m3c.vo.scale import DEPTH_WEIGHT, FEET_MODEL_SIGMA, PERSON_SIZE_SIGMA, ScaleObservation
+from m3c.vo.scale import (DEPTH_WEIGHT, FEET_MODEL_SIGMA, PERSON_SIZE_SIGMA, PLAUSIBLE_CAMERA_HEIGHT_M,
+                          ScaleEstimate, ScaleObservation)
 from m3c.vo.synthetic import ROOM_MAX, forward_trajectory, look_rotation, render_sequence
 
 GROUND_Y = 1.5  # metric world: OpenCV-like, y down, ground plane y = GROUND_Y, cameras near y = 0
@@ -127,6 +128,29 @@ def test_scale_from_camera_height_recovers_the_scale():
         scale_from_camera_height([contacts[:10]], poses_vo, plane[:2])
 
 
+def test_camera_height_outside_the_plausible_range_widens_the_ground():
+    """The cameras are 1.5 m above the ground: plausible, the source's sigma is its sampling error. Soles that
+    come out 2.4x too far below the camera (3.6 m: a plane that is not the floor) leave the value 2.4x off, and
+    the source says so: its sigma then holds log(3.6 / 3.0)."""
+    rng = np.random.default_rng(1)
+    poses_m = _metric_cameras(60)
+    points_vo, poses_vo = _to_vo(np.concatenate([_ground_points(rng, 300), _clutter(rng, 300)]), poses_m, 0.4)
+    plane = map_ground_plane(points_vo, poses_vo, _vo_up())
+    contacts = _contacts_in_cameras(poses_m, rng)
+    heights = GROUND_Y - poses_m[:, 1, 3]
+    good = scale_from_camera_height([contacts], poses_vo, plane[:2])
+    assert good.detail["camera_height_m"] == pytest.approx(np.median(heights), rel=0.02)
+    assert not good.detail["camera_height_suspect"] and good.sigma < 0.02
+    high = scale_from_camera_height([[2.4 * c for c in contacts]], poses_vo, plane[:2])
+    assert high.value == pytest.approx(2.4 * good.value, rel=1e-9) and high.detail["camera_height_suspect"]
+    height = high.detail["camera_height_m"]
+    assert height == pytest.approx(2.4 * good.detail["camera_height_m"], rel=1e-9) and height > 3.0
+    assert high.sigma == pytest.approx(np.hypot(high.detail["sampling_sigma"],
+                                                np.log(height / PLAUSIBLE_CAMERA_HEIGHT_M[1])), rel=1e-12)
+    low = scale_from_camera_height([[0.15 * c for c in contacts]], poses_vo, plane[:2])
+    assert low.detail["camera_height_suspect"] and low.sigma > np.log(0.3 / (0.15 * 1.56))
+
+
 def test_camera_height_weighs_each_person_once():
     """Each person's estimate carries that person's size error however many frames it has: two people, one seen
     in contact in 50 frames and 10% too large (its soles 10% too far below the camera), one in 12 frames and
@@ -216,16 +240,72 @@ def test_fuse_weights_by_uncertainty_and_shares_the_person_size_error():
     w2 = np.array([1 / group[1] ** 2, 1 / 0.03 ** 2])
     assert est.value == pytest.approx(np.exp((w2 * [group[0], np.log(1.98)]).sum() / w2.sum()), rel=1e-12)
     assert est.sigma == pytest.approx(1 / np.sqrt(w2.sum()), rel=1e-12)
-    # Disagreement beyond 3 combined standard deviations is flagged and widens the uncertainty by the Birge
-    # ratio; nothing usable gives the default.
+    assert est.spread == 0.0 and est.confidence == "high" and est.disagreement() == ""
+    # Disagreement beyond 3 combined standard deviations is flagged; the DerSimonian-Laird between-source variance
+    # joins each source's (two sources: tau^2 = (Q - 1) / (w1 + w2 - (w1^2 + w2^2) / (w1 + w2))), and the 2-sigma
+    # interval reaches both values; nothing usable gives the default.
     apart = fuse([ScaleObservation("planted feet", 5.0, 0.05), ground])
-    w = np.array([1 / 0.05 ** 2, 1 / 0.02 ** 2])
-    mean = (w * np.log([5.0, 2.0])).sum() / w.sum()
-    birge = np.sqrt(((np.log([5.0, 2.0]) - mean) ** 2 * w).sum())
-    assert not apart.consistent and birge > 1
-    assert apart.sigma == pytest.approx(np.hypot(1 / np.sqrt(w.sum()), PERSON_SIZE_SIGMA) * birge, rel=1e-12)
+    logs, w = np.log([5.0, 2.0]), np.array([1 / 0.05 ** 2, 1 / 0.02 ** 2])
+    q = (w * (logs - (w * logs).sum() / w.sum()) ** 2).sum()
+    tau2 = (q - 1) / (w.sum() - (w ** 2).sum() / w.sum())
+    w_re = 1 / (1 / w + tau2)
+    mean = (w_re * logs).sum() / w_re.sum()
+    assert not apart.consistent and apart.spread == pytest.approx(np.sqrt(tau2), rel=1e-12)
+    assert apart.value == pytest.approx(np.exp(mean), rel=1e-12)
+    assert apart.sigma == pytest.approx(max(np.hypot(1 / np.sqrt(w_re.sum()), PERSON_SIZE_SIGMA),
+                                            np.abs(logs - mean).max() / 2), rel=1e-12)
+    assert apart.confidence == "low" and "disagree beyond their uncertainty" in apart.disagreement()
+    assert apart.to_dict()["confidence"] == "low" and apart.to_dict()["spread"] == apart.spread
     none = fuse([ScaleObservation("ground", reason="no map points")], default=1.0)
-    assert none.value == 1.0 and none.sigma is None and none.source == "default"
+    assert none.value == 1.0 and none.sigma is None and none.source == "default" and none.confidence == "none"
+
+
+def _covers(estimate, truth, k=2.0):
+    return abs(np.log(estimate.value / truth)) <= k * estimate.sigma
+
+
+@pytest.mark.parametrize("feet, ground", [((0.20, 0.46), (2.37, 0.026)),   # a crowd and a barely moving camera
+                                          ((11.4, 0.23), (7.0, 0.009))])   # a plain hall floor: 2.1 sigma apart
+def test_fuse_covers_either_source_when_they_disagree(feet, ground):
+    """The issue's two real clips: feet and ground apart by more than their errors. Whichever of them is right,
+    the fused 2-sigma interval covers it (the tighter source is not simply kept)."""
+    est = fuse([ScaleObservation("planted feet", *feet), ScaleObservation("ground", *ground)])
+    for truth in (feet[0], ground[0]):
+        assert _covers(est, truth), (est.value, est.sigma, truth)
+    fixed = np.exp(np.average(np.log([feet[0], ground[0]]), weights=[feet[1] ** -2, ground[1] ** -2]))
+    assert abs(np.log(fixed / ground[0])) < 0.01 and not _covers(ScaleEstimate(fixed, 0.07, "fixed"), feet[0])
+    assert est.spread > 0 and est.confidence in ("low", "medium")
+
+
+def test_fuse_coverage_against_known_truth():
+    """Synthetic sources against a known scale. Honest sources (their error drawn from their sigma): unchanged, the
+    inverse-variance mean. One source biased while claiming 1-3% (a wrong map plane), by 3.5-8 times the other's
+    sigma (sources in conflict: a bias within the other's noise no fusion can see): the truth stays inside the
+    fused 2-sigma interval in at least 95% of the draws; the fixed-effects mean would miss it in most."""
+    rng = np.random.default_rng(0)
+    covered, fixed_covered, trials = 0, 0, 400
+    for _ in range(trials):
+        truth = np.exp(rng.uniform(-2, 3))
+        feet_sigma, ground_sigma = rng.uniform(0.2, 0.5), rng.uniform(0.01, 0.03)
+        feet = ScaleObservation("planted feet", truth * np.exp(feet_sigma * rng.standard_normal()), feet_sigma)
+        bias = np.exp(rng.choice([-1, 1]) * rng.uniform(3.5, 8.0) * feet_sigma)
+        ground = ScaleObservation("ground", truth * bias, ground_sigma)
+        est = fuse([feet, ground])
+        covered += _covers(est, truth)
+        w = np.array([feet_sigma ** -2, ground_sigma ** -2])
+        fixed_mean = np.exp((w * np.log([feet.value, ground.value])).sum() / w.sum())
+        fixed_covered += abs(np.log(fixed_mean / truth)) <= 2 * np.hypot(1 / np.sqrt(w.sum()), PERSON_SIZE_SIGMA)
+    assert covered / trials >= 0.95 and fixed_covered / trials < 0.2
+    # Honest sources that agree within their errors: the estimate is the inverse-variance mean.
+    for _ in range(50):
+        truth = np.exp(rng.uniform(-2, 3))
+        feet = ScaleObservation("planted feet", truth * np.exp(0.02 * rng.standard_normal()), 0.25)
+        ground = ScaleObservation("ground", truth * np.exp(0.01 * rng.standard_normal()), 0.02)
+        est = fuse([feet, ground])
+        w = np.array([0.25 ** -2, 0.02 ** -2])
+        assert est.value == pytest.approx(np.exp((w * np.log([feet.value, ground.value])).sum() / w.sum()),
+                                          rel=1e-12)
+        assert est.spread == 0 and est.consistent and _covers(est, truth)
 
 
 def test_scale_from_depth_maps():
@@ -285,3 +365,16 @@ def test_a_turning_camera_is_told_from_a_moving_one():
     assert not turns_in_place(turning, points, min_baseline=0.0)  # the setting that keeps every translation
     assert translation_baseline(slow, np.zeros((0, 3))) is None
     assert translation_baseline(np.tile(np.eye(4), (5, 1, 1)), points) is None
+
+
+def test_info_warns_when_the_world_size_is_uncertain():
+    from m3c.io.results import _world_size_warning
+
+    apart = fuse([ScaleObservation("planted feet", 0.20, 0.46), ScaleObservation("ground", 2.37, 0.026)])
+    line = _world_size_warning({"scale_estimate": apart.to_dict()})[0]
+    assert "world's size is uncertain" in line and "planted feet 0.2 (+-46%)" in line
+    assert f"factor of {np.exp(2 * apart.sigma):.2f}" in line
+    agree = fuse([ScaleObservation("planted feet", 2.2, 0.2), ScaleObservation("ground", 2.0, 0.02)])
+    assert _world_size_warning({"scale_estimate": agree.to_dict()}) == [] and _world_size_warning({}) == []
+    wide = fuse([ScaleObservation("planted feet", 2.2, 0.4)])
+    assert wide.confidence == "low" and "factor of" in _world_size_warning({"scale_estimate": wide.to_dict()})[0]

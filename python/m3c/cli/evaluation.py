@@ -83,7 +83,8 @@ def eval_video_benchmark(args) -> int:
                                   max_people=args.people, seed=args.seed, width=args.size[0], height=args.size[1],
                                   supersample=args.supersample, clip_paths=tuple(clips),
                                   pipeline_config=args.config, overrides=tuple(args.set or ()),
-                                  known_intrinsics=args.known_intrinsics, render_only=args.render_only)
+                                  known_intrinsics=args.known_intrinsics, render_only=args.render_only,
+                                  suite=args.suite)
     if args.config and not Path(args.config).is_file():
         raise FileNotFoundError(f"pipeline config not found: {args.config}")
     report = run_video_benchmark(model, config, args.out, log, show_progress=not args.quiet)

@@ -35,10 +35,11 @@ MAX_HUMAN_SPEED_MPS = 12.0
 SUSTAINED_S = 1.0
 BELOW_GROUND_TOLERANCE = 0.02
 LEGS = ((1, 4, 7), (2, 5, 8))  # (hip, knee, ankle) of the left and right leg
-# The gait's stride frequencies searched (Hz; 30-240 steps a minute), and when a track counts as stepping: the
+# The gait's stride frequencies searched (Hz; 12-240 steps a minute: a walk in 8x slow motion to a sprint), and
+# when a track counts as stepping: the
 # peak holds at least GAIT_MIN_SHARE of the band's power, the feet's fore-aft alternation is at least
 # GAIT_MIN_AMPLITUDE_M, and at least two strides fit in the track.
-GAIT_BAND_HZ = (0.25, 2.0)
+GAIT_BAND_HZ = (0.1, 2.0)
 GAIT_MIN_SHARE = 0.5
 GAIT_MIN_AMPLITUDE_M = 0.1
 # ... and the track gets somewhere: its pelvis ends at least this far (m/s over its duration) from where it began.
@@ -70,7 +71,72 @@ def _fit_frequency(signal: np.ndarray, t: np.ndarray, guess: float, half_width: 
     i = int(np.clip(np.argmin(residual), 1, len(candidates) - 2))
     a, b, c = residual[i - 1:i + 2]
     shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
+    shift = float(np.clip(shift, -1.0, 1.0))  # a flat parabola's vertex lies anywhere: within one candidate
     return float(candidates[i] + shift * (candidates[1] - candidates[0]))
+
+
+def _stride_frequency(signal: np.ndarray, fps: float) -> float | None:
+    """The stride frequency (Hz) of a detrended alternation signal over consecutive frames (gait_figures): the
+    spectrum's peak within GAIT_BAND_HZ, not at its edges, its main lobe holding GAIT_MIN_SHARE of the band's
+    power, refined by _fit_frequency, with two strides in view; None otherwise."""
+    n = len(signal)
+    t = np.arange(n) / fps
+    size = max(8 * n, 4096)
+    power = np.abs(np.fft.rfft(signal * np.hanning(n), size)) ** 2
+    freq = np.fft.rfftfreq(size, 1.0 / fps)
+    band = np.flatnonzero((freq >= GAIT_BAND_HZ[0]) & (freq <= GAIT_BAND_HZ[1]))
+    if len(band) < 3:
+        return None
+    peak = band[np.argmax(power[band])]
+    if peak in (band[0], band[-1]):  # rising towards an edge: drift or a rate outside the band, not a gait
+        return None
+    lobe = np.abs(freq[band] - freq[peak]) <= 2.0 * fps / n
+    if power[band][lobe].sum() < GAIT_MIN_SHARE * power[band].sum():
+        return None
+    # The fit searches +- one bin of the unpadded spectrum, at most half the peak's frequency (never through 0).
+    stride = _fit_frequency(signal, t, freq[peak], min(fps / n, 0.5 * freq[peak]))
+    inside = GAIT_BAND_HZ[0] <= stride <= GAIT_BAND_HZ[1]
+    return stride if inside and n / fps >= 2.0 / stride else None
+
+
+# The image gait: COCO ankles, the keypoint confidence they need, and the least swing of their difference (in the
+# person's image heights) that counts as stepping.
+ANKLES_2D = (15, 16)
+IMAGE_MIN_CONFIDENCE = 0.3
+IMAGE_MIN_AMPLITUDE = 0.03
+
+
+def image_step_rate(keypoints: np.ndarray, fps: float) -> float | None:
+    """Steps a minute from a track's 2D keypoints (n, 17, 3: u, v, confidence) over consecutive frames, or None:
+    the two ankles' image offset, in the person's image heights, along its main axis (the rows for a walk towards
+    or away from the camera, the columns across it) alternates once per stride (_stride_frequency). It needs
+    neither the camera's scale nor its motion nor the optimizer, only the detections; frames without both ankles
+    are interpolated, and under half the frames having them gives None."""
+    keypoints = np.asarray(keypoints, dtype=np.float64)
+    n = len(keypoints)
+    if keypoints.ndim != 3 or keypoints.shape[1:] != (17, 3):
+        raise ValueError(f"keypoints must have shape (n, 17, 3), got {keypoints.shape}")
+    ankles = keypoints[:, list(ANKLES_2D)]
+    confident = np.nan_to_num(keypoints[..., 2]) >= IMAGE_MIN_CONFIDENCE
+    seen = np.isfinite(keypoints[..., :2]).all(axis=-1) & confident
+    both = seen[:, ANKLES_2D[0]] & seen[:, ANKLES_2D[1]] & (seen.sum(axis=1) >= 5)
+    if n < 8 or both.mean() < 0.5:
+        return None
+    rows = np.where(seen, keypoints[..., 1], np.nan)
+    height = np.nanmax(rows[both], axis=1) - np.nanmin(rows[both], axis=1)
+    if not np.all(height > 0):
+        return None
+    offset = (ankles[both, 0, :2] - ankles[both, 1, :2]) / height[:, None]
+    frames = np.flatnonzero(both)
+    offset = np.stack([np.interp(np.arange(n), frames, offset[:, c]) for c in range(2)], axis=1)
+    offset -= offset.mean(axis=0)
+    signal = offset @ np.linalg.svd(offset, full_matrices=False)[2][0]
+    t = np.arange(n) / fps
+    signal = signal - np.polyval(np.polyfit(t, signal, 1), t)
+    if np.sqrt(2.0) * signal.std() < IMAGE_MIN_AMPLITUDE:
+        return None
+    stride = _stride_frequency(signal, fps)
+    return None if stride is None else float(120.0 * stride)
 
 
 def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: float) -> dict:
@@ -101,20 +167,8 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     lead = lead - np.polyval(np.polyfit(t, lead, 1), t)
     if np.sqrt(2.0) * lead.std() < GAIT_MIN_AMPLITUDE_M:
         return none
-    size = max(8 * n, 4096)
-    power = np.abs(np.fft.rfft(lead * np.hanning(n), size)) ** 2
-    freq = np.fft.rfftfreq(size, 1.0 / fps)
-    band = np.flatnonzero((freq >= GAIT_BAND_HZ[0]) & (freq <= GAIT_BAND_HZ[1]))
-    if len(band) < 3:
-        return none
-    peak = band[np.argmax(power[band])]
-    if peak in (band[0], band[-1]):  # rising towards an edge: drift or a rate outside the band, not a gait
-        return none
-    lobe = np.abs(freq[band] - freq[peak]) <= 2.0 * fps / n
-    if power[band][lobe].sum() < GAIT_MIN_SHARE * power[band].sum():
-        return none
-    stride = _fit_frequency(lead, t, freq[peak], fps / n)
-    if n / fps < 2.0 / stride:
+    stride = _stride_frequency(lead, fps)
+    if stride is None:
         return none
     leg = np.median([np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1) +
                      np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1) for hip, knee, ankle in LEGS])
@@ -183,7 +237,8 @@ def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, groun
 
 def results_plausibility(arrays: dict) -> list[dict | None]:
     """Per track of a results.npz dict: the figures over its longest run of consecutive valid frames (None for a
-    track shorter than 2 frames), with the track's per-frame ground planes where it has them."""
+    track shorter than 2 frames), with the track's per-frame ground planes where it has them, and the step rate of
+    its 2D ankles (image_step_rate_spm, image_step_rate) where the arrays hold keypoints_2d."""
     fps = float(arrays["fps"])
     out = []
     for p in range(len(arrays["track_ids"])):
@@ -200,6 +255,9 @@ def results_plausibility(arrays: dict) -> list[dict | None]:
             continue
         normal, offset = arrays["ground_normal"][p, run], arrays["ground_offset"][p, run]
         planes = np.isfinite(normal).all() and np.isfinite(offset).all()
-        out.append(track_plausibility(arrays["world_joints"][p, run], fps, normal if planes else None,
-                                      offset if planes else None))
+        figures = track_plausibility(arrays["world_joints"][p, run], fps, normal if planes else None,
+                                     offset if planes else None)
+        if "keypoints_2d" in arrays:
+            figures["image_step_rate_spm"] = image_step_rate(arrays["keypoints_2d"][p, run], fps)
+        out.append(figures)
     return out

@@ -15,6 +15,11 @@ WA-MPJPE100, RTE, jitter, foot sliding of truly planted feet), it measures what 
                least 0.2 m/s
   ground error camera height above the ground (m) and camera tilt to gravity (degrees) against the truth
 The pipeline runs uncalibrated (its default intrinsics) unless asked to use the true ones.
+
+Suites: "default" (num_sequences sequences, the camera motions in turn: the README's figures) and "hard"
+(HARD_SUITE: near-still handheld cameras, slow motion, plain floors, phone optics; the same metrics in the video's
+time, plus per sequence the slow motion the people's gait says against the truth and how the camera's motion was
+reported).
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ from m3c.eval.matching import common_frames
 from m3c.eval.plausibility import track_plausibility
 from m3c.eval.retarget import RetargetedMotion
 from m3c.eval.tracks import EvalTrack, body_eval_track
-from m3c.synth.cameras import CAMERA_KINDS
+from m3c.synth.cameras import CAMERA_KINDS, EXTRA_CAMERA_KINDS
 from m3c.synth.sequence import SequenceSpec, SyntheticVideo, make_video
 
 LOG = logging.getLogger("m3c.eval.video_benchmark")
@@ -51,6 +56,20 @@ MAX_OCCLUSION = 0.3
 MATCH_DISTANCE = 0.2
 MIN_CAMERA_PATH = 0.5  # metres: shorter true camera paths get no scale error
 MIN_PERSON_SPEED = 0.2  # m/s: slower true people get no speed error
+SUITES = ("default", "hard")
+# The hard suite: (camera, people, slow motion, floor, degraded). Slow motion 4 gets twice the frames (two strides
+# of a walk need about 9 s of video at 1/4 speed).
+HARD_SUITE = (
+    ("still", 2, 1.0, "textured", False),
+    ("still", 1, 1.0, "plain", True),
+    ("follow", 1, 2.0, "textured", False),
+    ("tracking", 1, 4.0, "textured", False),
+    ("handheld", 2, 1.0, "plain", False),
+    ("static", 1, 2.0, "textured", True),
+    ("pan", 3, 1.0, "plain", False),
+    ("orbit", 2, 2.0, "textured", True),
+    ("still", 1, 4.0, "plain", False),
+)
 
 
 @dataclass
@@ -69,25 +88,34 @@ class VideoBenchmarkConfig:
     overrides: tuple = ()  # NODE.KEY=VALUE settings for every run
     known_intrinsics: bool = False  # give the pipeline the true intrinsics (else it runs uncalibrated)
     render_only: bool = False
+    suite: str = "default"  # SUITES; "hard" ignores num_sequences and cameras (HARD_SUITE)
 
     def validate(self) -> None:
+        if self.suite not in SUITES:
+            raise ValueError(f"suite must be one of {', '.join(SUITES)}, got {self.suite!r}")
         if self.num_sequences < 1:
             raise ValueError(f"the video benchmark needs at least 1 sequence, got {self.num_sequences}")
         if self.num_frames < 10:
             raise ValueError(f"sequences need at least 10 frames, got {self.num_frames}")
         if not 1 <= self.max_people <= 3:
             raise ValueError(f"max_people must be 1, 2 or 3, got {self.max_people}")
-        unknown = [c for c in self.cameras if c not in CAMERA_KINDS]
+        kinds = CAMERA_KINDS + EXTRA_CAMERA_KINDS
+        unknown = [c for c in self.cameras if c not in kinds]
         if unknown or not self.cameras:
-            raise ValueError(
-                f"camera motions must be among {', '.join(CAMERA_KINDS)}, got {list(self.cameras)}"
-            )
+            raise ValueError(f"camera motions must be among {', '.join(kinds)}, got {list(self.cameras)}")
         if self.supersample < 1:
             raise ValueError(f"supersample must be >= 1, got {self.supersample}")
         for spec in self.specs():  # sizes and rates, before any sequence runs
             spec.validate()
 
     def specs(self) -> list[SequenceSpec]:
+        if self.suite == "hard":
+            return [
+                SequenceSpec(i, camera, min(people, self.max_people),
+                             self.num_frames * (2 if slow >= 4 else 1), self.fps, self.width, self.height,
+                             self.seed, self.supersample, slow, floor, degrade)
+                for i, (camera, people, slow, floor, degrade) in enumerate(HARD_SUITE)
+            ]
         return [
             SequenceSpec(
                 i,
@@ -124,6 +152,9 @@ class SequenceScore:
     detection: dict = field(default_factory=dict)  # visible, detected, id_switches, person_frames
     methods: dict = field(default_factory=dict)  # method -> MethodScore
     error: str = ""
+    # What the run said about time and camera motion: true and found slow motion (results.json video.time_scale),
+    # the camera as reported (static, rotation only, or the scale's source) and its true largest travel (m).
+    world: dict = field(default_factory=dict)
 
 
 # Scoring --------------------------------------------------------------------------------------------------------
@@ -348,8 +379,19 @@ def run_sequence(
         pipeline_config(config, video), run_dir, {"video": video.video}, show_progress=show_progress
     ).run(["results"])
     score.node_seconds = {r.name: r.seconds for r in report.records if r.status == "ran"}
-    _, arrays = load_results(run_dir)
-    score.detection, score.methods = score_results(model, video.truth(), arrays, spec.name)
+    summary, arrays = load_results(run_dir)
+    truth = video.truth()
+    score.detection, score.methods = score_results(model, truth, arrays, spec.name)
+    centres = truth["world_from_cam"][:, :3, 3]
+    time_scale = summary["video"].get("time_scale") or {}
+    scale = summary["camera"].get("scale_estimate") or {}
+    camera = summary["camera"]
+    score.world = {"slow_motion_true": float(truth.get("slow_motion", 1.0)),
+                   "slow_motion_found": time_scale.get("factor"),
+                   "slow_motion_confident": time_scale.get("confident"),
+                   "camera_reported": "static" if camera["static"] else camera["scale_source"],
+                   "camera_travel_m": float(np.linalg.norm(centres - centres[0], axis=1).max()),
+                   "scale_sigma": scale.get("sigma"), "scale_confidence": scale.get("confidence")}
     if log:
         opt = score.methods["Global Opt"]
         log(
@@ -476,7 +518,8 @@ class VideoBenchmarkReport:
         scored = self.scored()
         frames = sum(s.detection.get("person_frames", 0) for s in scored)
         lines = [
-            f"M3C video benchmark: {len(self.sequences)} sequences x {c.num_frames} frames at {c.fps:g} fps, "
+            f"M3C video benchmark{' (suite ' + c.suite + ')' if c.suite != 'default' else ''}: "
+            f"{len(self.sequences)} sequences x {c.num_frames} frames at {c.fps:g} fps, "
             f"{c.width} x {c.height}, seed {c.seed}, {'true' if c.known_intrinsics else 'default (uncalibrated)'}"
             f" intrinsics; body model {self.body_model}, 24 joints, pelvis = mean of the hips.",
             "mm unless stated (^: people). Lift: the world lift before optimization; Global Opt: the final "
@@ -498,6 +541,20 @@ class VideoBenchmarkReport:
                     f"planted feet (each matched person's feet per frame against the true contacts): precision "
                     f"{_fmt(o['contact_precision'], 2)}, recall {_fmt(o['contact_recall'], 2)}."
                 )
+        worlds = [s for s in scored if s.world]
+        if worlds and c.suite != "default":
+            lines.append("world (slow motion true / found by the gait, * confident; the camera's true travel and "
+                         "as reported; the scale's 2-sigma interval covers the truth):")
+            for s in worlds:
+                w, opt = s.world, s.methods["Global Opt"].camera
+                found = w["slow_motion_found"]
+                error = opt.get("scale_error_pct")
+                covered = "-" if error is None or w["scale_sigma"] is None else \
+                    ("yes" if abs(np.log1p(error / 100.0)) <= 2 * w["scale_sigma"] else "no")
+                found = "-" if found is None else f"x{found:.2f}" + ("*" if w["slow_motion_confident"] else "")
+                lines.append(f"  {s.name}: slow x{w['slow_motion_true']:g} / {found}; camera travel "
+                             f"{w['camera_travel_m']:.2f} m, reported {w['camera_reported']}; scale covered "
+                             f"{covered}")
         failed = [s for s in self.sequences if s.error]
         if failed:
             lines.append(f"failed: {', '.join(s.name for s in failed)}")
@@ -525,6 +582,7 @@ class VideoBenchmarkReport:
                 "node_seconds": s.node_seconds,
                 "detection": s.detection,
                 "error": s.error or None,
+                "world": s.world,
             }
             if s.methods:
                 out["methods"] = {m: self.row(s, m) for m in METHODS}

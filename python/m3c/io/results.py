@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.io.manifest import MANIFEST, check_complete, folder_state
+from m3c.motion.time_scale import CONFIDENT_SIGMAS, MIN_FACTOR, gait_time_scale
 
 SCHEMA = "m3c.results/1"
 
@@ -63,6 +64,19 @@ def _scale_uncertainty(camera: dict) -> str:
     return f", +-{100 * sigma:.1f}%" if sigma else ""
 
 
+def _world_size_warning(camera: dict) -> list[str]:
+    """A plain warning when the world's size (the camera scale) is uncertain: sources that disagree or a wide
+    estimate (results.json camera.scale_estimate.confidence, m3c.vo.scale.ScaleEstimate)."""
+    estimate = camera.get("scale_estimate") or {}
+    if estimate.get("confidence") != "low":
+        return []
+    factor = np.exp(2 * estimate["sigma"])
+    text = estimate.get("disagreement") or (f"the camera scale is uncertain by a factor of {factor:.2f} either "
+                                            "way (2 sigma), and the world's size with it")
+    return [f"warning     the world's size is uncertain: {text}; distances and speeds may be off by that "
+            "factor"]
+
+
 def _rate(video: dict) -> str:
     """The processed frames' rate as the file plays them, and in real time when it is slow motion."""
     slow = video.get("slow_motion", 1.0)
@@ -72,13 +86,31 @@ def _rate(video: dict) -> str:
 
 
 def _slow_gait_hint(figures: dict) -> str:
-    """A walking step (0.6-1.1 leg lengths) at under 70 steps a minute, where people walk at 100-120: the clip may
-    play slower than it was filmed (slow motion), which only the user can tell."""
-    if figures.get("step_rate_spm") is not None and figures["step_rate_spm"] < 70 \
-            and 0.6 <= figures["step_length_legs"] <= 1.1:
-        return ("; a walking step at a slow rate: if the video is slow motion, give --slow-motion (then speeds are "
-                "real time)")
+    """A track whose walk or run is confidently slower than people step (m3c.motion.time_scale): the clip may play
+    slower than it was filmed (slow motion)."""
+    measured = gait_time_scale(figures)
+    if measured is not None and measured[0] >= MIN_FACTOR \
+            and np.log(measured[0]) > CONFIDENT_SIGMAS * measured[1]:
+        return (f"; a {measured[2]} step at a slow rate: if the video is slow motion (x{measured[0]:.1f}?), give "
+                "--slow-motion (then speeds are real time)")
     return ""
+
+
+def _time_scale(video: dict) -> list[str]:
+    """The slow motion the people's gait says (results.json video.time_scale), when it measured any."""
+    estimate = video.get("time_scale")
+    if not estimate or estimate.get("log_sigma") is None:
+        return []
+    n = len(estimate["tracks"])
+    figure = (f"x{estimate['measured']:.2f} +-{100 * estimate['log_sigma']:.0f}% from the gait of {n} "
+              f"track{'s' * (n > 1)}")
+    if estimate["confident"]:
+        return [f"time        slow motion likely: {estimate['reason']} ({figure}); give --slow-motion "
+                f"{estimate['factor']:.2f} for real-time speeds"]
+    if estimate.get("possible"):
+        return [f"time        slow motion possible: {estimate['reason']} ({figure}); if the video is slow motion, "
+                f"give --slow-motion {estimate['factor']:.2f}"]
+    return [f"time        {estimate['reason']} ({figure})"]
 
 
 def _focal_uncertainty(camera: dict) -> str:
@@ -193,11 +225,13 @@ def describe(folder: str | Path) -> str:
              f"({video['frames']} processed)" + (
                  f"\n            WARNING: only {video['total_frames']} of the {video['frames_in_container']} frames "
                  "its container lists decode (a cut or damaged file)" if video.get("truncated") else ""),
+             *_time_scale(video),
              f"body model  {summary['body_model']['name']} ({summary['body_model']['gender']})",
              f"camera      {_camera_motion(camera)}, intrinsics {camera['intrinsics_source']} "
              f"[{', '.join(f'{v:.1f}' for v in camera['intrinsics'])}]{_focal_uncertainty(camera)}, odometry: "
              f"{camera['odometry']}{_odometry_fit(camera)}, scale "
              f"{camera['scale']:.4f} m/unit ({camera['scale_source']}{_scale_uncertainty(camera)})",
+             *_world_size_warning(camera),
              f"world       {summary['world']['frame']}; ground: {summary['world']['ground']}"
              + (f" (from the {summary['world']['ground_source']})" if summary["world"].get("ground_source") else "")
              + (f"; its tilt held by {TILT_PRIORS[summary['world']['ground_tilt_prior']]}"

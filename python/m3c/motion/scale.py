@@ -13,8 +13,8 @@ from m3c.ground.tracks import contact_vertices, ground_contact_probabilities, tr
 from m3c.ground.world_frame import body_up
 from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.optimize import Cameras, Track, track_joints
-from m3c.vo.scale import (ScaleEstimate, ScaleObservation, fuse, map_ground_plane, scale_from_camera_height,
-                          scale_from_depth, scale_from_planted_feet)
+from m3c.vo.scale import (PLAUSIBLE_CAMERA_HEIGHT_M, ScaleEstimate, ScaleObservation, fuse, map_ground_plane,
+                          scale_from_camera_height, scale_from_depth, scale_from_planted_feet)
 
 
 def contact_joints_in_camera(model, track: dict) -> np.ndarray:
@@ -62,9 +62,12 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
                          100 * o.sigma, o.frames)
             else:
                 log.info("camera scale from %s: not measured (%s)", o.source, o.reason)
+        if ground.detail.get("camera_height_suspect") if plane is not None else False:
+            log.warning("the ground source puts the moving camera %.2f m above the ground, outside the "
+                        "plausible %.1f-%.1f m: its uncertainty is widened to +-%.0f%%",
+                        ground.detail["camera_height_m"], *PLAUSIBLE_CAMERA_HEIGHT_M, 100 * ground.sigma)
         if not estimate.consistent:
-            log.warning("the camera scale's sources disagree beyond their uncertainty: %s", ", ".join(
-                f"{o.source} {o.value:.4g}" for o in observations if o.usable()))
+            log.warning("%s", estimate.disagreement())
     return estimate
 
 

@@ -10,6 +10,7 @@ import m3c
 from m3c.body.transform import rest_root_joint, transform_smpl
 from m3c.camera import WorldCameras, project, to_camera
 from m3c.eval.plausibility import results_plausibility
+from m3c.motion.time_scale import estimate_time_scale
 from m3c.ground.tracks import track_frames, track_poses
 from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
@@ -111,6 +112,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     check_arrays(arrays)
     for entry, figures in zip(summary_tracks, results_plausibility(arrays)):
         entry["plausibility"] = figures
+    slow = float(video.get("slow_motion", 1.0))
+    time_scale = estimate_time_scale([entry["plausibility"] for entry in summary_tracks], applied=slow)
     summary = {
         "schema": SCHEMA,
         "m3c_version": m3c.__version__,
@@ -118,11 +121,13 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                   "variable_frame_rate": bool(video.get("variable_rate", False)), "width": int(video["width"]),
                   "height": int(video["height"]), "frames": T,
                   "frame_range": [int(video["start"]), int(video["stop"]), int(video["step"])],
-                  "slow_motion": float(video.get("slow_motion", 1.0)),
+                  "slow_motion": slow,
                   # frames 0 .. total_frames - 1 exist; a cut file lists more in its container
                   "total_frames": int(video.get("total_frames", video["stop"])),
                   "frames_in_container": int(video.get("frames_in_container", 0)),
-                  "truncated": bool(video.get("truncated", False))},
+                  "truncated": bool(video.get("truncated", False)),
+                  # m3c.motion.time_scale: the slow motion the people's gait says (reported, not applied)
+                  "time_scale": json_ready(time_scale)},
         "world": {"frame": "gravity-aligned, y up, metres; origin on the ground below the first camera, +z its "
                            "viewing direction", "ground": "y = 0" if ground["up_source"] == "ground" else
                   "not found (up from the first camera)", "ground_source": ground.get("ground_source"),
@@ -159,7 +164,8 @@ class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
     # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
     # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean;
-    # 10: video.total_frames, frames_in_container, truncated
+    # 10: video.time_scale, camera.scale_estimate's spread, confidence and disagreement; video.total_frames,
+    # frames_in_container, truncated
     version = "10"
     type_name = "results"
     level = "output"

@@ -2,7 +2,9 @@
 
 Kinds: static (tripod), pan (pan/tilt from a fixed point), follow (behind a walker), tracking (a dolly beside a
 walker or runner, parallel to their motion), orbit (around the group), handheld (an operator walking past, with
-gait bob and shake), high (a high viewpoint looking down 30-45 degrees). Horizontal field of view 40-75 degrees,
+gait bob and shake), high (a high viewpoint looking down 30-45 degrees); beyond the default set, still (a handheld
+camera held by someone standing: hand shake, breathing and a slow drift under STILL_MAX_TRAVEL_M, aimed at the
+group). Horizontal field of view 40-75 degrees,
 camera height 1.2-3 m (the high viewpoint rises further when the group does not fit). Each path backs off until
 the people it films stay in the image.
 """
@@ -15,6 +17,10 @@ from scipy.ndimage import uniform_filter1d
 from m3c.camera import UP, look_at, project, to_camera
 
 CAMERA_KINDS = ("static", "pan", "follow", "tracking", "orbit", "handheld", "high")
+# Kinds beyond the default benchmark set (its figures stay comparable): still, a handheld camera held by someone
+# standing: shake and a slow drift within STILL_MAX_TRAVEL_M of where it started, no travel.
+EXTRA_CAMERA_KINDS = ("still",)
+STILL_MAX_TRAVEL_M = 0.3
 AIM_HEIGHT = 0.9
 # Joints that must stay in view: head, wrists, ankles, feet.
 FRAMING_JOINTS = (15, 20, 21, 7, 8, 10, 11)
@@ -67,8 +73,9 @@ def camera_path(
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """world_from_cam (n, 4, 4), intrinsics (4,) and a description, for people's world joints (P, n, 24, 3).
     follow and tracking film person 0 (the walker); the other kinds the whole group."""
-    if kind not in CAMERA_KINDS:
-        raise ValueError(f"unknown camera kind {kind!r}; choose from {', '.join(CAMERA_KINDS)}")
+    if kind not in CAMERA_KINDS + EXTRA_CAMERA_KINDS:
+        kinds = ", ".join(CAMERA_KINDS + EXTRA_CAMERA_KINDS)
+        raise ValueError(f"unknown camera kind {kind!r}; choose from {kinds}")
     width, height = (int(v) for v in image_size)
     n = joints.shape[1]
     hfov = np.radians(rng.uniform(40.0, 75.0))
@@ -144,6 +151,26 @@ def camera_path(
         def build(scale):
             eye = centre + scale * base * across + walk + UP * (cam_height - AIM_HEIGHT) + bob + shake
             return eye, group + aim_jitter
+    elif kind == "still":
+        ray = np.array([np.sin(phi0), 0.0, np.cos(phi0)])
+        centre = pelvis.reshape(-1, 3).mean(axis=0)
+        centre[1] = AIM_HEIGHT
+        base = rng.uniform(3.5, 6.0)
+        cam_height = rng.uniform(1.4, 1.7)
+        # Hand shake (1 cm, fast), breathing (1 cm at 0.25 Hz) and a drift of the stance (up to 0.1 m a second):
+        # kept within STILL_MAX_TRAVEL_M of the start.
+        drift = _smooth(np.cumsum(ou_noise(rng, n, 3, 0.004, 2.0 * fps), axis=0) * [1.0, 0.3, 1.0], fps)
+        breathe = np.stack([0 * t, 0.01 * np.sin(2 * np.pi * 0.25 * t + phi0), 0 * t], 1)
+        wobble = ou_noise(rng, n, 3, 0.01, 0.15 * fps) + drift + breathe
+        reach = np.linalg.norm(wobble - wobble[0], axis=1).max()
+        wobble = wobble[0] + (wobble - wobble[0]) * min(1.0, 0.9 * STILL_MAX_TRAVEL_M / max(reach, 1e-9))
+        aim_jitter = ou_noise(rng, n, 3, 0.03, 0.3 * fps)
+        roll = np.radians(1.0) * ou_noise(rng, n, 1, 1.0, 0.3 * fps)[:, 0]
+        offset = ray * base + UP * (cam_height - AIM_HEIGHT)
+        info["max_travel_m"] = float(np.linalg.norm(wobble - wobble[0], axis=1).max())
+
+        def build(scale):
+            return centre + scale * offset + wobble, _smooth(group, fps) + aim_jitter
     else:  # static, pan, high: a fixed point
         centre = pelvis.reshape(-1, 3).mean(axis=0)
         centre[1] = AIM_HEIGHT

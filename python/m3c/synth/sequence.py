@@ -2,7 +2,8 @@
 rendered H.264 video with its ground truth, written once into a folder keyed by everything that shapes them.
 
 Ground truth (truth.npz, world frame y up, ground y = 0, metres; P people, T frames, B betas):
-  fps, image_size (W, H), intrinsics (4,) fx fy cx cy, world_from_cam (T, 4, 4), ground_normal (3,),
+  fps (the video's: its time), slow_motion (the mocap played this many times slower: real time is fps x
+  slow_motion frames a second), image_size (W, H), intrinsics (4,) fx fy cx cy, world_from_cam (T, 4, 4), ground_normal (3,),
   ground_offset (); per person: root_orient (P, T, 3), body_pose (P, T, 23, 3), transl (P, T, 3), betas (P, B),
   joints (P, T, 24, 3) world, keypoints_2d (P, T, 17, 2) projected COCO-17 keypoints, keypoints_in_image
   (P, T, 17), contacts (P, T, 4) planted ankles/feet (CONTACT_JOINTS), visible_pixels (P, T) pixels of the person
@@ -15,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,10 +25,10 @@ from m3c.body import BodyModel
 from m3c.camera import project, to_camera
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import atomic_path, save_npz_atomic
-from m3c.synth.cameras import camera_path
+from m3c.synth.cameras import CAMERA_KINDS, EXTRA_CAMERA_KINDS, camera_path
 from m3c.synth.people import Person, face_colours, place_people, true_contacts, vertex_parts
 from m3c.synth.render import RenderedFrame, Renderer
-from m3c.synth.world import StaticScene, make_scene
+from m3c.synth.world import FLOORS, StaticScene, make_scene
 
 GENERATOR_VERSION = 1
 CHUNK = 24  # frames posed at once
@@ -44,10 +45,25 @@ class SequenceSpec:
     height: int = 540
     seed: int = 0
     supersample: int = 1
+    # Beyond the default set (m3c.eval.video_benchmark's hard suite); their defaults leave a sequence as it was:
+    slow_motion: float = 1.0  # the mocap played this many times slower (the video's fps unchanged)
+    floor: str = "textured"  # m3c.synth.world.FLOORS
+    degrade: bool = False  # phone optics: DEGRADE's blur, sensor noise and low-bitrate H.264
 
     @property
     def name(self) -> str:
-        return f"seq{self.index:02d}_{self.camera}_{self.num_people}p"
+        extra = "".join([f"_slow{self.slow_motion:g}" if self.slow_motion != 1.0 else "",
+                         "_plain" if self.floor == "plain" else "", "_degraded" if self.degrade else ""])
+        return f"seq{self.index:02d}_{self.camera}_{self.num_people}p{extra}"
+
+    def key(self) -> dict:
+        """The fields that shape the sequence, the hard suite's only where they differ from their defaults (the
+        default set's folders keep their names)."""
+        out = asdict(self)
+        for name, default in EXTRA_DEFAULTS.items():
+            if out[name] == default:
+                del out[name]
+        return out
 
     def validate(self) -> None:
         if self.num_frames < 2:
@@ -60,6 +76,50 @@ class SequenceSpec:
             )
         if self.fps <= 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
+        if not (np.isfinite(self.slow_motion) and 1.0 <= self.slow_motion <= 16.0):
+            raise ValueError(f"slow_motion must be within 1-16 (times slower than real time), got "
+                             f"{self.slow_motion}")
+        if self.floor not in FLOORS:
+            raise ValueError(f"floor must be one of {', '.join(FLOORS)}, got {self.floor!r}")
+        if self.camera not in CAMERA_KINDS + EXTRA_CAMERA_KINDS:
+            raise ValueError(f"unknown camera kind {self.camera!r}")
+
+
+EXTRA_DEFAULTS = {"slow_motion": 1.0, "floor": "textured", "degrade": False}
+# Phone optics of a degraded sequence: Gaussian blur (pixels), sensor noise (8-bit levels, per pixel and channel)
+# and the H.264 constant rate factor (the default set's 16 is near lossless; 30 is a phone's streaming quality).
+DEGRADE = {"blur_px": 1.0, "noise_levels": 4.0, "crf": 30}
+
+
+def slowed(clip: RetargetedMotion, factor: float) -> RetargetedMotion:
+    """The clip played `factor` times slower at its frame rate: frame j shows time j / factor of the original
+    (translations interpolated linearly, every joint rotation by slerp)."""
+    if factor == 1.0:
+        return clip
+    from scipy.spatial.transform import Rotation
+
+    n = clip.num_frames
+    times = np.arange(int(np.floor((n - 1) * factor)) + 1) / factor
+    i0 = np.minimum(np.floor(times).astype(int), n - 2)
+    w = times - i0
+    transl = clip.transl[i0] * (1 - w)[:, None] + clip.transl[i0 + 1] * w[:, None]
+    pose = clip.pose()  # (n, 24, 3)
+    r0 = Rotation.from_rotvec(pose[i0].reshape(-1, 3))
+    r1 = Rotation.from_rotvec(pose[i0 + 1].reshape(-1, 3))
+    step = (r0.inv() * r1).as_rotvec() * np.repeat(w, pose.shape[1])[:, None]
+    pose = (r0 * Rotation.from_rotvec(step)).as_rotvec().reshape(len(times), -1, 3)
+    return replace(clip, transl=transl, root_orient=pose[:, 0], body_pose=pose[:, 1:],
+                   fit_error_mm=clip.fit_error_mm[np.round(times).astype(int)],
+                   info={**clip.info, "slow_motion": float(factor)})
+
+
+def degrade_frame(image: np.ndarray, rng) -> np.ndarray:
+    """A rendered BGR uint8 frame through DEGRADE's blur and sensor noise (the bitrate is the writer's)."""
+    import cv2
+
+    blurred = cv2.GaussianBlur(image, (0, 0), DEGRADE["blur_px"]).astype(np.float32)
+    noisy = blurred + DEGRADE["noise_levels"] * rng.standard_normal(image.shape).astype(np.float32)
+    return np.clip(np.round(noisy), 0, 255).astype(np.uint8)
 
 
 @dataclass
@@ -82,7 +142,7 @@ def _digest(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec)
     h = hashlib.sha1()
     h.update(
         json.dumps(
-            {"version": GENERATOR_VERSION, "spec": asdict(spec), "model": getattr(model.data, "name", "")},
+            {"version": GENERATOR_VERSION, "spec": spec.key(), "model": getattr(model.data, "name", "")},
             sort_keys=True,
         ).encode()
     )
@@ -92,7 +152,7 @@ def _digest(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec)
     return h.hexdigest()[:10]
 
 
-def _video_writer(path: Path, width: int, height: int, fps: float):
+def _video_writer(path: Path, width: int, height: int, fps: float, crf: int = 16):
     try:
         import imageio_ffmpeg
     except ImportError as err:
@@ -106,7 +166,7 @@ def _video_writer(path: Path, width: int, height: int, fps: float):
         fps=fps,
         codec="libx264",
         pix_fmt_in="bgr24",
-        output_params=["-crf", "16", "-preset", "fast"],
+        output_params=["-crf", str(crf), "-preset", "fast"],
         macro_block_size=2,
         ffmpeg_log_level="error",
     )
@@ -117,7 +177,7 @@ def _video_writer(path: Path, width: int, height: int, fps: float):
 def build_people(model: BodyModel, clips: list[RetargetedMotion], spec: SequenceSpec, rng) -> list[Person]:
     return place_people(
         model,
-        clips,
+        [slowed(c, spec.slow_motion) for c in clips],
         spec.num_people,
         spec.num_frames,
         rng,
@@ -195,7 +255,7 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
     cam_xz = world_from_cam[:, :3, 3][:, [0, 2]]
     pelvis_xz = joints[:, :, 0][..., [0, 2]]
     sight = [(cam_xz[i], pelvis_xz[p, i]) for i in range(0, n, max(1, n // 12)) for p in range(P)]
-    scene = make_scene(rng, pelvis_xz.reshape(-1, 2), cam_xz, sight)
+    scene = make_scene(rng, pelvis_xz.reshape(-1, 2), cam_xz, sight, floor=spec.floor)
     parts = vertex_parts(model)
     albedo = [face_colours(model, parts, p.look, rng) for p in people]
     renderer = Renderer(scene.textures, spec.width, spec.height, spec.supersample)
@@ -222,7 +282,8 @@ def render_video(
     }
     folder.mkdir(parents=True, exist_ok=True)
     with atomic_path(folder / "video.mp4", suffix=".mp4") as tmp:
-        writer = _video_writer(tmp, W, H, spec.fps)
+        writer = _video_writer(tmp, W, H, spec.fps, DEGRADE["crf"] if spec.degrade else 16)
+        noise_rng = np.random.default_rng([spec.seed, spec.index, 1])
         try:
             for a in range(0, n, CHUNK):
                 b = min(n, a + CHUNK)
@@ -230,7 +291,8 @@ def render_video(
                 kps = [model.keypoints(regressor, p.pose()[a:b], p.betas, p.transl[a:b]) for p in people]
                 for i in range(a, b):
                     frame = setup.frame(i, [v[i - a] for v in verts])
-                    writer.send(np.ascontiguousarray(frame.image))
+                    image = degrade_frame(frame.image, noise_rng) if spec.degrade else frame.image
+                    writer.send(np.ascontiguousarray(image))
                     for p in range(P):
                         truth["visible_pixels"][p, i] = int((frame.ids == p).sum())
                         own = alone.render(
@@ -250,6 +312,7 @@ def render_video(
             writer.close()
     arrays = {
         "fps": np.float64(spec.fps),
+        "slow_motion": np.float64(spec.slow_motion),  # real time: fps x slow_motion frames a second
         "image_size": np.array([W, H], np.int32),
         "intrinsics": intrinsics.astype(np.float64),
         "world_from_cam": world_from_cam.astype(np.float64),

@@ -56,6 +56,16 @@ def _ground_texture(rng, size: int) -> np.ndarray:
     return tex.astype(np.float32)
 
 
+def _plain_texture(rng, size: int) -> np.ndarray:
+    """A sports hall's floor: one colour (blue, green or wood), a faint sheen of 1% and no pebbles: almost nothing
+    for the odometry to track."""
+    base = rng.choice([[0.20, 0.35, 0.62], [0.25, 0.50, 0.33], [0.62, 0.47, 0.30]]) * rng.uniform(0.9, 1.1)
+    return _tint(base, 0.01, _noise(rng, size, sigmas=(48.0, 24.0), weights=(1.0, 0.5))).astype(np.float32)
+
+
+FLOORS = ("textured", "plain")
+
+
 def _brick_texture(rng, size: int) -> np.ndarray:
     rows, cols = int(rng.choice([8, 16])), int(rng.choice([4, 8]))
     h, w = size // rows, size // cols
@@ -169,10 +179,16 @@ def make_scene(
     num_pillars: int = 3,
     num_walls: int = 2,
     margin: float = 18.0,
+    floor: str = "textured",
 ) -> StaticScene:
     """people_xz (N, 2) and camera_xz (M, 2): ground positions to keep clear; sight_lines: (camera, target) xz
-    segments no object may block. The ground covers everything within `margin` metres, closed by a backdrop."""
+    segments no object may block. The ground covers everything within `margin` metres, closed by a backdrop.
+    floor: "textured" (mixed pebbly tiles) or "plain" (_plain_texture, one for every tile)."""
+    if floor not in FLOORS:
+        raise ValueError(f"floor must be one of {', '.join(FLOORS)}, got {floor!r}")
     textures = [_ground_texture(rng, TEXTURE_SIZE) for _ in range(4)]
+    if floor == "plain":
+        textures = [_plain_texture(rng, TEXTURE_SIZE)] * 4
     first_object = len(textures)
     textures += [_patch_texture(rng, TEXTURE_SIZE) for _ in range(3)] + [_brick_texture(rng, TEXTURE_SIZE)]
     backdrop = len(textures)

@@ -28,6 +28,16 @@ Observations (each returns a ScaleObservation, or one with a reason when it has 
 Sources measured from the people's size (feet, ground) share one systematic relative error (PERSON_SIZE_SIGMA, the
 spread of adult stature the body's shape estimate cannot see): they are fused by their sampling errors and the
 systematic error is added once to their mean, which is then fused with the other sources.
+
+Sources that disagree beyond their uncertainty (the ground under a low-parallax camera, a plane that is not the
+floor, contacts that are not) are not settled by trusting the tighter one: the fusion is a random-effects mean
+(DerSimonian-Laird). The spread of the sources beyond their own errors, tau^2, is added to every source's
+variance, so the mean moves towards an equal-weight mean of the sources and its uncertainty covers their spread;
+when two of them lie more than 3 combined standard deviations apart (`consistent` False) the 2-sigma interval
+also reaches every source's value. The ground source checks the camera height it implies (metres, from the
+people): a camera whose scale can be measured moves, and one carried or held sits 0.3-3 m above the floor
+(PLAUSIBLE_CAMERA_HEIGHT_M); a height outside that range says the map's plane or the contacts are wrong by at least
+that ratio, which joins the source's uncertainty (`detail["camera_height_suspect"]`).
 """
 
 from __future__ import annotations
@@ -53,6 +63,13 @@ FRAMES_PER_SAMPLE = 15
 # runs): the source's log errors have an RMS of 0.28 (-59% to +32%) and its bootstrap sigmas one of 0.15; the
 # variance they leave unexplained is 0.23^2.
 FEET_MODEL_SIGMA = 0.23
+# Camera heights above the ground (metres) that a moving camera is plausibly carried at: a crouching operator to a
+# raised gimbal (the video benchmark's moving cameras: 1.2-3 m). The bundled-clip-like failure it catches: a hall
+# with a plain floor whose map "ground" put a chest-height camera 3.6 m up.
+PLAUSIBLE_CAMERA_HEIGHT_M = (0.3, 3.0)
+# The fused scale's confidence (ScaleEstimate.confidence) from its log-sigma: "high" under the first, "medium" under
+# the second, else "low"; sources that disagree make it "low" whatever the sigma.
+CONFIDENCE_SIGMA = (0.1, 0.25)
 
 
 @dataclass
@@ -81,18 +98,43 @@ class ScaleEstimate:
     """The camera scale (metres per VO unit): value, sigma (standard deviation of log(value)), source (the
     sources used, "+"-joined; "given", "static camera" or "default" when nothing measured it) and every
     observation. consistent: False when two sources disagree by more than 3 combined standard deviations.
-    ground_plane: (nx, ny, nz, d) the odometry map's ground (n . x + d = 0, x in the VO frame and VO units,
-    map_ground_plane) that the ground source measured the camera's height against; None without one."""
+    spread: tau, the sources' log spread beyond their own errors that the random-effects fusion added to each
+    (0 when they agree). ground_plane: (nx, ny, nz, d) the odometry map's ground (n . x + d = 0, x in the VO frame
+    and VO units, map_ground_plane) that the ground source measured the camera's height against; None without one."""
     value: float
     sigma: float | None
     source: str
     observations: list[ScaleObservation] = field(default_factory=list)
     consistent: bool = True
     ground_plane: list | None = None
+    spread: float = 0.0
+
+    @property
+    def confidence(self) -> str:
+        """"high", "medium" or "low" (CONFIDENCE_SIGMA; "low" when the sources disagree); "none" without a sigma
+        (nothing measured the scale, or it needs none: given, a static camera)."""
+        if self.sigma is None:
+            return "none"
+        if not self.consistent:
+            return "low"
+        if self.sigma < CONFIDENCE_SIGMA[0]:
+            return "high"
+        return "medium" if self.sigma < CONFIDENCE_SIGMA[1] else "low"
+
+    def disagreement(self) -> str:
+        """A sentence on sources that disagree beyond their uncertainty ("" when they agree)."""
+        if self.consistent:
+            return ""
+        sources = ", ".join(f"{o.source} {o.value:.4g} (+-{100 * o.sigma:.0f}%)" for o in self.observations
+                            if o.usable())
+        return (f"the camera scale's sources disagree beyond their uncertainty ({sources}): the fused "
+                f"{self.value:.4g} m per VO unit is uncertain by a factor of {np.exp(2 * self.sigma):.2f} either "
+                "way (2 sigma), and the world's size with it")
 
     def to_dict(self) -> dict:
         return {"value": float(self.value), "sigma": None if self.sigma is None else float(self.sigma),
-                "source": self.source, "consistent": bool(self.consistent),
+                "source": self.source, "consistent": bool(self.consistent), "spread": float(self.spread),
+                "confidence": self.confidence, "disagreement": self.disagreement(),
                 "observations": [o.to_dict() for o in self.observations],
                 "ground_plane": None if self.ground_plane is None else [float(v) for v in self.ground_plane]}
 
@@ -133,11 +175,37 @@ def _weighted(logs: np.ndarray, sigmas: np.ndarray) -> tuple[float, float]:
     return float(np.sum(weights * logs) / np.sum(weights)), float(np.sqrt(1.0 / np.sum(weights)))
 
 
+def _grouped(logs: np.ndarray, variances: np.ndarray, person: np.ndarray) -> tuple[float, float]:
+    """The people-based sources' weighted mean with PERSON_SIZE_SIGMA added once, fused with the other sources:
+    (mean, sigma) of log s."""
+    groups_logs, groups_sigmas = list(logs[~person]), list(np.sqrt(variances[~person]))
+    if person.any():
+        mean, sigma = _weighted(logs[person], np.sqrt(variances[person]))
+        groups_logs.append(mean)
+        groups_sigmas.append(float(np.hypot(sigma, PERSON_SIZE_SIGMA)))
+    return _weighted(np.array(groups_logs), np.array(groups_sigmas))
+
+
+def between_source_variance(logs: np.ndarray, sigmas: np.ndarray) -> float:
+    """tau^2, the DerSimonian-Laird estimate of the sources' variance beyond their own errors: (Q - (k - 1)) /
+    (sum w - sum w^2 / sum w), Q the chi^2 of the logs about their inverse-variance mean (w = 1 / sigma^2); 0 when
+    Q does not exceed its expectation k - 1."""
+    logs, sigmas = np.asarray(logs, dtype=np.float64), np.asarray(sigmas, dtype=np.float64)
+    if len(logs) < 2:
+        return 0.0
+    weights = 1.0 / np.square(np.maximum(sigmas, 1e-6))
+    mean = np.sum(weights * logs) / np.sum(weights)
+    q = float(np.sum(weights * (logs - mean) ** 2))
+    denominator = float(np.sum(weights) - np.sum(weights ** 2) / np.sum(weights))
+    return max(0.0, (q - (len(logs) - 1)) / denominator) if denominator > 0 else 0.0
+
+
 def fuse(observations: list[ScaleObservation], default: float = 1.0) -> ScaleEstimate:
-    """Inverse-variance weighted mean of the usable observations' log values (module docstring: the people's
-    size error is shared); `default` (source "default", sigma None) when none is usable. Sources whose
-    difference exceeds 3 standard deviations of their sampling errors make the estimate inconsistent, and the
-    uncertainty is scaled by the Birge ratio sqrt(chi^2 / (sources - 1)) when that exceeds 1."""
+    """The random-effects mean of the usable observations' log values (module docstring): each source's variance is
+    its sigma^2 plus tau^2 (between_source_variance), the people's size error shared; `default` (source "default",
+    sigma None) when none is usable. Sources that agree (chi^2 within its expectation) give the inverse-variance
+    mean. Sources whose difference exceeds 3 standard deviations of their sampling errors make the estimate
+    inconsistent, and its 2-sigma interval then reaches every source's value."""
     usable = [o for o in observations if o.usable()]
     if not usable:
         return ScaleEstimate(float(default), None, "default", list(observations))
@@ -146,17 +214,12 @@ def fuse(observations: list[ScaleObservation], default: float = 1.0) -> ScaleEst
     consistent = all(abs(logs[i] - logs[j]) <= 3.0 * np.hypot(sigmas[i], sigmas[j])
                      for i in range(len(usable)) for j in range(i + 1, len(usable)))
     person = np.array([bool(o.person_size) for o in usable], dtype=bool)
-    groups_logs, groups_sigmas = list(logs[~person]), list(sigmas[~person])
-    if person.any():
-        mean, sigma = _weighted(logs[person], sigmas[person])
-        groups_logs.append(mean)
-        groups_sigmas.append(float(np.hypot(sigma, PERSON_SIZE_SIGMA)))
-    mean, sigma = _weighted(np.array(groups_logs), np.array(groups_sigmas))
-    if len(usable) > 1:  # sources that disagree beyond their errors: the uncertainty grows by the Birge ratio
-        chi2 = float(np.sum(((logs - mean) / sigmas) ** 2))
-        sigma *= max(1.0, float(np.sqrt(chi2 / (len(usable) - 1))))
+    tau2 = between_source_variance(logs, sigmas)
+    mean, sigma = _grouped(logs, sigmas ** 2 + tau2, person)
+    if not consistent:  # never a tight interval around a value another source rejects
+        sigma = max(sigma, float(np.max(np.abs(logs - mean))) / 2.0)
     return ScaleEstimate(float(np.exp(mean)), sigma, "+".join(o.source for o in usable), list(observations),
-                         consistent)
+                         consistent, spread=float(np.sqrt(tau2)))
 
 
 def _runs(mask: np.ndarray) -> list[np.ndarray]:
@@ -299,12 +362,12 @@ def scale_from_camera_height(contact_points_cam: list[list[np.ndarray]], world_f
     normal, offset = np.asarray(plane[0], dtype=np.float64), float(plane[1])
     heights_vo = world_from_cam[:, :3, 3] @ normal + offset
     normals_cam = np.einsum("tji,j->ti", world_from_cam[:, :3, :3], normal)  # the ground's normal in each camera
-    centres, sigmas, frames = [], [], 0
+    centres, sigmas, heights, frames = [], [], [], 0
     for person, per_frame in enumerate(contact_points_cam):
         if len(per_frame) != len(world_from_cam):
             raise ValueError(f"contact_points_cam[{person}] has {len(per_frame)} frames, world_from_cam "
                              f"{len(world_from_cam)}")
-        logs = []
+        logs, metres = [], []
         for t, points in enumerate(per_frame):
             points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
             if not len(points):
@@ -314,8 +377,10 @@ def scale_from_camera_height(contact_points_cam: list[list[np.ndarray]], world_f
             metric = float(np.quantile(-(points @ normals_cam[t]), SOLE_QUANTILE))
             if metric > 0 and heights_vo[t] > 0:
                 logs.append(np.log(metric / heights_vo[t]))
+                metres.append(metric)
         if len(logs) < min_frames:
             continue
+        heights.append(float(np.median(metres)))
         logs = np.asarray(logs)
         centre = float(np.median(logs))
         spread = 1.4826 * float(np.median(np.abs(logs - centre)))
@@ -331,7 +396,14 @@ def scale_from_camera_height(contact_points_cam: list[list[np.ndarray]], world_f
     scatter = float(np.std(centres, ddof=1)) / np.sqrt(people) if people > 1 else 0.0
     obs.value = float(np.exp(np.mean(centres)))
     obs.sigma = max(sampling, scatter)
-    obs.detail = {"people": people, "per_person": [float(np.exp(c)) for c in centres]}
+    height = float(np.exp(np.mean(np.log(heights))))
+    low, high = PLAUSIBLE_CAMERA_HEIGHT_M
+    outside = max(0.0, float(np.log(height / high)), float(np.log(low / height)))
+    obs.detail = {"people": people, "per_person": [float(np.exp(c)) for c in centres],
+                  "camera_height_m": height, "camera_height_suspect": outside > 0}
+    if outside > 0:  # wrong by at least that ratio (module docstring)
+        obs.detail["sampling_sigma"] = obs.sigma
+        obs.sigma = float(np.hypot(obs.sigma, outside))
     return obs
 
 
