@@ -25,10 +25,14 @@ def named_class(qualified: str) -> type:
 
 @contextlib.contextmanager
 def importable(cls: type):
-    """Makes cls importable under its module name (and the parent packages) for the duration."""
+    """Makes cls importable under its module name (and the parent packages) for the duration; a module that
+    exists (argparse) gets its own attribute back afterwards."""
     parts = cls.__module__.split(".")
     names = [".".join(parts[:i]) for i in range(1, len(parts) + 1)]
     saved = {name: sys.modules.get(name) for name in names}
+    missing = object()
+    module_before = saved[cls.__module__]
+    attribute_before = getattr(module_before, cls.__name__, missing) if module_before is not None else missing
     try:
         for name in names:
             if saved[name] is None:
@@ -36,8 +40,11 @@ def importable(cls: type):
         setattr(sys.modules[cls.__module__], cls.__name__, cls)
         yield cls
     finally:
+        if module_before is not None:
+            if attribute_before is missing:
+                delattr(module_before, cls.__name__)
+            else:
+                setattr(module_before, cls.__name__, attribute_before)
         for name, module in saved.items():
             if module is None:
                 sys.modules.pop(name, None)
-            elif name == cls.__module__ and getattr(module, cls.__name__, None) is cls:
-                delattr(module, cls.__name__)

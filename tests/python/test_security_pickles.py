@@ -273,3 +273,13 @@ def test_cache_entry_file_inside_loads(tmp_path):
     (entry / "files" / "sub" / "a.mp4").write_bytes(b"x")
     (entry / "outputs.json").write_text(json.dumps({"video": {"__file__": "sub/a.mp4"}}))
     assert cache.load("node", "key")["video"].path == str(entry / "files" / "sub" / "a.mp4")
+
+
+def test_writing_a_file_under_an_existing_modules_name_leaves_the_module_as_it_was():
+    """The tests' helper that pickles argparse.Namespace under its name must give argparse its own class back."""
+    import argparse
+
+    real = argparse.Namespace
+    with importable(named_class("argparse.Namespace")) as fake:
+        assert argparse.Namespace is fake
+    assert argparse.Namespace is real and argparse.ArgumentParser().parse_args([]) == real()
