@@ -38,7 +38,8 @@ def _provenance(data: dict, name: str) -> str:
     command = prov.get("command") or "(command not recorded)"
     version = prov.get("m3c_version") or "?"
     commit = prov.get("commit")
-    return f"`{command}` (M3C {version}{', commit ' + commit if commit else ''}; `{name}`)"
+    note = f" Note: {prov['note']}." if prov.get("note") else ""
+    return f"`{command}` (M3C {version}{', commit ' + commit if commit else ''}; `{name}`).{note}"
 
 
 def _table(rows: list[tuple[str, dict]], columns=COLUMNS) -> list[str]:

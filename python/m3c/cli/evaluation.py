@@ -47,6 +47,7 @@ def _benchmark_clips(model, args, log) -> list[str]:
 
 
 def eval_benchmark(args) -> int:
+    started = provenance(args)  # the code as the run starts (the tree may change during a long run)
     import json
 
     from m3c.body import default_body_model
@@ -66,12 +67,13 @@ def eval_benchmark(args) -> int:
     print(report.tables())
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps({**report.summary(), "provenance": provenance(args)}, indent=1))
+            tmp.write_text(json.dumps({**report.summary(), "provenance": started}, indent=1))
         print(f"wrote {args.json}")
     return 0
 
 
 def eval_video_benchmark(args) -> int:
+    started = provenance(args)  # the code as the run starts (the tree may change during a long run)
     from m3c.body import default_body_model
     from m3c.eval.video_benchmark import VideoBenchmarkConfig, run_video_benchmark, write_json
 
@@ -90,12 +92,13 @@ def eval_video_benchmark(args) -> int:
     report = run_video_benchmark(model, config, args.out, log, show_progress=not args.quiet)
     print(report.text())
     if args.json:
-        write_json(report, args.json, provenance(args))
+        write_json(report, args.json, started)
         print(f"wrote {args.json}")
     return 0 if not any(s.error for s in report.sequences) else 1
 
 
 def eval_multiview(args) -> int:
+    started = provenance(args)  # the code as the run starts (the tree may change during a long run)
     import json
 
     from m3c.body import default_body_model
@@ -108,12 +111,13 @@ def eval_multiview(args) -> int:
     print(report.text())
     if args.json:
         with atomic_path(args.json) as tmp:
-            tmp.write_text(json.dumps({**report.summary(), "provenance": provenance(args)}, indent=1) + "\n")
+            tmp.write_text(json.dumps({**report.summary(), "provenance": started}, indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0 if not any(v.error for v in report.views) else 1
 
 
 def eval_3dpw(args) -> int:
+    started = provenance(args)  # the code as the run starts (the tree may change during a long run)
     import json
 
     from m3c.body import BodyModel
@@ -133,7 +137,7 @@ def eval_3dpw(args) -> int:
                                None if args.quiet else log_to_stderr)
     print(format_3dpw_tables(evaluation))
     if args.json:
-        summary = {"provenance": provenance(args), "joints": evaluation["joints"], "methods": evaluation["methods"],
+        summary = {"provenance": started, "joints": evaluation["joints"], "methods": evaluation["methods"],
                    "sequences": {name: {"people": row["people"],
                                         **{m: {k: r.mean(k) for k in r.values} for m, r in row.items()
                                            if m != "people"}}
