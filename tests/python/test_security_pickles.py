@@ -283,3 +283,25 @@ def test_writing_a_file_under_an_existing_modules_name_leaves_the_module_as_it_w
     with importable(named_class("argparse.Namespace")) as fake:
         assert argparse.Namespace is fake
     assert argparse.Namespace is real and argparse.ArgumentParser().parse_args([]) == real()
+
+
+def test_manifest_naming_a_file_outside_its_folder_is_not_followed(tmp_path):
+    """A result folder's manifest.json lists its own files; an edited one naming a path outside is reported
+    (and the file there is never read), like a cache entry's."""
+    import hashlib
+
+    from m3c.io.manifest import folder_state, seal
+
+    folder = tmp_path / "out"
+    folder.mkdir()
+    (folder / "results.json").write_text("{}")
+    seal(folder, ["results.json"])
+    assert folder_state(folder).complete
+    secret = tmp_path / "secret.txt"
+    secret.write_text("x")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    for name in ("../secret.txt", str(secret)):
+        entry = {"size": 1, "sha256": hashlib.sha256(b"x").hexdigest(), "node": None, "key": None}
+        (folder / "manifest.json").write_text(json.dumps({**manifest, "files": {name: entry}}))
+        state = folder_state(folder)
+        assert state.status == "modified" and "not a file of this folder" in state.message

@@ -174,6 +174,12 @@ def folder_state(folder: str | Path, known_files: tuple[str, ...] = ()) -> Folde
         return FolderState("modified", f"{MANIFEST} has unknown status {status!r}", manifest)
     for name, entry in sorted(manifest.get("files", {}).items()):
         path = folder / name
+        # A manifest lists files of its own folder; one naming a path elsewhere (edited or handed over) is not
+        # followed: its file would be read and hashed.
+        if not isinstance(name, str) or Path(name).is_absolute() or \
+                not path.resolve().is_relative_to(folder.resolve()):
+            return FolderState("modified", f"{MANIFEST} lists {name!r}, which is not a file of this folder; "
+                                           f"{again}", manifest)
         if not path.is_file():
             return FolderState("modified", f"{name} is missing (listed in {MANIFEST}); {again}", manifest)
         if path.stat().st_size != entry.get("size") or file_sha256(path) != entry.get("sha256"):
