@@ -14,7 +14,6 @@ widths beside them.
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import torch.nn.functional as F
 from m3c.io.atomic import atomic_path
 from m3c.models import humor as humor_module
 from m3c.models import humor_state as hs
-from m3c.training.common import Progress, load_checkpoint, save_checkpoint, seed_everything
+from m3c.training.common import ResumableRun, epoch_batches, save_checkpoint, seed_everything
 
 
 @dataclass
@@ -121,67 +120,27 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
         raise ValueError(f"{n} training pairs, fewer than one batch ({config.batch_size})")
     seed_everything(config.seed)
     model = MotionPrior(config.hidden)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps,
-                                                           eta_min=config.lr * 0.02)
-    step, history = 0, []
-    ckpt_path = out_dir / "checkpoint.pt"
-    if resume:
-        state = load_checkpoint(ckpt_path)
-        if state["config"] != asdict(config):
-            changed = {k for k in asdict(config) if state["config"].get(k) != asdict(config)[k]}
-            raise ValueError(f"--resume: the checkpoint was trained with other settings ({sorted(changed)}); "
-                             "resume with the same ones, or start a new --out")
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        torch.set_rng_state(state["torch_rng"])
-        step, history = state["step"], state["history"]
-        if log:
-            log(f"resumed from {ckpt_path} at step {step}")
-
-    def checkpoint():
-        save_checkpoint(ckpt_path, model=model.state_dict(), optimizer=optimizer.state_dict(),
-                        scheduler=scheduler.state_dict(), torch_rng=torch.get_rng_state(), step=step,
-                        history=history, config=asdict(config))
-
+    run = ResumableRun(model, config, out_dir, resume, log)
     dataset = torch.utils.data.TensorDataset(x_prev, x_next, contacts)
     n_batches = n // config.batch_size
-    progress = Progress(config.steps, log)
-    last_ckpt, start_step, running = time.perf_counter(), step, []
     model.train()
     stop = False
-    while step < config.steps and not stop:
-        epoch, offset = divmod(step, n_batches)
-        g = torch.Generator().manual_seed(config.seed * 1000003 + epoch)
-        order = torch.randperm(n, generator=g)[: n_batches * config.batch_size]
-        batches = order.reshape(n_batches, -1)[offset:]
+    while run.step < config.steps and not stop:
+        epoch, offset = divmod(run.step, n_batches)
+        batches = epoch_batches(n, config.batch_size, config.seed, epoch)[offset:]
         loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
                                              generator=torch.Generator().manual_seed(epoch))
         for a, b, c in loader:
             losses = _loss(model, a, b, c, config)
-            optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            optimizer.step()
-            scheduler.step()
-            step += 1
-            running.append([losses[k].item() for k in ("loss", "rec", "contact", "kl")])
-            if step % config.history_every == 0 or step == config.steps:
-                mean = np.mean(running, axis=0)
-                history.append({"step": step, "loss": mean[0], "rec": mean[1], "contact": mean[2],
-                                "kl": mean[3]})
-                running = []
-            progress.update(step, f"loss {losses['loss'].item():.4f} (rec {losses['rec'].item():.5f}, "
-                                  f"contact {losses['contact'].item():.3f}, kl {losses['kl'].item():.1f})")
-            stop = step >= config.steps or (stop_after is not None and step - start_step >= stop_after)
-            if stop or time.perf_counter() - last_ckpt > 60 * config.checkpoint_minutes:
-                checkpoint()
-                last_ckpt = time.perf_counter()
+            run.optimise(losses["loss"])
+            stop = run.record({k: losses[k].item() for k in ("loss", "rec", "contact", "kl")},
+                              f"loss {losses['loss'].item():.4f} (rec {losses['rec'].item():.5f}, "
+                              f"contact {losses['contact'].item():.3f}, kl {losses['kl'].item():.1f})", stop_after)
             if stop:
                 break
     model.eval()
     save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
-    summary = {"config": asdict(config), "steps_done": step, "train_pairs": n, "history": history}
+    summary = {"config": asdict(config), "steps_done": run.step, "train_pairs": n, "history": run.history}
     with atomic_path(out_dir / "train.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1) + "\n")
     return summary

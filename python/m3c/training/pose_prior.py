@@ -14,7 +14,6 @@ m3c.models.vposer.load_vposer(path, version="v2") reads.
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -23,7 +22,8 @@ import torch
 
 from m3c.models.rotations import matrix_to_axis_angle
 from m3c.models.vposer import LATENT_DIM, NUM_JOINTS, VPoserV2
-from m3c.training.common import JointKinematics, Progress, load_checkpoint, save_checkpoint, seed_everything
+from m3c.training.common import (JointKinematics, ResumableRun, epoch_batches, save_checkpoint,
+                                 seed_everything)
 
 # SMPL's left/right joint pairs (24-joint indices).
 MIRROR_PAIRS = ((1, 2), (4, 5), (7, 8), (10, 11), (13, 14), (16, 17), (18, 19), (20, 21), (22, 23))
@@ -91,13 +91,6 @@ class _Loss(torch.nn.Module):
         return {"loss": total, "rot": rot_loss, "joint": joint_loss, "kl": kl}
 
 
-def _epoch_batches(n: int, batch: int, seed: int, epoch: int) -> torch.Tensor:
-    """(n // batch, batch) indices of an epoch: a permutation seeded by (seed, epoch) alone, so a resumed run
-    draws the batches the uninterrupted one would."""
-    g = torch.Generator().manual_seed(seed * 1000003 + epoch)
-    return torch.randperm(n, generator=g)[: (n // batch) * batch].reshape(-1, batch)
-
-
 def train_pose_prior(train_poses: np.ndarray, out_dir: str | Path, model_for_joints, config: PosePriorConfig,
                      resume: bool = False, log=print, stop_after: int | None = None) -> dict:
     """Trains on (N, 21, 3) body poses into out_dir (checkpoint.pt, vposer_v2.ckpt, train.json); returns the
@@ -111,71 +104,30 @@ def train_pose_prior(train_poses: np.ndarray, out_dir: str | Path, model_for_joi
     rots = torch.as_tensor(axis_angle_to_matrix_np(train_poses.astype(np.float64)), dtype=torch.float32)
     dataset = torch.utils.data.TensorDataset(poses, rots)
     model = VPoserV2(hidden=config.hidden, latent_dim=LATENT_DIM)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=config.steps,
-                                                           eta_min=config.lr * 0.02)
     loss_fn = _Loss(JointKinematics.from_model(model_for_joints), config)
-    step, history = 0, []
-    ckpt_path = out_dir / "checkpoint.pt"
-    if resume:
-        state = load_checkpoint(ckpt_path)
-        if state["config"] != asdict(config):
-            changed = {k for k in asdict(config) if state["config"].get(k) != asdict(config)[k]}
-            raise ValueError(f"--resume: the checkpoint was trained with other settings ({sorted(changed)}); "
-                             "resume with the same ones, or start a new --out")
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        torch.set_rng_state(state["torch_rng"])
-        step, history = state["step"], state["history"]
-        if log:
-            log(f"resumed from {ckpt_path} at step {step}")
-
-    def checkpoint():
-        save_checkpoint(ckpt_path, model=model.state_dict(), optimizer=optimizer.state_dict(),
-                        scheduler=scheduler.state_dict(), torch_rng=torch.get_rng_state(), step=step,
-                        history=history, config=asdict(config))
-
+    run = ResumableRun(model, config, out_dir, resume, log)
     n_batches = len(poses) // config.batch_size
-    progress = Progress(config.steps, log)
-    last_ckpt = time.perf_counter()
-    start_step = step
     model.train()
-    running = []
-    while step < config.steps:
-        epoch, offset = divmod(step, n_batches)
-        batches = _epoch_batches(len(poses), config.batch_size, config.seed, epoch)[offset:]
+    stop = False
+    while run.step < config.steps and not stop:
+        epoch, offset = divmod(run.step, n_batches)
+        batches = epoch_batches(len(poses), config.batch_size, config.seed, epoch)[offset:]
         # Its own generator: creating the iterator would otherwise draw from the global RNG (dropout, the
         # latent samples), and a resumed run creates one mid-epoch.
         loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(), num_workers=0,
                                              generator=torch.Generator().manual_seed(epoch))
         for pose, rot in loader:
             losses = loss_fn(model, pose, rot)
-            optimizer.zero_grad(set_to_none=True)
-            losses["loss"].backward()
-            optimizer.step()
-            scheduler.step()
-            step += 1
-            running.append([losses[k].item() for k in ("loss", "rot", "joint", "kl")])
-            if step % config.history_every == 0 or step == config.steps:
-                mean = np.mean(running, axis=0)
-                history.append({"step": step, "loss": mean[0], "rot": mean[1], "joint": mean[2],
-                                "kl": mean[3]})
-                running = []
-            progress.update(step, f"loss {losses['loss'].item():.4f} (rot {losses['rot'].item():.4f}, "
-                                  f"joint {np.sqrt(losses['joint'].item()) * 1000:.1f} mm rms, "
-                                  f"kl {losses['kl'].item():.1f})")
-            stop = step >= config.steps or (stop_after is not None and step - start_step >= stop_after)
-            if stop or time.perf_counter() - last_ckpt > 60 * config.checkpoint_minutes:
-                checkpoint()
-                last_ckpt = time.perf_counter()
+            run.optimise(losses["loss"])
+            stop = run.record({k: losses[k].item() for k in ("loss", "rot", "joint", "kl")},
+                              f"loss {losses['loss'].item():.4f} (rot {losses['rot'].item():.4f}, "
+                              f"joint {np.sqrt(losses['joint'].item()) * 1000:.1f} mm rms, "
+                              f"kl {losses['kl'].item():.1f})", stop_after)
             if stop:
                 break
-        if stop_after is not None and step - start_step >= stop_after:
-            break
     model.eval()
     save_vposer_ckpt(model, out_dir / "vposer_v2.ckpt")
-    summary = {"config": asdict(config), "steps_done": step, "train_poses": len(poses), "history": history}
+    summary = {"config": asdict(config), "steps_done": run.step, "train_poses": len(poses), "history": run.history}
     from m3c.io.atomic import atomic_path
 
     with atomic_path(out_dir / "train.json") as tmp:
