@@ -18,8 +18,9 @@ class ScaleNode(Node):
     observations (per source: value, sigma, frames, reason), ground_plane (the odometry map's ground, VO frame and
     units, that the ground source measured against; None without one)."""
 
-    version = "3"  # 2: per-person ground source, the feet's model error, the map's ground plane in the output;
-    # 3: the planted-feet source on the ground contacts (the feet surely on the ground)
+    version = "4"  # 2: per-person ground source, the feet's model error, the map's ground plane in the output;
+    # 3: the planted-feet source on the ground contacts (the feet surely on the ground); 4: m3c.vo.scale's
+    # random-effects fusion and the ground source's camera-height check (a cached scale is the old fusion's)
     type_name = "scale"
     level = "track"
     inputs = ("tracks", "cameras", "depth", "camera")
