@@ -15,25 +15,37 @@ def _threads(args) -> None:
     torch.set_num_threads(args.threads)
 
 
-def train_pose_prior_command(args) -> int:
+def _prepare(args, config):
+    """What both commands do before training: threads, the output folder, the config's bounds, the body model,
+    the log and the corpus's training and held-out clips."""
     from m3c.body import default_body_model
-    from m3c.io.atomic import atomic_path
     from m3c.mocap.corpus import load_corpus
-    from m3c.models.vposer import load_vposer
-    from m3c.training.common import JointKinematics
-    from m3c.training.pose_prior import PosePriorConfig, body_poses, evaluate_pose_prior, train_pose_prior
 
     _threads(args)
     out = output_folder(args.out)
-    config = PosePriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                             kl_weight=args.kl_weight, seed=args.seed,
-                             checkpoint_minutes=args.checkpoint_minutes, mirror=not args.no_mirror)
     if config.steps < 1 or config.batch_size < 1:
         raise ValueError("--steps and --batch-size must be positive")
     model = default_body_model(args.body_model)
     log = None if args.quiet else log_to_stderr
-    train_clips = load_corpus(args.corpus, "train")
-    held_clips = load_corpus(args.corpus, "held_out")
+    return out, model, log, load_corpus(args.corpus, "train"), load_corpus(args.corpus, "held_out")
+
+
+def _write_metrics(out, report: dict) -> None:
+    from m3c.io.atomic import atomic_path
+
+    with atomic_path(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(report, indent=1) + "\n")
+
+
+def train_pose_prior_command(args) -> int:
+    from m3c.models.vposer import load_vposer
+    from m3c.training.common import JointKinematics
+    from m3c.training.pose_prior import PosePriorConfig, body_poses, evaluate_pose_prior, train_pose_prior
+
+    config = PosePriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr,
+                             kl_weight=args.kl_weight, seed=args.seed,
+                             checkpoint_minutes=args.checkpoint_minutes, mirror=not args.no_mirror)
+    out, model, log, train_clips, held_clips = _prepare(args, config)
     train = body_poses(train_clips, config.mirror)
     if log:
         log(f"pose prior: {len(train_clips)} training clips, {len(train)} poses (mirrored: {config.mirror}); "
@@ -47,8 +59,7 @@ def train_pose_prior_command(args) -> int:
     if held_clips:
         held = body_poses(held_clips, mirror=False)
         report["held_out"] = evaluate_pose_prior(vposer, train, held, JointKinematics.from_model(model))
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1) + "\n")
+    _write_metrics(out, report)
     print(f"wrote {out}/vposer_v2.ckpt ({summary['steps_done']} steps)")
     if "held_out" in report:
         for name, row in report["held_out"].items():
@@ -59,23 +70,13 @@ def train_pose_prior_command(args) -> int:
 
 
 def train_motion_prior_command(args) -> int:
-    from m3c.body import default_body_model
-    from m3c.io.atomic import atomic_path
-    from m3c.mocap.corpus import load_corpus
     from m3c.training.motion_prior import (MotionPriorConfig, load_motion_prior, one_step_errors, pairs,
                                            train_motion_prior)
 
-    _threads(args)
-    out = output_folder(args.out)
     config = MotionPriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, hidden=args.hidden,
                                kl_weight=args.kl_weight, seed=args.seed,
                                checkpoint_minutes=args.checkpoint_minutes)
-    if config.steps < 1 or config.batch_size < 1:
-        raise ValueError("--steps and --batch-size must be positive")
-    model = default_body_model(args.body_model)
-    log = None if args.quiet else log_to_stderr
-    train_clips = load_corpus(args.corpus, "train")
-    held_clips = load_corpus(args.corpus, "held_out")
+    out, model, log, train_clips, held_clips = _prepare(args, config)
     data = pairs(train_clips, model, config)
     if log:
         log(f"motion prior: {len(train_clips)} training clips, {len(data[0])} state pairs; "
@@ -87,8 +88,7 @@ def train_motion_prior_command(args) -> int:
         held = pairs(held_clips, model, config)
         prior = load_motion_prior(out / "motion_prior.pt")
         report["held_out_one_step"] = one_step_errors(prior, held[0], held[1])
-    with atomic_path(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(report, indent=1) + "\n")
+    _write_metrics(out, report)
     print(f"wrote {out}/motion_prior.pt ({summary['steps_done']} steps)")
     if "held_out_one_step" in report:
         r = report["held_out_one_step"]
