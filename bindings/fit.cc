@@ -122,8 +122,10 @@ void BindFit(py::module_& m) {
       .def_readwrite("max_iterations", &FitOptions::max_iterations)
       .def_readwrite("reinit_error_px", &FitOptions::reinit_error_px)
       .def_readwrite("max_turn_from_3d_deg", &FitOptions::max_turn_from_3d_deg)
+      .def_readwrite("max_limb_from_3d_m", &FitOptions::max_limb_from_3d_m)
       .def_readwrite("torso", &FitOptions::torso)
       .def_readwrite("reference_3d", &FitOptions::reference_3d)
+      .def_readwrite("limbs", &FitOptions::limbs)
       .def_readwrite("left_side", &FitOptions::left_side)
       .def_readwrite("right_side", &FitOptions::right_side);
   m.def("fit_body_sequence", &FitSequence, py::arg("model"), py::arg("regressor"), py::arg("keypoints"),

@@ -52,10 +52,12 @@ BodyFitter::BodyFitter(const body::BodyModel* model, const body::KeypointRegress
       << "term weights must be >= 0";
   M3C_CHECK(o.min_depth > 0 && o.max_iterations >= 1 && o.min_keypoints >= 2)
       << "min_depth must be > 0, max_iterations >= 1 and min_keypoints >= 2";
+  M3C_CHECK(!std::isnan(o.max_limb_from_3d_m))
+      << "max_limb_from_3d_m must be a distance in metres (negative: never re-solve the limbs), got NaN";
   M3C_CHECK(!std::isnan(o.max_turn_from_3d_deg))
       << "max_turn_from_3d_deg must be a number of degrees (negative: never re-solve turned), got NaN";
   const int K = regressor->num_keypoints();
-  for (const auto* list : {&o.torso, &o.reference_3d, &o.left_side, &o.right_side}) {
+  for (const auto* list : {&o.torso, &o.reference_3d, &o.left_side, &o.right_side, &o.limbs}) {
     for (int k : *list) M3C_CHECK(k >= 0 && k < K) << "keypoint role index " << k << " outside [0, " << K << ")";
   }
   M3C_CHECK(o.torso.size() >= 3 && !o.reference_3d.empty() && o.left_side.size() == o.right_side.size())
@@ -196,8 +198,12 @@ void BodyFitter::AddTerms(const FrameObservation& obs, const Masked& m, const Bo
                              nullptr, {t, r, b, beta});
   }
   if (m.keypoints3d.rows() > 0) {
+    // The pose from the 3D alone (no reprojection: the cold initialisation, a limb's re-solve) must land in the
+    // 3D's basin, so its robust scale is a body's size: at keypoints3d_sigma a foot 0.5 m off barely pulls, and a
+    // knee bent backwards (seen from behind) was initialised bent forwards with the keypoints fitting both.
+    const double sigma = use_reprojection ? options_.keypoints3d_sigma : std::max(options_.keypoints3d_sigma, 1.0);
     problem.AddResidualBlock(new RelativePointsCost(model_, regressor_, m.keypoints3d, options_.reference_3d,
-                                                    options_.keypoints3d_weight, options_.keypoints3d_sigma),
+                                                    options_.keypoints3d_weight, sigma),
                              nullptr, {r, b, beta});
   }
   if (problem.NumResidualBlocks() == 0) return;
@@ -312,6 +318,25 @@ void BodyFitter::Measure(const FrameObservation& obs, const Masked& m, FrameFitR
   result->reprojection_error_px = used > 0 ? sum / used : 0.0;
 }
 
+double BodyFitter::LimbErrorFrom3d(const Masked& m, const BodyState& s) const {
+  if (m.keypoints3d.rows() == 0) return -1.0;
+  Eigen::Vector3d posed_ref = Eigen::Vector3d::Zero(), seen_ref = Eigen::Vector3d::Zero();
+  const Observations3 points = Posed(s, false);
+  for (int k : options_.reference_3d) {
+    if (m.keypoints3d(k, 3) <= 0) return -1.0;
+    posed_ref += points.row(k).transpose();
+    seen_ref += m.keypoints3d.block<1, 3>(k, 0).transpose();
+  }
+  double worst = -1.0;
+  for (int k : options_.limbs) {
+    if (m.keypoints3d(k, 3) <= 0) continue;
+    const Eigen::Vector3d d = (points.row(k).transpose() - posed_ref / options_.reference_3d.size()) -
+                              (m.keypoints3d.block<1, 3>(k, 0).transpose() - seen_ref / options_.reference_3d.size());
+    worst = std::max(worst, d.norm());
+  }
+  return worst;
+}
+
 double BodyFitter::TorsoTurnFrom3d(const Masked& m, const BodyState& s) const {
   Eigen::Matrix3d R;
   if (m.keypoints3d.rows() == 0 || !TorsoTo3d(m, Posed(s, false), &R)) return -1.0;
@@ -366,6 +391,22 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
       const double cost = Solve(obs, m, previous, predicted_transl, true, true, &turned, &result.iterations);
       if (FrameCost(obs, m, turned) < FrameCost(obs, m, result.state)) {
         result.state = turned;
+        result.cost = cost;
+        Measure(obs, m, &result);
+      }
+    }
+    if (options_.max_limb_from_3d_m >= 0 && LimbErrorFrom3d(m, result.state) > options_.max_limb_from_3d_m) {
+      // A limb the warm start carried into the wrong basin (a knee bent backwards where the 3D has a step
+      // forward): the body pose starts again from the rest pose posed by the 3D alone, where the warm fit put and
+      // turned the person, and is solved with the same temporal terms; kept when the frame's own objective is the
+      // lower one, as for the turn above.
+      BodyState posed = result.state;
+      posed.body.setZero();
+      Solve(obs, m, nullptr, nullptr, true, false, &posed, &result.iterations);
+      posed.transl = result.state.transl;
+      const double cost = Solve(obs, m, previous, predicted_transl, true, true, &posed, &result.iterations);
+      if (FrameCost(obs, m, posed) < FrameCost(obs, m, result.state)) {
+        result.state = posed;
         result.cost = cost;
         Measure(obs, m, &result);
       }

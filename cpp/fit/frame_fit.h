@@ -48,11 +48,18 @@ struct FitOptions {
   // and the 3D term, robust, barely pulls a torso that is half a turn off: a warm start on the wrong side
   // stayed there for seconds. Negative: never.
   double max_turn_from_3d_deg = 90.0;
+  // A warm fit with a limb end (limbs below) farther than this (metres) from the monocular 3D, root-relative, is
+  // solved again with its body pose started from the rest pose posed by the 3D alone (see Fit). Seen from behind
+  // or in front, a far foot higher in the image fits a knee bent backwards as well as a step forward, and the
+  // robust 3D term barely pulls a limb that far off: the bundled walker's left knee, once bent, stayed bent at
+  // 60-90 degrees for 5 s while MediaPipe's 3D had his feet taking turns. Negative: never.
+  double max_limb_from_3d_m = 0.25;
   // Keypoint roles, as indices into the regressor's keypoints (COCO-17 defaults).
   std::vector<int> torso = {5, 6, 11, 12};       // orientation from 3D (Kabsch)
   std::vector<int> reference_3d = {11, 12};      // origin of the relative 3D observations (hip centre)
   std::vector<int> left_side = {5, 11};          // person's left shoulder and hip ...
   std::vector<int> right_side = {6, 12};         // ... and right ones: facing direction from 2D
+  std::vector<int> limbs = {7, 8, 9, 10, 13, 14, 15, 16};  // elbows, wrists, knees, ankles: checked against 3D
 };
 
 struct FrameObservation {
@@ -121,6 +128,8 @@ class BodyFitter {
                const Eigen::Vector3d* predicted_transl, bool free_pose, bool use_reprojection, BodyState* state,
                int* iterations) const;
   void Measure(const FrameObservation& observation, const Masked& masked, FrameFitResult* result) const;
+  // The largest root-relative distance (metres) of a `limbs` keypoint from its 3D observation; -1 without 3D.
+  double LimbErrorFrom3d(const Masked& masked, const BodyState& state) const;
   // The state's keypoints (K, 3) in the camera frame, or root-relative (no translation) when !translated.
   Observations3 Posed(const BodyState& state, bool translated) const;
   // R rotating `points`' torso keypoints onto the 3D torso (Kabsch); false when fewer than 3 have 3D.

@@ -153,3 +153,51 @@ def test_slow_motion_walk_is_flagged_and_real_time_restores_it():
     # A short shuffle at a slow rate (0.28 m steps) is a slow walk, not slow motion: no hint.
     shuffle = track_plausibility(_gait(model, 0.45, speed=0.25, seconds=6.0), 30.0)
     assert shuffle["step_length_legs"] < 0.6 and _slow_gait_hint(shuffle) == ""
+
+
+def _knee_flex_reference(joints, hip, knee, ankle):
+    """Knee flexion by the law of cosines on the three joints' distances (independent of leg_figures' vectors)."""
+    a = np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1)
+    b = np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1)
+    c = np.linalg.norm(joints[:, hip] - joints[:, ankle], axis=1)
+    return 180.0 - np.degrees(np.arccos(np.clip((a * a + b * b - c * c) / (2 * a * b), -1, 1)))
+
+
+def test_legs_of_a_walk_swap_every_step_and_bend_in_swing():
+    model = default_body_model()
+    strides = 0.9
+    joints = _gait(model, strides, seconds=6.0)
+    f = track_plausibility(joints, 30.0)
+    # Two lead changes a stride, each foot leading half a stride (the first and last leads cut short).
+    assert f["lead_changes"] in (round(2 * strides * 6.0) - 1, round(2 * strides * 6.0))
+    assert f["longest_lead_s"] == pytest.approx(0.5 / strides, abs=0.1)
+    for side, (hip, knee, ankle) in enumerate(((1, 4, 7), (2, 5, 8))):
+        reference = _knee_flex_reference(joints, hip, knee, ankle)
+        assert f["knee_flex_deg"][side] == pytest.approx(np.median(reference), abs=0.01)
+        assert f["knee_bent_fraction"][side] == pytest.approx((reference > 45).mean(), abs=1e-9)
+    assert f["surge_ratio"] == pytest.approx(1.0, abs=0.02)  # a steady glide
+
+
+def test_legs_that_never_swap_and_a_knee_held_bent_are_reported():
+    """The bundled walker before the limb re-solve: the left knee bent backwards most of the time, the left foot
+    behind for the whole walk, the pelvis advancing in surges; m3c info says CHECK."""
+    from m3c.io.results import _legs_line
+
+    model = default_body_model()
+    n, fps = 150, 30.0
+    pose = np.zeros((n, 24, 3))
+    pose[:, 4, 0] = 1.3  # the left knee bent 75 degrees, the foot behind
+    t = np.arange(n) / fps
+    transl = np.zeros((n, 3))
+    transl[:, 2] = 1.2 * np.floor(t / 2.5) + 1.2 * np.clip((t % 2.5 - 2.0) / 0.5, 0, 1)  # still 2 s, then a surge
+    joints = model.joints(pose, np.zeros(model.num_betas), transl)
+    f = track_plausibility(joints, fps)
+    assert f["knee_bent_fraction"] == [1.0, 0.0]
+    assert f["knee_flex_deg"][0] == pytest.approx(np.median(_knee_flex_reference(joints, 1, 4, 7)), abs=0.01)
+    assert f["knee_flex_deg"][0] > 70
+    assert f["lead_changes"] == 0 and f["longest_lead_s"] == pytest.approx(n / fps)
+    assert f["surge_ratio"] > 2.0
+    line = _legs_line(f)
+    assert "CHECK" in line and "knee bent" in line and "leads for over 2 s" in line and "surges" in line
+    walk = track_plausibility(_gait(model, 0.9, seconds=5.0), 30.0)
+    assert "CHECK" not in _legs_line(walk)

@@ -173,3 +173,46 @@ def test_depth_does_not_wander_with_its_velocity_prediction(model, motion):
         assert fits.valid.all()
         error[weight] = np.std(fits.transl[10:, 2] - depth[10:])
     assert error[BodyFitConfig().temporal_transl_weight] < 0.5 < 1.0 < error[3000.0]
+
+
+def _seen_from_behind(model, legs, n: int = 8):
+    """Truth and exact observations (COCO-17 keypoints, root-relative 3D) of a person 6 m away facing away from
+    the camera, holding each of `legs` (lists of (body_pose row, x-rotation in rad)) for n frames."""
+    body = np.zeros((n * len(legs), 23, 3))
+    for i, leg in enumerate(legs):
+        for row, angle in leg:
+            body[i * n:(i + 1) * n, row, 0] = angle
+    N = len(body)
+    away = Rotation.from_rotvec([np.pi, 0, 0]) * Rotation.from_rotvec([0, np.pi, 0])
+    pose = np.concatenate([np.tile(away.as_rotvec(), (N, 1))[:, None], body], axis=1)
+    transl = np.tile([0.0, 0.3, 6.0], (N, 1))
+    points = model.keypoints(keypoint_regressor(model, 17), pose, np.zeros(model.num_betas), transl)
+    conf = np.full((N, 17, 1), 0.9)
+    keypoints = np.concatenate([points[..., :2] / points[..., 2:] * K[:2] + K[2:], conf], axis=-1)
+    keypoints3d = np.concatenate([points - points[:, [11, 12]].mean(axis=1, keepdims=True), conf], axis=-1)
+    return model.joints(pose, np.zeros(model.num_betas), transl), keypoints, keypoints3d
+
+
+LEFT_HIP, LEFT_KNEE, LEFT_ANKLE = 0, 3, 7  # body_pose rows; the joint index of the ankle
+
+
+@pytest.mark.parametrize("legs", [[[], [(LEFT_KNEE, 1.3)]],  # standing, then the left foot raised behind
+                                  [[(LEFT_HIP, 0.4), (LEFT_KNEE, 0.8)], [(LEFT_HIP, -0.3), (LEFT_KNEE, 1.2)]]])
+def test_a_warm_start_with_a_limb_far_from_the_3d_is_solved_again(model, legs):
+    """Seen from behind, a foot raised behind the knee and one raised in front of it (the knee bent the wrong way)
+    project to the same keypoints; only the 3D tells them apart, and its robust term barely pulls a foot that
+    far. Warm-started from the straight leg, the fit bent the knee forwards and kept it so (the bundled walker's
+    left knee, 60-90 degrees for 5 s); with a limb over max_limb_from_3d_m from the 3D solved again from the
+    3D's pose, the ankle lands where it is."""
+    truth, keypoints, keypoints3d = _seen_from_behind(model, legs)
+
+    def ankle_error(config):
+        fits = fit_bodies(model, keypoints, K, keypoints3d, config=config)
+        assert fits.reprojection_error_px.max() < 1.0  # both solutions fit the keypoints
+        fitted = joints_of(model, fits)
+        return np.linalg.norm((fitted - fitted[:, :1]) - (truth - truth[:, :1]), axis=-1)[:, LEFT_ANKLE]
+
+    kept = ankle_error(BodyFitConfig(max_limb_from_3d_m=-1.0))
+    assert kept[-4:].min() > 0.3  # the failure this guards against, still there without the check
+    solved = ankle_error(BodyFitConfig())
+    assert solved[:8].max() < 0.02 and solved[-4:].max() < 0.03

@@ -21,6 +21,15 @@ pointing up; y = 0 when none is given):
                                    clips): walking 107-118 steps a minute at 0.77-0.98 leg lengths a step,
                                    running 127-162 at 0.89-1.83. A normal step at half that rate says the video
                                    plays slower than it was filmed (slow motion), or the speed is wrong
+  lead_changes, longest_lead_s     the legs (see leg_figures): how often the leading foot changes and the longest
+                                   a foot keeps the lead; a walker's feet swap every step (about 0.5 s), a
+                                   foot that leads for seconds while the person walks says the legs never swap
+  knee_flex_deg,                   per leg (left, right): the median knee flexion and the share of frames bent
+  knee_bent_fraction               over KNEE_BENT_DEG (45): a walk bends a knee past it only in swing, a
+                                   fifth of the time or less (CMU walks: 0.07-0.19); a knee bent most of the
+                                   time while the other stays straight is a fit gone wrong
+  surge_ratio                      sustained_speed_mps / mean_speed_mps: 1 for a steady walk; over 2, the
+                                   person advances in surges (both feet planted, then sliding together)
 """
 
 from __future__ import annotations
@@ -46,6 +55,10 @@ GAIT_MIN_AMPLITUDE_M = 0.1
 # A standing person's fitted feet can swing rhythmically in depth while his pelvis jitters (the basketball clip's
 # standing man: a 0.26 m/s "speed" from jitter, 0.06 m/s of travel).
 GAIT_MIN_TRAVEL_MPS = 0.2
+# A foot takes the lead when it is LEAD_HYSTERESIS_M ahead of the other (an ankle's noise does not swap it), and a
+# knee counts as bent over KNEE_BENT_DEG of flexion.
+LEAD_HYSTERESIS_M = 0.05
+KNEE_BENT_DEG = 45.0
 # Heights are measured to the joints, not the soles: a planted ankle joint sits about 7 cm and a foot joint about
 # 2.5 cm above the ground (the open body model at rest: 0.069-0.076 and 0.023-0.030 m over betas -2..2).
 FOOT_JOINT_HEIGHT = {7: 0.07, 8: 0.07, 10: 0.025, 11: 0.025}
@@ -139,6 +152,49 @@ def image_step_rate(keypoints: np.ndarray, fps: float) -> float | None:
     return None if stride is None else float(120.0 * stride)
 
 
+def _lead(joints: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+    """(n,) the left ankle's lead over the right (m) along the direction the hips face ((left hip - right hip) x
+    up), or None where that direction is undefined."""
+    forward = np.cross(joints[:, 1] - joints[:, 2], up)
+    norm = np.linalg.norm(forward, axis=1)
+    if not np.all(norm > 1e-9):
+        return None
+    return ((joints[:, 7] - joints[:, 8]) * (forward / norm[:, None])).sum(axis=1)
+
+
+def leg_figures(joints: np.ndarray, fps: float, up: np.ndarray) -> dict:
+    """How the legs move: joints (n, 24, 3) metres over consecutive frames, up (n, 3) unit ground normals.
+
+    lead_changes counts the swaps of the leading foot (_lead beyond +-LEAD_HYSTERESIS_M, a Schmitt trigger),
+    longest_lead_s the longest a foot kept the lead (the whole track when it never swapped; None when no foot ever
+    led); knee_flex_deg (left, right) the median flexion of each knee (the angle between thigh and shin, 0 for a
+    straight leg) and knee_bent_fraction the share of frames it is over KNEE_BENT_DEG."""
+    flex = []
+    for hip, knee, ankle in LEGS:
+        thigh, shin = joints[:, knee] - joints[:, hip], joints[:, ankle] - joints[:, knee]
+        cosine = (thigh * shin).sum(-1) / np.maximum(np.linalg.norm(thigh, axis=-1) * np.linalg.norm(shin, axis=-1),
+                                                     1e-12)
+        flex.append(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
+    figures = {"knee_flex_deg": [float(np.median(f)) for f in flex],
+               "knee_bent_fraction": [float((f > KNEE_BENT_DEG).mean()) for f in flex],
+               "lead_changes": None, "longest_lead_s": None}
+    lead = _lead(joints, up)
+    if lead is None:
+        return figures
+    state, since, changes, longest = 0, 0, 0, 0
+    for i, value in enumerate(lead):
+        now = 1 if value > LEAD_HYSTERESIS_M else -1 if value < -LEAD_HYSTERESIS_M else state
+        if now != state:
+            if state != 0:
+                changes += 1
+                longest = max(longest, i - since)
+            state, since = now, i
+    if state != 0:
+        longest = max(longest, len(lead) - since)
+        figures.update(lead_changes=changes, longest_lead_s=float(longest / fps))
+    return figures
+
+
 def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: float) -> dict:
     """Step rate and length of a walking or running track: joints (n, 24, 3) metres over consecutive frames, up
     (n, 3) unit ground normals, mean_speed its mean horizontal speed (m/s).
@@ -153,12 +209,9 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     (hip-knee-ankle, the median over frames and legs)."""
     none = {"step_rate_spm": None, "step_length_m": None, "step_length_legs": None}
     n = len(joints)
-    side = joints[:, 1] - joints[:, 2]
-    forward = np.cross(side, up)
-    norm = np.linalg.norm(forward, axis=1)
-    if n < 8 or not np.all(norm > 1e-9):
+    lead = _lead(joints, up)
+    if n < 8 or lead is None:
         return none
-    lead = ((joints[:, 7] - joints[:, 8]) * (forward / norm[:, None])).sum(axis=1)
     t = np.arange(n) / fps
     travel = joints[-1, list(PELVIS)].mean(axis=0) - joints[0, list(PELVIS)].mean(axis=0)
     travel -= (travel @ up[-1]) * up[-1]
@@ -231,7 +284,9 @@ def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, groun
         "slow_foot_speed_mps": float(np.median(slow_foot)),
         "below_ground_fraction": float((lowest < -BELOW_GROUND_TOLERANCE).mean()),
         "penetration_m": float(max(0.0, -lowest.min())),
+        "surge_ratio": float(sustained / speed.mean()) if speed.mean() > 1e-6 else None,
         **gait_figures(joints, fps, unit, float(speed.mean())),
+        **leg_figures(joints, fps, unit),
     }
 
 

@@ -96,6 +96,30 @@ def _slow_gait_hint(figures: dict) -> str:
     return ""
 
 
+def _legs_line(figures: dict) -> str:
+    """The legs' figures (m3c.eval.plausibility.leg_figures) in words, with a warning where they look wrong: a knee
+    bent most of the time, feet that never swap while the person travels, a pelvis advancing in surges."""
+    flex, bent = figures["knee_flex_deg"], figures["knee_bent_fraction"]
+    words = [f"knees flexed {flex[0]:.0f} / {flex[1]:.0f} degrees median (left / right), over 45 in "
+             f"{100 * bent[0]:.0f}% / {100 * bent[1]:.0f}% of frames"]
+    if figures.get("lead_changes") is not None:
+        words.append(f"lead foot changed {figures['lead_changes']} times, at most {figures['longest_lead_s']:.1f} s "
+                     "apart")
+    if figures.get("surge_ratio") is not None:
+        words.append(f"fastest second x{figures['surge_ratio']:.1f} the mean speed")
+    odd = []
+    if max(bent) > 1 / 3:
+        odd.append("a knee bent most of the time")
+    travelling = figures["mean_speed_mps"] > 0.3 and figures["displacement_m"] > 1.0
+    if travelling and figures.get("longest_lead_s") is not None and figures["longest_lead_s"] > 2.0:
+        odd.append("one foot leads for over 2 s while the person travels")
+    if travelling and (figures.get("surge_ratio") or 0) > 2.0:
+        odd.append("the person advances in surges")
+    if odd:
+        words.append("CHECK: " + ", ".join(odd) + " (look at m3c view)")
+    return "; ".join(words)
+
+
 def _time_scale(video: dict) -> list[str]:
     """The slow motion the people's gait says (results.json video.time_scale), when it measured any."""
     estimate = video.get("time_scale")
@@ -266,6 +290,8 @@ def describe(folder: str | Path) -> str:
                 lines.append(f"         gait {figures['step_rate_spm']:.0f} steps/min, "
                              f"{figures['step_length_m']:.2f} m a step ({figures['step_length_legs']:.2f} leg "
                              f"lengths){_slow_gait_hint(figures)}")
+            if figures.get("knee_flex_deg") is not None:
+                lines.append(f"         legs {_legs_line(figures)}")
     for stage in summary["optimization"]["stages"]:
         parts = stage.get("parts", 1)  # runs before parts were reported have none
         lines.append(f"  stage {stage['name']:<14} {stage['status']:<10} {stage['iterations']:>3} it  objective "

@@ -27,8 +27,9 @@ class LeanNode(Node):
     type_name = "lean"
     level = "smpl"
     # bump when m3c.perception.lean's behaviour changes (its code is not part of this class's hash); 2: its re-fit
-    # turns a warm fit that ends turned far from the 3D torso back (cpp/fit max_turn_from_3d_deg)
-    version = "2"
+    # turns a warm fit that ends turned far from the 3D torso back (cpp/fit max_turn_from_3d_deg); 3: and re-solves
+    # a limb far from the 3D (max_limb_from_3d_m)
+    version = "3"
     inputs = ("tracks", "camera", "cameras")
     outputs = ("tracks",)
     settings = ("body_model",)

@@ -75,7 +75,9 @@ class PerceptionNode(Node):
     # 17: a tracked person BlazePose finds nobody on may be kept on the detector's multi-person network skeleton
     #     (skeleton_agreement, opt-in); a piece inside another track's gap may join it by its keypoint colours
     #     (merge.max_piece_colour)
-    version = "17"
+    # 18: a warm body fit with a knee, ankle, elbow or wrist over 0.25 m from the 3D is solved again from the pose
+    #     of the 3D alone (cpp/fit max_limb_from_3d_m: a walker seen from behind kept a knee bent backwards)
+    version = "18"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""

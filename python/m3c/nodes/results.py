@@ -165,8 +165,9 @@ class ResultsNode(Node):
     # 4: camera.scene; 5: world.ground_tilt_prior; 6: the tracks' gait (plausibility step_rate_spm, step_length_*),
     # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean;
     # 10: video.time_scale, camera.scale_estimate's spread, confidence and disagreement; video.total_frames,
-    # frames_in_container, truncated
-    version = "10"
+    # frames_in_container, truncated; 11: the tracks' legs (plausibility lead_changes, longest_lead_s, knee_flex_deg,
+    # knee_bent_fraction, surge_ratio)
+    version = "11"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")

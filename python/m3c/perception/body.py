@@ -77,6 +77,7 @@ class BodyFitConfig:
     max_iterations: int = _FIT.max_iterations
     reinit_error_px: float = _FIT.reinit_error_px
     max_turn_from_3d_deg: float = _FIT.max_turn_from_3d_deg
+    max_limb_from_3d_m: float = _FIT.max_limb_from_3d_m
 
     def to_core(self) -> "_core.BodyFitOptions":
         options = _core.BodyFitOptions()

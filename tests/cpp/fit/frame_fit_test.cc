@@ -311,6 +311,12 @@ TEST(BodyFitter, RejectsBadInput) {
   FitOptions no_turn;
   no_turn.max_turn_from_3d_deg = std::nan("");  // NaN would silently switch the rule off
   EXPECT_THROW(BodyFitter(&model, &reg, no_turn), std::invalid_argument);
+  FitOptions no_limbs;
+  no_limbs.max_limb_from_3d_m = std::nan("");
+  EXPECT_THROW(BodyFitter(&model, &reg, no_limbs), std::invalid_argument);
+  FitOptions bad_limb;
+  bad_limb.limbs = {7, 17};
+  EXPECT_THROW(BodyFitter(&model, &reg, bad_limb), std::invalid_argument);
 }
 
 }  // namespace
