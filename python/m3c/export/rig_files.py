@@ -1,10 +1,11 @@
-"""Files of the rig exports (`m3c export --rig RIG --format glb|fbx|usd`): one file per track, the track's motion
-retargeted by m3c.export.rigs onto the rig's skeleton, keys from time 0 (the track's first frame, or the
-reference pose) at the results' fps.
+"""Files of the rig exports (`m3c export --rig RIG --format glb|fbx|usd`): one file per track, the track's
+motion retargeted by m3c.export.rigs onto the rig's skeleton, keys from time 0 (the track's first frame, or
+the reference pose) at the results' fps.
 
-- GLB (pygltflib): the rig's bones as joint nodes under a node `<rig>_track<ID>` (rest translation and rotation
-  of each bone relative to its parent, animated rotations, the pelvis's animated translation), the performer's
-  mesh in the rig's rest pose skinned to the bones (at most 4 influences), one animation named after the rig.
+- GLB (pygltflib): the rig's bones as joint nodes under a node `<rig>_track<ID>` (rest translation and
+  rotation of each bone relative to its parent, animated rotations, the pelvis's animated translation), the
+  performer's mesh in the rig's rest pose skinned to the bones (at most 4 influences), one animation named
+  after the rig.
 - FBX: that GLB converted by Blender's FBX exporter (as `--format fbx`; needs Blender's bpy).
 - USD (usd-core's pxr.UsdSkel, text .usda): a SkelRoot with a Skeleton (joint paths from the bone names, `:`
   written `_`; the true names in jointNames; bind and rest transforms) and a SkelAnimation (per-joint local
@@ -88,7 +89,7 @@ def _usd_joint_paths(motion: RigMotion) -> list[str]:
 
 
 def _usd_matrix(R: np.ndarray, t: np.ndarray):
-    """A Gf.Matrix4d of the transform x -> R x + t (USD's row-vector convention: R transposed, t in the last row)."""
+    """A Gf.Matrix4d of x -> R x + t (USD's row-vector convention: R transposed, t in the last row)."""
     from pxr import Gf
 
     m = np.eye(4)
@@ -118,8 +119,8 @@ def _write_usd(source: ExportSource, track: TrackMotion, motion: RigMotion, path
         skel.CreateJointNamesAttr(Vt.TokenArray(motion.names))
         skel.CreateBindTransformsAttr(Vt.Matrix4dArray([_usd_matrix(R, t) for R, t in
                                                         zip(motion.rest_frames, motion.rest_positions)]))
-        skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_usd_matrix(R, t) for R, t in
-                                                        zip(motion.rest_rotations, motion.rest_translations)]))
+        rest = zip(motion.rest_rotations, motion.rest_translations)
+        skel.CreateRestTransformsAttr(Vt.Matrix4dArray([_usd_matrix(R, t) for R, t in rest]))
         anim = UsdSkel.Animation.Define(stage, f"/{prefix}/Skeleton/Motion")
         anim.CreateJointsAttr(Vt.TokenArray(joints))
         translations, rotations = anim.CreateTranslationsAttr(), anim.CreateRotationsAttr()
@@ -141,13 +142,13 @@ def check_usd() -> None:
     try:
         import pxr.UsdSkel  # noqa: F401
     except ImportError:
-        raise UsdUnavailable(f"USD export needs usd-core's pxr module, not found; install it with {USD_HINT}") \
-            from None
+        raise UsdUnavailable("USD export needs usd-core's pxr module, not found; install it with "
+                             f"{USD_HINT}") from None
 
 
 def export_rig(source: ExportSource, out: Path, rig: str, fmt: str = "glb", **options) -> list[Path]:
-    """One file per selected track on `rig`: out/<rig>_track<ID>.<ext> (out itself for one track and a file name
-    with the format's suffix). fmt: glb, fbx or usd (.usda). options: see track_rig_motion."""
+    """One file per selected track on `rig`: out/<rig>_track<ID>.<ext> (out itself for one track and a file
+    name with the format's suffix). fmt: glb, fbx or usd (.usda). options: see track_rig_motion."""
     suffix = {"glb": ".glb", "fbx": ".fbx", "usd": ".usda"}[fmt]
     if fmt == "usd":
         check_usd()

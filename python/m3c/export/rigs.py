@@ -1,46 +1,49 @@
 """Retargeting onto published skeletons (`m3c export --rig`): one retarget for every rig, the rigs as data.
 
-Where each skeleton's bone names and hierarchy come from (read through public copies, cited by repository/page):
+Where each skeleton's bone names and hierarchy come from (read through public copies, cited by
+repository/page):
 - Mixamo: the 25 body bones of an auto-rigged Mixamo character, `mixamorig:` prefix (Hips > Spine > Spine1 >
-  Spine2 > Neck > Head > HeadTop_End, Spine2 > LeftShoulder > LeftArm > LeftForeArm > LeftHand, Hips > LeftUpLeg >
-  LeftLeg > LeftFoot > LeftToeBase > LeftToe_End), as listed in home-gamejam/stick-game docs/rigs.md; Mixamo
-  characters are rigged in the T pose.
+  Spine2 > Neck > Head > HeadTop_End, Spine2 > LeftShoulder > LeftArm > LeftForeArm > LeftHand, Hips >
+  LeftUpLeg > LeftLeg > LeftFoot > LeftToeBase > LeftToe_End), as listed in home-gamejam/stick-game
+  docs/rigs.md; Mixamo characters are rigged in the T pose.
 - UE5 mannequin (Manny/Quinn): Epic's own template in the IK Rig auto-characterizer (Engine/Plugins/Animation/
-  IKRig/.../IKRigAutoCharacterizer.cpp, "UE5 Mannequin": root > pelvis > spine_01..spine_05 > neck_01 > neck_02 >
-  head, spine_05 > clavicle_l > upperarm_l > lowerarm_l > hand_l, pelvis > thigh_l > calf_l > foot_l > ball_l,
-  mirrored _r); the UE5 mannequin's reference pose is the A pose (arms about 45 degrees down).
+  IKRig/.../IKRigAutoCharacterizer.cpp, "UE5 Mannequin": root > pelvis > spine_01..spine_05 > neck_01 >
+  neck_02 > head, spine_05 > clavicle_l > upperarm_l > lowerarm_l > hand_l, pelvis > thigh_l > calf_l > foot_l
+  > ball_l, mirrored _r); the UE5 mannequin's reference pose is the A pose (arms about 45 degrees down).
 - Unity: the Humanoid avatar's body slots, HumanBodyBones (docs.unity3d.com ScriptReference/HumanBodyBones):
-  Hips, Spine, Chest, UpperChest, Neck, Head, Left/RightShoulder, UpperArm, LowerArm, Hand, UpperLeg, LowerLeg,
-  Foot, Toes; Unity's avatar configuration expects the T pose.
-- Blender Rigify, "Basic Human" metarig's deform (DEF-) bones, as listed in home-gamejam/stick-game docs/rigs.md:
-  DEF-spine (the hips) .001 .. .006 (.004 the neck, .006 the head), DEF-pelvis.L, DEF-thigh.L(.001), DEF-shin.L(
-  .001), DEF-foot.L, DEF-toe.L, DEF-shoulder.L, DEF-upper_arm.L(.001), DEF-forearm.L(.001), DEF-hand.L (mirrored
-  .R); parented as Rigify parents them (thighs and pelvis.L under DEF-spine, shoulders under DEF-spine.003). The
-  breast bones are left out (nothing of the body model drives them). Rest pose used: the T pose.
+  Hips, Spine, Chest, UpperChest, Neck, Head, Left/RightShoulder, UpperArm, LowerArm, Hand, UpperLeg,
+  LowerLeg, Foot, Toes; Unity's avatar configuration expects the T pose.
+- Blender Rigify, "Basic Human" metarig's deform (DEF-) bones, as listed in home-gamejam/stick-game
+  docs/rigs.md: DEF-spine (the hips) .001 .. .006 (.004 the neck, .006 the head), DEF-pelvis.L,
+  DEF-thigh.L(.001), DEF-shin.L( .001), DEF-foot.L, DEF-toe.L, DEF-shoulder.L, DEF-upper_arm.L(.001),
+  DEF-forearm.L(.001), DEF-hand.L (mirrored .R); parented as Rigify parents them (thighs and pelvis.L under
+  DEF-spine, shoulders under DEF-spine.003). The breast bones are left out (nothing of the body model drives
+  them). Rest pose used: the T pose.
 - smpl: the body model's own 24 joints and rest pose (today's BVH/GLB/FBX skeleton).
 
 Retarget. Every bone's head sits on a body-model joint (`joint`) or on a fixed point of a body-model segment
 (`between`: twist, extra spine and end bones; they carry no rotation of their own and follow their parent).
-Bone lengths are therefore the performer's own (the body model's joints at the fitted betas). The target's rest
-pose is the body model's rest with world rotations W_j per joint (limbs straightened: arms along +-x in the T
-pose, 45 degrees below it in the A pose, legs vertical; torso and head as the body model's rest), moved so that
-the mesh stands on y = 0 with the pelvis above the origin. A frame's body-model world rotations G_j then give
-each bone the world frame F_b = G_d W_d^T B_b (d the joint driving the bone, B_b the bone's rest frame), so
-forward kinematics puts every mapped bone exactly on the source's world joint. Bone axes: B_b has its primary
-axis along the bone (head to the first child; +Y for Mixamo, Unity and Rigify as in Blender, +X for UE5 as in
-Unreal), the roll chosen by M3C (second axis from the character's forward or up), not copied from the vendors'
-files. Axes of the file: the results' world (y up, metres, +z the first camera's viewing direction).
+Bone lengths are therefore the performer's own (the body model's joints at the fitted betas). The target's
+rest pose is the body model's rest with world rotations W_j per joint (limbs straightened: arms along +-x in
+the T pose, 45 degrees below it in the A pose, legs vertical; torso and head as the body model's rest), moved
+so that the mesh stands on y = 0 with the pelvis above the origin. A frame's body-model world rotations G_j
+then give each bone the world frame F_b = G_d W_d^T B_b (d the joint driving the bone, B_b the bone's rest
+frame), so forward kinematics puts every mapped bone exactly on the source's world joint. Bone axes: B_b has
+its primary axis along the bone (head to the first child; +Y for Mixamo, Unity and Rigify as in Blender, +X
+for UE5 as in Unreal), the roll chosen by M3C (second axis from the character's forward or up), not copied
+from the vendors' files. Axes of the file: the results' world (y up, metres, +z the first camera's viewing
+direction).
 
 Options (what `m3c export --rig` passes):
-- root_motion "performer": the true metric world path; "in-place": the pelvis's horizontal path removed
-  (x = z = 0), its height and every rotation (the heading) kept.
+- root_motion "performer": the true metric world path; "in-place": the pelvis's horizontal path removed (x = z
+  = 0), its height and every rotation (the heading) kept.
 - smoothing "off" / "standard" / "strong": a Savitzky-Golay filter (polynomial order 2) over windows of
   SMOOTHING_SECONDS on each joint's local rotation as a quaternion (signs made continuous first, renormalised
   after) and on the root translation; the planted feet are re-locked after it.
-- foot_lock: on frames where a foot is planted (results.npz `contacts` > CONTACT_THRESHOLD at its ankle or toe)
-  the ankle is put back where the source has it (after the in-place shift) by a two-bone IK on hip and knee
-  (the knee stays in the plane of its current bend), and the foot and toe get the source's world rotations. The
-  retarget and the smoothing then add no sliding; sliding the source itself has is not removed.
+- foot_lock: on frames where a foot is planted (results.npz `contacts` > CONTACT_THRESHOLD at its ankle or
+  toe) the ankle is put back where the source has it (after the in-place shift) by a two-bone IK on hip and
+  knee (the knee stays in the plane of its current bend), and the foot and toe get the source's world
+  rotations. The retarget and the smoothing then add no sliding; sliding the source itself has is not removed.
 - reference_pose "tpose" / "apose": an extra first frame in that pose (facing +z, above the first frame's
   pelvis); the motion starts one frame later.
 """
@@ -48,7 +51,6 @@ Options (what `m3c export --rig` passes):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -67,9 +69,9 @@ _LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))   # hip, knee, ankle, foot per side (left
 @dataclass(frozen=True)
 class Bone:
     name: str
-    parent: Optional[str]
+    parent: str | None
     joint: int                                      # the body-model joint the head sits on; -1: the floor
-    between: Optional[tuple[int, float]] = None     # head at joint + t (other - joint); follows its parent
+    between: tuple[int, float] | None = None     # head at joint + t (other - joint); follows its parent
 
 
 @dataclass(frozen=True)
@@ -93,12 +95,16 @@ class Rig:
         return {b.name: b.joint for b in self.bones if b.joint >= 0 and b.between is None}
 
 
+_CENTRAL = (0, 3, 6, 9, 12, 15)   # SMPL joints on the midline; the others come in pairs, left then right
+
+
 def _sides(template: list[tuple], left: str, right: str) -> list[Bone]:
-    """Bones from (name, parent, left joint, between) with `{s}` in names; right joints are left + 1 (SMPL)."""
+    """Bones from (name, parent, left joint, between), `{s}` in names; right joints are left + 1 (SMPL)."""
     bones = []
     for side, offset in ((left, 0), (right, 1)):
+        def shift(j: int, offset: int = offset) -> int:
+            return j if j in _CENTRAL else j + offset
         for name, parent, joint, between in template:
-            shift = (lambda j: j + offset if j not in (0, 9, 3, 6, 12, 15) else j)
             bones.append(Bone(name.format(s=side), parent.format(s=side) if parent else None, shift(joint),
                               (shift(between[0]), between[1]) if between else None))
     return bones
@@ -107,7 +113,8 @@ def _sides(template: list[tuple], left: str, right: str) -> list[Bone]:
 def _mixamo() -> Rig:
     p = "mixamorig:"
     core = [Bone(p + "Hips", None, 0), Bone(p + "Spine", p + "Hips", 3), Bone(p + "Spine1", p + "Spine", 6),
-            Bone(p + "Spine2", p + "Spine1", 9), Bone(p + "Neck", p + "Spine2", 12), Bone(p + "Head", p + "Neck", 15),
+            Bone(p + "Spine2", p + "Spine1", 9), Bone(p + "Neck", p + "Spine2", 12),
+            Bone(p + "Head", p + "Neck", 15),
             Bone(p + "HeadTop_End", p + "Head", 12, (15, 2.5))]
     limbs = [(p + "{s}Shoulder", p + "Spine2", 13, None), (p + "{s}Arm", p + "{s}Shoulder", 16, None),
              (p + "{s}ForeArm", p + "{s}Arm", 18, None), (p + "{s}Hand", p + "{s}ForeArm", 20, None),
@@ -121,10 +128,12 @@ def _ue5() -> Rig:
     core = [Bone("root", None, -1), Bone("pelvis", "root", 0), Bone("spine_01", "pelvis", 3),
             Bone("spine_02", "spine_01", 3, (6, 0.5)), Bone("spine_03", "spine_02", 6),
             Bone("spine_04", "spine_03", 6, (9, 0.5)), Bone("spine_05", "spine_04", 9),
-            Bone("neck_01", "spine_05", 12), Bone("neck_02", "neck_01", 12, (15, 0.5)), Bone("head", "neck_02", 15)]
+            Bone("neck_01", "spine_05", 12), Bone("neck_02", "neck_01", 12, (15, 0.5)),
+            Bone("head", "neck_02", 15)]
     limbs = [("clavicle_{s}", "spine_05", 13, None), ("upperarm_{s}", "clavicle_{s}", 16, None),
              ("lowerarm_{s}", "upperarm_{s}", 18, None), ("hand_{s}", "lowerarm_{s}", 20, None),
-             ("thigh_{s}", "pelvis", 1, None), ("calf_{s}", "thigh_{s}", 4, None), ("foot_{s}", "calf_{s}", 7, None),
+             ("thigh_{s}", "pelvis", 1, None), ("calf_{s}", "thigh_{s}", 4, None),
+             ("foot_{s}", "calf_{s}", 7, None),
              ("ball_{s}", "foot_{s}", 10, None)]
     return Rig("ue5", tuple(core + _sides(limbs, "l", "r")), "apose", "x")
 
@@ -146,7 +155,8 @@ def _rigify() -> Rig:
             Bone("DEF-spine.006", "DEF-spine.005", 15)]
     limbs = [("DEF-pelvis.{s}", "DEF-spine", 0, (1, 0.0)),
              ("DEF-thigh.{s}", "DEF-spine", 1, None), ("DEF-thigh.{s}.001", "DEF-thigh.{s}", 1, (4, 0.5)),
-             ("DEF-shin.{s}", "DEF-thigh.{s}.001", 4, None), ("DEF-shin.{s}.001", "DEF-shin.{s}", 4, (7, 0.5)),
+             ("DEF-shin.{s}", "DEF-thigh.{s}.001", 4, None),
+             ("DEF-shin.{s}.001", "DEF-shin.{s}", 4, (7, 0.5)),
              ("DEF-foot.{s}", "DEF-shin.{s}.001", 7, None), ("DEF-toe.{s}", "DEF-foot.{s}", 10, None),
              ("DEF-shoulder.{s}", "DEF-spine.003", 13, None),
              ("DEF-upper_arm.{s}", "DEF-shoulder.{s}", 16, None),
@@ -161,7 +171,8 @@ def _smpl() -> Rig:
     from m3c.body.joint_names import SMPL_JOINT_NAMES
 
     names = SMPL_JOINT_NAMES
-    return Rig("smpl", tuple(Bone(names[j], names[p] if p >= 0 else None, j) for j, p in enumerate(_SMPL_PARENTS)),
+    bones = tuple(Bone(names[j], names[p] if p >= 0 else None, j) for j, p in enumerate(_SMPL_PARENTS))
+    return Rig("smpl", bones,
                "model", "none")
 
 
@@ -174,7 +185,7 @@ def get_rig(name: str) -> Rig:
     return RIGS[name]()
 
 
-# --- rotations -----------------------------------------------------------------------------------------------
+# --- rotations ---------------------------------------------------------------------------------------------
 
 def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(..., 3, 3) the smallest rotation taking direction a onto direction b (both (..., 3))."""
@@ -185,7 +196,8 @@ def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     c = np.sum(a * b, axis=-1)
     angle = np.arctan2(s, c)
     safe = np.where(s[..., None] > 1e-12, axis / np.maximum(s[..., None], 1e-300), 0.0)
-    out = Rotation.from_rotvec((safe * angle[..., None]).reshape(-1, 3)).as_matrix().reshape(*a.shape[:-1], 3, 3)
+    rotvec = (safe * angle[..., None]).reshape(-1, 3)
+    out = Rotation.from_rotvec(rotvec).as_matrix().reshape(*a.shape[:-1], 3, 3)
     flip = (s < 1e-12) & (c < 0)   # opposite directions: half a turn about any axis normal to a
     if np.any(flip):
         normal = np.cross(a[flip], [1.0, 0.0, 0.0])
@@ -197,7 +209,7 @@ def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def pose_world_rotations(rest_joints: np.ndarray, pose: str) -> np.ndarray:
-    """(24, 3, 3) world rotations W_j that turn the body model's rest into `pose` ("tpose", "apose", "model")."""
+    """(24, 3, 3) world rotations W_j turning the body model's rest into `pose` (tpose, apose, model)."""
     W = np.tile(np.eye(3), (24, 1, 1))
     if pose == "model":
         return W
@@ -237,14 +249,15 @@ def local_from_world(G: np.ndarray) -> np.ndarray:
     return local
 
 
-def smooth_motion(local: np.ndarray, root: np.ndarray, fps: float, level: str) -> tuple[np.ndarray, np.ndarray]:
-    """Savitzky-Golay (order 2, SMOOTHING_SECONDS[level] windows) on quaternions of (n, 24, 3, 3) local rotations
-    (hemisphere-continuous, renormalised) and on the (n, 3) root path. Short tracks get the longest odd window
-    they allow (none under 5 frames)."""
+def smooth_motion(local: np.ndarray, root: np.ndarray, fps: float,
+                  level: str) -> tuple[np.ndarray, np.ndarray]:
+    """Savitzky-Golay (order 2, SMOOTHING_SECONDS[level] windows) on quaternions of (n, 24, 3, 3) local
+    rotations (hemisphere-continuous, renormalised) and on the (n, 3) root path. Short tracks get the longest
+    odd window they allow (none under 5 frames)."""
     if level not in SMOOTHING_SECONDS:
         raise ValueError(f"unknown smoothing {level!r}; choose one of {', '.join(SMOOTHING_SECONDS)}")
     n = len(local)
-    window = int(round(SMOOTHING_SECONDS[level] * fps)) | 1
+    window = round(SMOOTHING_SECONDS[level] * fps) | 1
     window = min(window, n if n % 2 else n - 1)
     if level == "off" or window < 5:
         return local, root
@@ -257,7 +270,8 @@ def smooth_motion(local: np.ndarray, root: np.ndarray, fps: float, level: str) -
     return smoothed, savgol_filter(root, window, 2, axis=0, mode="interp")
 
 
-def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: float, lower: float) -> np.ndarray:
+def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: float,
+                lower: float) -> np.ndarray:
     """(m, 3) knee positions that put the ankle on `target` with segment lengths upper (hip-knee) and lower
     (knee-ankle), the knee in the plane of hip, target and its current position (as close to reach as the
     lengths allow)."""
@@ -274,8 +288,8 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: fl
     return hip + upper * (cos_a[:, None] * u + np.sqrt(1 - cos_a ** 2)[:, None] * v)
 
 
-def lock_feet(G: np.ndarray, x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray, target_G: np.ndarray,
-              target_x: np.ndarray) -> np.ndarray:
+def lock_feet(G: np.ndarray, x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray,
+              target_G: np.ndarray, target_x: np.ndarray) -> np.ndarray:
     """World rotations (n, 24, 3, 3) with, on planted frames (n, 2 bool: left, right), the ankle moved onto
     target_x's by two-bone IK on hip and knee, and the ankle and foot given target_G's world rotations."""
     G = G.copy()
@@ -296,7 +310,7 @@ def lock_feet(G: np.ndarray, x: np.ndarray, rest_joints: np.ndarray, planted: np
     return G
 
 
-# --- the retarget ----------------------------------------------------------------------------------------------
+# --- the retarget ------------------------------------------------------------------------------------------
 
 @dataclass
 class RigMotion:
@@ -399,21 +413,22 @@ def _rest(rig: Rig, rest_joints: np.ndarray, W: np.ndarray, rest_mesh: np.ndarra
     return heads, drivers, frames, vertices, weights
 
 
-def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_positions: np.ndarray, fps: float,
-             rest_mesh: np.ndarray, skin: np.ndarray, contacts: np.ndarray | None = None,
+def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_positions: np.ndarray,
+             fps: float, rest_mesh: np.ndarray, skin: np.ndarray, contacts: np.ndarray | None = None,
              root_motion: str = "performer", smoothing: str = "off", foot_lock: bool = True,
              reference_pose: str = "none", frames: np.ndarray | None = None) -> RigMotion:
     """The motion of one track on `rig`.
 
-    rest_joints (24, 3): the body model's rest joints at the track's betas; pose (n, 24, 3) axis-angle (world root
-    orientation, then the body's local rotations); root_positions (n, 3) the root joint's world positions;
+    rest_joints (24, 3): the body model's rest joints at the track's betas; pose (n, 24, 3) axis-angle (world
+    root orientation, then the body's local rotations); root_positions (n, 3): the root joint in the world;
     rest_mesh (V, 3) the body model's rest vertices at the betas, skin (V, 24) its weights; contacts (n, 4)
     results.npz's contact probabilities (None: no foot locking)."""
     rig = get_rig(rig) if isinstance(rig, str) else rig
     if root_motion not in ROOT_MOTIONS:
         raise ValueError(f"unknown root motion {root_motion!r}; choose one of {', '.join(ROOT_MOTIONS)}")
     if reference_pose not in REFERENCE_POSES:
-        raise ValueError(f"unknown reference pose {reference_pose!r}; choose one of {', '.join(REFERENCE_POSES)}")
+        raise ValueError(f"unknown reference pose {reference_pose!r}; choose one of "
+                         f"{', '.join(REFERENCE_POSES)}")
     n = len(pose)
     frames = np.arange(n) if frames is None else np.asarray(frames)
     J = rest_joints
@@ -427,7 +442,8 @@ def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_pos
     planted = np.zeros((n, 2), bool)
     if foot_lock and contacts is not None:
         c = np.asarray(contacts, dtype=np.float64)
-        planted = np.stack([np.maximum(c[:, 0], c[:, 2]), np.maximum(c[:, 1], c[:, 3])], 1) > CONTACT_THRESHOLD
+        planted = np.stack([np.maximum(c[:, 0], c[:, 2]), np.maximum(c[:, 1], c[:, 3])], 1)
+        planted = planted > CONTACT_THRESHOLD
         G = lock_feet(G, x, J, planted, source_G, source_x)
         G, x = forward_kinematics(local_from_world(G), J, root)
 
@@ -469,6 +485,7 @@ def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_pos
             rotations[:, b] = np.swapaxes(F[:, p], -1, -2) @ F[:, b]
     top = list(drivers).index(0)
     pt = parents[top]
-    translations = world[:, top] if pt < 0 else np.einsum("nji,nj->ni", F[:, pt], world[:, top] - world[:, pt])
+    translations = (world[:, top] if pt < 0
+                    else np.einsum("nji,nj->ni", F[:, pt], world[:, top] - world[:, pt]))
     return RigMotion(rig, rig.names, parents, heads, B, rest_t, rest_r, rotations, top, translations, world,
                      frames, planted, rest_vertices, weights)
