@@ -42,7 +42,8 @@ Options (what `m3c export --rig` passes):
   after) and on the root translation; the planted feet are re-locked after it.
 - foot_lock: on frames where a foot is planted (results.npz `contacts` > CONTACT_THRESHOLD at its ankle or
   toe) the ankle is put back where the source has it (after the in-place shift) by a two-bone IK on hip and
-  knee (the knee stays in the plane of its current bend), and the foot and toe get the source's world
+  knee (the knee stays in the plane of its current bend; where the smoothed hips are too far for the leg, the
+  whole body is lowered just enough first), and the foot and toe get the source's world
   rotations. The retarget and the smoothing then add no sliding; sliding the source itself has is not removed.
 - reference_pose "tpose" / "apose": an extra first frame in that pose (facing +z, above the first frame's
   pelvis); the motion starts one frame later.
@@ -62,6 +63,7 @@ SMOOTHING_SECONDS = {"off": 0.0, "standard": 0.25, "strong": 0.5}
 CONTACT_THRESHOLD = 0.5           # results.npz contacts are probabilities
 CONTACT_JOINTS = (7, 8, 10, 11)   # results.npz contacts' columns: left/right ankle, left/right foot (SMPL)
 A_POSE_DEGREES = 45.0             # arms below horizontal in the A pose
+REACH = 0.999                     # foot locking straightens a leg to at most this fraction of its length
 _SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21)
 _LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))   # hip, knee, ankle, foot per side (left, right)
 
@@ -288,6 +290,20 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: fl
     return hip + upper * (cos_a[:, None] * u + np.sqrt(1 - cos_a ** 2)[:, None] * v)
 
 
+def reach_drop(x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray, target_x: np.ndarray) -> np.ndarray:
+    """(n,) how far (metres) to lower the body so that every planted ankle's target is within its leg's reach
+    (0 where it already is): the smallest s >= 0 with |target - (hip - s y)| <= REACH * leg length."""
+    drop = np.zeros(len(x))
+    J = rest_joints
+    for side, (hip, knee, ankle, _) in enumerate(_LEGS):
+        reach = REACH * (np.linalg.norm(J[knee] - J[hip]) + np.linalg.norm(J[ankle] - J[knee]))
+        d = target_x[:, ankle] - x[:, hip]
+        far = planted[:, side] & (np.linalg.norm(d, axis=-1) > reach)
+        disc = d[far, 1] ** 2 + reach ** 2 - np.sum(d[far] ** 2, axis=-1)
+        drop[far] = np.maximum(drop[far], -d[far, 1] - np.sqrt(np.maximum(disc, 0.0)))
+    return drop
+
+
 def lock_feet(G: np.ndarray, x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray,
               target_G: np.ndarray, target_x: np.ndarray) -> np.ndarray:
     """World rotations (n, 24, 3, 3) with, on planted frames (n, 2 bool: left, right), the ankle moved onto
@@ -444,6 +460,8 @@ def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_pos
         c = np.asarray(contacts, dtype=np.float64)
         planted = np.stack([np.maximum(c[:, 0], c[:, 2]), np.maximum(c[:, 1], c[:, 3])], 1)
         planted = planted > CONTACT_THRESHOLD
+        root[:, 1] -= reach_drop(x, J, planted, source_x)   # a leg too short for its planted foot: hips lower
+        G, x = forward_kinematics(local, J, root)
         G = lock_feet(G, x, J, planted, source_G, source_x)
         G, x = forward_kinematics(local_from_world(G), J, root)
 
