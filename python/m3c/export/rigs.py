@@ -54,7 +54,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 ROOT_MOTIONS = ("performer", "in-place")
@@ -263,6 +262,8 @@ def smooth_motion(local: np.ndarray, root: np.ndarray, fps: float,
     window = min(window, n if n % 2 else n - 1)
     if level == "off" or window < 5:
         return local, root
+    from scipy.signal import savgol_filter  # seconds to import: only when smoothing
+
     quat = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_quat().reshape(n, -1, 4)
     for i in range(1, n):
         quat[i][np.sum(quat[i] * quat[i - 1], axis=-1) < 0] *= -1
@@ -290,7 +291,8 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: fl
     return hip + upper * (cos_a[:, None] * u + np.sqrt(1 - cos_a ** 2)[:, None] * v)
 
 
-def reach_drop(x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray, target_x: np.ndarray) -> np.ndarray:
+def reach_drop(x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray,
+               target_x: np.ndarray) -> np.ndarray:
     """(n,) how far (metres) to lower the body so that every planted ankle's target is within its leg's reach
     (0 where it already is): the smallest s >= 0 with |target - (hip - s y)| <= REACH * leg length."""
     drop = np.zeros(len(x))
