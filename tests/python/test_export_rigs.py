@@ -1,9 +1,9 @@
 """`m3c export --rig`: the motion retargeted onto Mixamo, UE5 mannequin, Unity Humanoid and Rigify skeletons.
 
 The files are read back independently of the retarget: the GLB by pygltflib and the USD by pxr, with forward
-kinematics of their rest transforms and animated local rotations done here in numpy; the mapped bones must land
-on results.npz's world joints. In real Blender (bpy, skipped without it) each rig's GLB and FBX import with the
-rig's bone names and hierarchy, and the Mixamo FBX re-imports with the GLB's bone positions."""
+kinematics of their rest transforms and animated local rotations done here in numpy; the mapped bones must
+land on results.npz's world joints. In real Blender (bpy, skipped without it) each rig's GLB and FBX import
+with the rig's bone names and hierarchy, and the Mixamo FBX re-imports with the GLB's bone positions."""
 
 from __future__ import annotations
 
@@ -11,13 +11,12 @@ import json
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from export_scene import write_results
 from m3c.body import default_body_model
 from m3c.cli import main
 from m3c.export import export_results, load_source
 from m3c.export.rigs import RIGS, get_rig
+from scipy.spatial.transform import Rotation
 
 CM = 0.01
 MM = 1e-3
@@ -31,8 +30,9 @@ EXPECTED = {
                "mixamorig:LeftToeBase": "mixamorig:LeftFoot", "mixamorig:HeadTop_End": "mixamorig:Head"},
     "ue5": {"root": None, "pelvis": "root", "spine_05": "spine_04", "neck_02": "neck_01", "head": "neck_02",
             "clavicle_l": "spine_05", "upperarm_r": "clavicle_r", "thigh_l": "pelvis", "ball_r": "foot_r"},
-    "unity": {"Hips": None, "UpperChest": "Chest", "LeftShoulder": "UpperChest", "LeftUpperArm": "LeftShoulder",
-              "RightLowerLeg": "RightUpperLeg", "LeftToes": "LeftFoot", "Head": "Neck"},
+    "unity": {"Hips": None, "UpperChest": "Chest", "LeftShoulder": "UpperChest",
+              "LeftUpperArm": "LeftShoulder", "RightLowerLeg": "RightUpperLeg", "LeftToes": "LeftFoot",
+              "Head": "Neck"},
     "rigify": {"DEF-spine": None, "DEF-spine.006": "DEF-spine.005", "DEF-thigh.L": "DEF-spine",
                "DEF-shin.L": "DEF-thigh.L.001", "DEF-upper_arm.R": "DEF-shoulder.R",
                "DEF-shoulder.L": "DEF-spine.003", "DEF-toe.R": "DEF-foot.R"},
@@ -119,8 +119,8 @@ def test_glb_bones_land_on_the_world_joints(results, tmp_path, rig):
 
 
 def test_rest_pose_bone_lengths_and_axes(results, tmp_path):
-    """Rest poses: Mixamo's T (arms along +-x), UE5's A (arms 45 degrees down), legs vertical; the rest bones are
-    the performer's (the body model's joints at the track's betas)."""
+    """Rest poses: Mixamo's T (arms along +-x), UE5's A (arms 45 degrees down), legs vertical; the rest bones
+    are the performer's (the body model's joints at the track's betas)."""
     source = load_source(results)
     track = source.tracks[0]
     J = track.rest_joints
@@ -191,14 +191,16 @@ def test_foot_lock_holds_planted_feet_under_smoothing(results, tmp_path):
 
 
 def test_foot_lock_against_the_body_model_on_jittery_motion():
-    """Jittered poses, strongly smoothed: the smoothing moves the feet by centimetres, the lock holds the planted
-    ones on the body model's own posed ankles and toes (m3c's C++ forward kinematics, not the retarget's)."""
+    """Jittered poses, strongly smoothed: the smoothing moves the feet by centimetres, the lock holds the
+    planted ones on the body model's own posed ankles and toes (m3c's C++ forward kinematics, not the
+    retarget's)."""
     model = default_body_model()
     rng = np.random.default_rng(3)
     n, fps = 40, 30.0
     t = np.arange(n) / fps
     betas = rng.normal(scale=0.5, size=10)
-    pose = 0.2 * rng.normal(size=(1, 24, 3)) + 0.3 * np.sin(3 * t)[:, None, None] * rng.normal(size=(1, 24, 3))
+    swing = np.sin(3 * t)[:, None, None]
+    pose = 0.2 * rng.normal(size=(1, 24, 3)) + 0.3 * swing * rng.normal(size=(1, 24, 3))
     pose = pose + 0.08 * rng.normal(size=(n, 24, 3))    # jitter
     pose[:, 0] = Rotation.from_euler("y", 0.4 * t[:, None]).as_rotvec()
     transl = np.stack([0.5 * t, 0.9 + 0.03 * rng.normal(size=n), 0.2 * t], axis=1)
@@ -255,14 +257,16 @@ def test_usd_skeleton_lands_on_the_world_joints(results, tmp_path):
 def test_cli_rig_options(results, tmp_path, capsys):
     out = tmp_path / "mixamo"
     assert main(["export", str(results), "--format", "glb", "--rig", "mixamo", "--root-motion", "in-place",
-                 "--smoothing", "standard", "--reference-pose", "apose", "--tracks", "4", "--out", str(out)]) == 0
+                 "--smoothing", "standard", "--reference-pose", "apose", "--tracks", "4",
+                 "--out", str(out)]) == 0
     assert capsys.readouterr().out.split() == [str(out / "mixamo_track4.glb")]
-    assert main(["export", str(results), "--format", "bvh", "--rig", "ue5", "--out", str(tmp_path / "b")]) == 2
+    bvh = ["export", str(results), "--format", "bvh", "--rig", "ue5", "--out", str(tmp_path / "b")]
+    assert main(bvh) == 2
     assert "not bvh" in capsys.readouterr().err
     assert set(RIGS) == set(RIG_NAMES)
 
 
-# --- real Blender ---------------------------------------------------------------------------------------------
+# --- real Blender -------------------------------------------------------------------------------------------
 
 def _blender_missing() -> str:
     from m3c.export.blender import BlenderUnavailable, blender_python
