@@ -314,3 +314,13 @@ def test_rig_glb_and_fbx_in_blender(results, tmp_path, blender, rig):
                 imported = np.array(heads[name])
                 np.testing.assert_allclose(imported, world[name] @ BLENDER_FROM_M3C.T, atol=MM,
                                            err_msg=f"{path.name} {name}")
+
+
+def test_usd_without_usd_core_says_how_to_install(results, tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pxr", None)   # import pxr now raises ImportError
+    out = tmp_path / "usd"
+    code = main(["export", str(results), "--format", "usd", "--rig", "ue5", "--out", str(out)])
+    assert code == 3 and "pip install usd-core" in capsys.readouterr().err
+    assert not out.exists()
