@@ -250,8 +250,12 @@ def test_usd_skeleton_lands_on_the_world_joints(results, tmp_path):
             Rw, tw = [None] * len(names), [None] * len(names)
             for i, p in enumerate(parent):
                 Rw[i], tw[i] = (R[i], t[i]) if p < 0 else (Rw[p] @ R[i], tw[p] + Rw[p] @ t[i])
+            # USD's own skeleton evaluation agrees (row-vector matrices: the translation is the last row).
+            skel_space = UsdSkel.Cache().GetSkelQuery(skel).ComputeJointSkelTransforms(Usd.TimeCode(k))
             for name, joint in definition.mapped().items():
                 assert np.linalg.norm(tw[names.index(name)] - track.world_joints[k, joint]) < 1e-4
+                usd = np.array(skel_space[names.index(name)])[3, :3]
+                assert np.linalg.norm(usd - track.world_joints[k, joint]) < 1e-4
 
 
 def test_cli_rig_options(results, tmp_path, capsys):

@@ -62,7 +62,7 @@ SMOOTHING_SECONDS = {"off": 0.0, "standard": 0.25, "strong": 0.5}
 CONTACT_THRESHOLD = 0.5           # results.npz contacts are probabilities
 CONTACT_JOINTS = (7, 8, 10, 11)   # results.npz contacts' columns: left/right ankle, left/right foot (SMPL)
 A_POSE_DEGREES = 45.0             # arms below horizontal in the A pose
-REACH = 0.999                     # foot locking straightens a leg to at most this fraction of its length
+REACH_MARGIN = 1e-6               # metres: foot locking straightens a leg to its length less this
 _SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21)
 _LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))   # hip, knee, ankle, foot per side (left, right)
 
@@ -281,7 +281,7 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: fl
     to_target = target - hip
     d = np.linalg.norm(to_target, axis=-1)
     u = to_target / np.maximum(d[:, None], 1e-9)
-    d = np.clip(d, abs(upper - lower) + 1e-6, upper + lower - 1e-6)
+    d = np.clip(d, abs(upper - lower) + REACH_MARGIN, upper + lower - REACH_MARGIN)
     bend = knee - hip
     v = bend - np.sum(bend * u, axis=-1, keepdims=True) * u
     v_norm = np.linalg.norm(v, axis=-1, keepdims=True)
@@ -294,11 +294,11 @@ def two_bone_ik(hip: np.ndarray, knee: np.ndarray, target: np.ndarray, upper: fl
 def reach_drop(x: np.ndarray, rest_joints: np.ndarray, planted: np.ndarray,
                target_x: np.ndarray) -> np.ndarray:
     """(n,) how far (metres) to lower the body so that every planted ankle's target is within its leg's reach
-    (0 where it already is): the smallest s >= 0 with |target - (hip - s y)| <= REACH * leg length."""
+    (0 where it already is): the smallest s >= 0 with |target - (hip - s y)| <= leg length - REACH_MARGIN."""
     drop = np.zeros(len(x))
     J = rest_joints
     for side, (hip, knee, ankle, _) in enumerate(_LEGS):
-        reach = REACH * (np.linalg.norm(J[knee] - J[hip]) + np.linalg.norm(J[ankle] - J[knee]))
+        reach = np.linalg.norm(J[knee] - J[hip]) + np.linalg.norm(J[ankle] - J[knee]) - REACH_MARGIN
         d = target_x[:, ankle] - x[:, hip]
         far = planted[:, side] & (np.linalg.norm(d, axis=-1) > reach)
         disc = d[far, 1] ** 2 + reach ** 2 - np.sum(d[far] ** 2, axis=-1)
