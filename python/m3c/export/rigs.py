@@ -15,10 +15,12 @@ repository/page):
   LowerLeg, Foot, Toes; Unity's avatar configuration expects the T pose.
 - Blender Rigify, "Basic Human" metarig's deform (DEF-) bones, as listed in home-gamejam/stick-game
   docs/rigs.md: DEF-spine (the hips) .001 .. .006 (.004 the neck, .006 the head), DEF-pelvis.L,
-  DEF-thigh.L(.001), DEF-shin.L( .001), DEF-foot.L, DEF-toe.L, DEF-shoulder.L, DEF-upper_arm.L(.001),
-  DEF-forearm.L(.001), DEF-hand.L (mirrored .R); parented as Rigify parents them (thighs and pelvis.L under
-  DEF-spine, shoulders under DEF-spine.003). The breast bones are left out (nothing of the body model drives
-  them). Rest pose used: the T pose.
+  DEF-thigh.L(.001), DEF-shin.L(.001), DEF-foot.L, DEF-toe.L, DEF-shoulder.L, DEF-upper_arm.L(.001),
+  DEF-forearm.L(.001), DEF-hand.L (mirrored .R). A generated Rigify rig parents its DEF bones to ORG/MCH
+  bones, so a DEF-only hierarchy is a convention: here the metarig's parents (thighs and pelvis.L under
+  DEF-spine, shoulders under DEF-spine.003); game-export add-ons such as NyankoNyan/Rigify-Move-DEF put the
+  thighs under DEF-pelvis.L instead. The breast bones are left out (nothing of the body model drives them).
+  Rest pose used: the T pose.
 - smpl: the body model's own 24 joints and rest pose (today's BVH/GLB/FBX skeleton).
 
 Retarget. Every bone's head sits on a body-model joint (`joint`) or on a fixed point of a body-model segment
