@@ -59,8 +59,9 @@ def export_fbx(glb: str, fbx: str, fps: float, width: int, height: int) -> None:
 
 
 def sample(path: str, fps: float, first: int, last: int, out: str) -> None:
-    """{"frames": [...], "armatures": {name: {bone: [[x, y, z] per frame]}}, "parents": {name: {bone: parent}},
-    "cameras": {name: [4x4 per frame]}} with bone heads and camera matrices in Blender's world (metres)."""
+    """{"frames": [...], "armatures": {name: {bone: [[x, y, z] per frame]}},
+    "parents": {name: {bone: parent}}, "cameras": {name: [4x4 per frame]}} with bone heads and camera
+    matrices in Blender's world (metres)."""
     _import(path, fps)
     scene = bpy.context.scene
     frames = list(range(first, last + 1))
