@@ -47,6 +47,9 @@ fi
 if [ "${M3C_NO_VIEWER:-0}" != "1" ]; then
   "$PY" -m pip install --quiet "pygltflib>=1.16" "viser>=1.1" ||
     echo "setup: pygltflib/viser not installed; the GLB export and viewer tests will skip" >&2
+  # USD export (`m3c export --format usd`, the m3c[usd] extra: usd-core's pxr). Failure only skips its test.
+  "$PY" -m pip install --quiet "usd-core>=24.0" ||
+    echo "setup: usd-core not installed; --format usd and its test will skip" >&2
   # Headless Chromium for the viewer's browser test (software WebGL; about 20 s). Failure only skips that test.
   if command -v apt-get >/dev/null 2>&1 && ! command -v chromium >/dev/null 2>&1; then
     SUDO=""

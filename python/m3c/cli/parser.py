@@ -150,16 +150,34 @@ def build_parser() -> argparse.ArgumentParser:
     info.add_argument("folder")
     info.set_defaults(func=results_commands.info)
 
-    export = sub.add_parser("export", help="write the results as BVH, GLB or FBX, or in WHAM/SLAHMR/GVHMR layouts",
+    export = sub.add_parser("export", help="write the results as BVH, GLB, FBX or USD (optionally on a "
+                                         "Mixamo, UE5, Unity or Rigify skeleton), or in WHAM/SLAHMR/GVHMR "
+                                         "layouts",
                             description="Exports OUT_DIR's results (see README, 'Use the results' for axes and "
                                         "units of each format).")
     export.add_argument("folder", metavar="OUT_DIR", help="a result folder of `m3c run`")
-    export.add_argument("--format", required=True, choices=("bvh", "glb", "fbx", "wham", "slahmr", "gvhmr"))
+    export.add_argument("--format", required=True,
+                        choices=("bvh", "glb", "fbx", "usd", "wham", "slahmr", "gvhmr"),
+                        help="usd: USD (UsdSkel, .usda) of the retargeted skeleton; needs usd-core")
     export.add_argument("--tracks", metavar="IDS", help="comma-separated track ids (default: every track)")
     export.add_argument("--out", metavar="PATH", help="output file or folder (default: OUT_DIR/export/...)")
     export.add_argument("--body-model", metavar="FILE", help="the body model file the run used, when it was not "
                                                              "M3C's open model")
     export.add_argument("--bvh-unit", choices=("cm", "m"), default="cm", help="BVH length unit (default cm)")
+    export.add_argument("--rig", choices=("smpl", "mixamo", "ue5", "unity", "rigify"), default="smpl",
+                        help="the skeleton: smpl (default: the body model's 24 joints, one scene) or the "
+                             "motion retargeted onto Mixamo's, the UE5 mannequin's, Unity's Humanoid or "
+                             "Rigify's DEF bones (glb, fbx, usd; one file per track; see docs/outputs.md)")
+    export.add_argument("--root-motion", choices=("performer", "in-place"), default="performer",
+                        help="performer (default): the true metric world path; in-place: the horizontal path "
+                             "removed, height and heading kept")
+    export.add_argument("--reference-pose", choices=("none", "tpose", "apose"), default="none",
+                        help="an extra first frame in this pose (default none)")
+    export.add_argument("--smoothing", choices=("off", "standard", "strong"), default="off",
+                        help="Savitzky-Golay filter on the rotations (0.25 s or 0.5 s windows), planted feet "
+                             "re-locked after (default off)")
+    export.add_argument("--no-foot-lock", dest="foot_lock", action="store_false",
+                        help="do not hold planted feet (results' contacts) where the source has them")
     export.set_defaults(func=results_commands.export)
 
     view = sub.add_parser("view", help="interactive 3D viewer of a result folder in the browser (viser)")

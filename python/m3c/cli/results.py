@@ -24,7 +24,9 @@ def export(args) -> int:
 
     try:
         paths = export_results(args.folder, args.format, args.out, parse_track_ids(args.tracks), args.body_model,
-                               bvh_unit=args.bvh_unit)
+                               bvh_unit=args.bvh_unit, rig=args.rig, root_motion=args.root_motion,
+                               reference_pose=args.reference_pose, smoothing=args.smoothing,
+                               foot_lock=args.foot_lock)
     except PermissionError as err:  # an unwritable --out: bad input, not a bug
         raise ValueError(str(err)) from None
     for path in paths:

@@ -59,8 +59,9 @@ def export_fbx(glb: str, fbx: str, fps: float, width: int, height: int) -> None:
 
 
 def sample(path: str, fps: float, first: int, last: int, out: str) -> None:
-    """{"frames": [...], "armatures": {name: {bone: [[x, y, z] per frame]}}, "cameras": {name: [4x4 per frame]}}
-    with bone heads and camera matrices in Blender's world (metres)."""
+    """{"frames": [...], "armatures": {name: {bone: [[x, y, z] per frame]}},
+    "parents": {name: {bone: parent}}, "cameras": {name: [4x4 per frame]}} with bone heads and camera
+    matrices in Blender's world (metres)."""
     _import(path, fps)
     scene = bpy.context.scene
     frames = list(range(first, last + 1))
@@ -75,8 +76,11 @@ def sample(path: str, fps: float, first: int, last: int, out: str) -> None:
         for name, mats in cameras.items():
             mats.append([list(row) for row in scene.objects[name].matrix_world])
     fovs = {o.name: [o.data.angle_x, o.data.angle_y] for o in scene.objects if o.type == "CAMERA"}
+    parents = {o.name: {b.name: b.parent.name if b.parent else None for b in o.data.bones}
+               for o in scene.objects if o.type == "ARMATURE"}
     with open(out, "w") as fh:
-        json.dump({"frames": frames, "armatures": armatures, "cameras": cameras, "camera_fov": fovs,
+        json.dump({"frames": frames, "armatures": armatures, "parents": parents, "cameras": cameras,
+                   "camera_fov": fovs,
                    "resolution": [scene.render.resolution_x, scene.render.resolution_y],
                    "fps": scene.render.fps / scene.render.fps_base}, fh)
 
