@@ -1,12 +1,12 @@
-"""The real-footage benchmark (m3c.eval.real_benchmark) against truth computed here independently: the warp of a
-rotating camera against a pinhole projection written out in numpy (and m3c.camera's), the calibration's camera
-height and gravity by hand, the shipped .trc file's values, and the scoring of results that are the truth."""
+"""The real-footage benchmark (m3c.eval.real_benchmark) against truth computed here independently: the warp of
+a rotating camera against a pinhole projection written out in numpy (and m3c.camera's), the calibration's
+camera height and gravity by hand, the shipped .trc file's values, and the scoring of results that are the
+truth."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
-
 from m3c.camera import project
 from m3c.eval import real_benchmark as rb
 from m3c.eval.multiview import PELVIS, TRC_TO_SMPL, load_multiview, read_trc
@@ -144,8 +144,8 @@ def test_trc_reader_and_joint_mapping():
     assert fps == 60.0 and trc.shape == (100, 21, 3) and names[:3] == ["RHip", "RKnee", "RAnkle"]
     np.testing.assert_allclose(trc[0, 0], [-0.06497214796810755, 0.9015045550714222, -1.4005886926185436])
     seq = load_multiview(FOLDER)
-    np.testing.assert_allclose(seq.keypoints[0, 0], [-1.4005886926185436, -0.06497214796810755,
-                                                     0.9015045550714222])  # world = (trc Z, trc X, trc Y)
+    world = [-1.4005886926185436, -0.06497214796810755, 0.9015045550714222]  # (trc Z, trc X, trc Y)
+    np.testing.assert_allclose(seq.keypoints[0, 0], world)
     assert {"LHip", "RHip", "LKnee", "RKnee", "LAnkle", "RAnkle", "LShoulder", "RShoulder"} <= set(TRC_TO_SMPL)
     joints = seq.joints()
     assert joints.shape == (100, 13, 3)
@@ -174,7 +174,8 @@ def _perfect_results(truth, model):
     keypoints = np.zeros((2, T, 17, 3))
     for p in range(2):
         hips = joints[p][:, [1, 2]] @ m3c_from_calib[:3, :3]  # back to the calibration's world
-        cam = np.einsum("tij,tkj->tki", truth.cam_from_world[:, :3, :3], hips) + truth.cam_from_world[:, None, :3, 3]
+        cfw = truth.cam_from_world
+        cam = np.einsum("tij,tkj->tki", cfw[:, :3, :3], hips) + cfw[:, None, :3, 3]
         keypoints[p, :, 11:13, :2] = cam[..., :2] / cam[..., 2:] * truth.intrinsics[:2] + truth.intrinsics[2:]
         keypoints[p, :, 11:13, 2] = 1.0
     arrays = {"frame_ids": np.arange(T), "world_from_cam": world_from_cam, "track_ids": np.array([4, 7]),
