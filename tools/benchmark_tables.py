@@ -1,6 +1,6 @@
 """Markdown tables for the documentation from the benchmarks' own JSON (`m3c eval benchmark --json`, `m3c eval
-video-benchmark --json`, `m3c eval real-benchmark --json`), so no figure in the docs is typed by hand. Each table
-is headed by the command that produced it and the code version it ran (the JSON's provenance).
+video-benchmark --json`, `m3c eval real-benchmark --json`), so no figure in the docs is typed by hand. Each
+table is headed by the command that produced it and the code version it ran (the JSON's provenance).
 
     python tools/benchmark_tables.py docs/benchmarks/*.json --out docs/notes/benchmarks.md
     python tools/benchmark_tables.py docs/benchmarks/*.json --check docs/notes/benchmarks.md   # exit 1 if stale
