@@ -97,7 +97,7 @@ def _real_cell(key: str, value) -> str:
     if isinstance(value, float) and key.endswith("_deg"):
         return f"{value:.2f}" if key.startswith("rotation") else f"{value:.1f}"
     if isinstance(value, float):
-        return f"{value:.0f}"
+        return str(round(value))  # not "-0"
     return _cell(value)
 
 

@@ -570,7 +570,7 @@ def _fmt(value, digits: int) -> str:
         return "yes" if value else "no"
     if isinstance(value, str):
         return value
-    return f"{value:.{digits}f}"
+    return str(round(value)) if digits == 0 else f"{value:.{digits}f}"  # no "-0"
 
 
 COLUMNS = (
