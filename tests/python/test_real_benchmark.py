@@ -236,3 +236,13 @@ def test_end_to_end_on_one_short_sequence(tmp_path, open_model):
     assert np.isfinite(score.values["camera_height_error_m"]) and "mpjpe" in score.values
     assert report.euroc is None and "not present" in report.euroc_skipped
     assert "cam_02_pan" in report.text()
+
+
+def test_the_command_line():
+    from m3c.cli.evaluation import eval_real_benchmark
+    from m3c.cli.parser import build_parser
+
+    args = build_parser().parse_args(["eval", "real-benchmark", "--sequences", "cam_01:tilt", "--euroc", "x"])
+    assert args.func is eval_real_benchmark and args.frames == 60 and args.intrinsics == "both"
+    assert args.folder == "examples/pose2sim_single_person" and args.sequences == ["cam_01:tilt"]
+    assert len(rb.parse_sequences(rb.DEFAULT_SEQUENCES)) == 10
