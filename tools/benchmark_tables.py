@@ -1,6 +1,6 @@
 """Markdown tables for the documentation from the benchmarks' own JSON (`m3c eval benchmark --json`, `m3c eval
-video-benchmark --json`), so no figure in the docs is typed by hand. Each table is headed by the command that
-produced it and the code version it ran (the JSON's provenance).
+video-benchmark --json`, `m3c eval real-benchmark --json`), so no figure in the docs is typed by hand. Each
+table is headed by the command that produced it and the code version it ran (the JSON's provenance).
 
     python tools/benchmark_tables.py docs/benchmarks/*.json --out docs/notes/benchmarks.md
     python tools/benchmark_tables.py docs/benchmarks/*.json --check docs/notes/benchmarks.md   # exit 1 if stale
@@ -83,13 +83,78 @@ def offline_benchmark_section(data: dict, name: str) -> list[str]:
     return lines + _table(rows) + [""]
 
 
+REAL_COLUMNS = (("camera_height_error_m", "height err m"), ("tilt_error_deg", "tilt err deg"),
+                ("rotation_error_deg", "rotation err deg"), ("true_rotation_max_deg", "true rotation deg"),
+                ("camera_reported", "camera reported"), ("camera_path_m", "camera path m"),
+                ("focal_error_pct", "focal err %"), ("hip_height_error_m", "hip height err m"),
+                ("ankle_height_error_m", "ankle height err m"), ("stature_pred_m", "stature m"),
+                ("mpjpe", "MPJPE mm"), ("pa_mpjpe", "PA-MPJPE mm"))
+
+
+def _real_cell(key: str, value) -> str:
+    if isinstance(value, float) and key.endswith("_m"):
+        return f"{value:.2f}"
+    if isinstance(value, float) and key.endswith("_deg"):
+        return f"{value:.2f}" if key.startswith("rotation") else f"{value:.1f}"
+    if isinstance(value, float):
+        return str(round(value))  # not "-0"
+    return _cell(value)
+
+
+def real_benchmark_section(data: dict, name: str) -> list[str]:
+    config = data["real_benchmark"]
+    peaks = ", ".join(f"{kind} {deg:g}" for kind, deg in (config.get("amplitude_deg") or {}).items() if deg)
+    modes = " and ".join(sorted({s["intrinsics"] for s in data.get("sequences", [])}, reverse=True))
+    runs = len(data.get("sequences", []))
+    lines = ["## Real-footage benchmark", "", _provenance(data, name), "",
+             (f"{runs} runs x {config.get('num_frames')} frames: the calibrated still videos of "
+              f"`{config.get('folder')}` warped by known camera rotations (peak degrees: {peaks}), the "
+              f"intrinsics {modes}; truth: the calibration, the rotations and the triangulated keypoints. "
+              "K: the intrinsics given (true) or estimated."), ""]
+    lines += ["| sequence | K | " + " | ".join(t for _, t in REAL_COLUMNS) + " |",
+              "|---|---|" + "---|" * len(REAL_COLUMNS)]
+    for seq in data.get("sequences", []):
+        if seq.get("error"):
+            lines.append(f"| {seq['name']} | {seq['intrinsics']} | failed: {seq['error'].splitlines()[0]} |")
+            continue
+        lines.append(f"| {seq['name']} | {seq['intrinsics']} | "
+                     + " | ".join(_real_cell(k, seq.get(k)) for k, _ in REAL_COLUMNS) + " |")
+    lines.append("")
+    stature = [s["stature_m"] for s in data.get("sequences", []) if s.get("stature_m") is not None]
+    if stature:
+        lines += [f"True stature (the triangulated head top's 95th-percentile height): {stature[0]:.2f} m.",
+                  ""]
+    for mode, goal in (data.get("goals") or {}).items():
+        lines.append(f"- {mode} intrinsics: camera height within {goal['goal_height_m']:.2f} m in "
+                     f"{goal['height_met']}/{goal['runs']} runs, tilt within {goal['goal_tilt_deg']:.0f} "
+                     f"degrees in {goal['tilt_met']}/{goal['runs']}, reported static or rotation only in "
+                     f"{goal['rotation_only_reported']}/{goal['runs']}; not stated in results.json but a "
+                     f"camera path under 1 cm in {_cell(goal.get('unstated_no_translation'))}/"
+                     f"{goal['runs']}.")
+    euroc = data.get("euroc")
+    if euroc:
+        ate = (f"ATE {euroc['ate_m']:.3f} m" if euroc.get("ate_m") is not None
+               else f"ATE n/a ({euroc.get('ate_note')})")
+        lines.append(f"- EuRoC `{Path(euroc['folder']).name}`, {euroc['frames']} frames, the odometry alone: "
+                     f"true path {euroc['true_path_m']:.3f} m and rotation up to "
+                     f"{euroc['true_rotation_max_deg']:.2f} degrees; reported static: "
+                     f"{'yes' if euroc['static_reported'] else 'no'}; rotation error "
+                     f"{euroc['rotation_error_deg']:.2f} degrees mean, {euroc['rotation_error_max_deg']:.2f} "
+                     f"max; {ate}.")
+    else:
+        lines.append(f"- EuRoC: skipped ({data.get('euroc_skipped')}).")
+    return lines + [""]
+
+
 def section(path: Path) -> list[str]:
     data = json.loads(path.read_text())
+    if "real_benchmark" in data:
+        return real_benchmark_section(data, path.name)
     if "overall" in data and "sequences" in data:
         return video_benchmark_section(data, path.name)
     if "methods" in data and "sequences" in data:
         return offline_benchmark_section(data, path.name)
-    raise ValueError(f"{path}: not the JSON of `m3c eval benchmark` or `m3c eval video-benchmark`")
+    raise ValueError(f"{path}: not the JSON of `m3c eval benchmark`, `video-benchmark` or `real-benchmark`")
 
 
 def render(paths: list[Path]) -> str:

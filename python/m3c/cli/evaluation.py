@@ -1,4 +1,4 @@
-"""`m3c eval retarget|benchmark|video-benchmark|multiview|3dpw`: evaluation."""
+"""`m3c eval retarget|benchmark|video-benchmark|multiview|real-benchmark|3dpw`: evaluation."""
 
 from __future__ import annotations
 
@@ -114,6 +114,29 @@ def eval_multiview(args) -> int:
             tmp.write_text(json.dumps({**report.summary(), "provenance": started}, indent=1) + "\n")
         print(f"wrote {args.json}")
     return 0 if not any(v.error for v in report.views) else 1
+
+
+def eval_real_benchmark(args) -> int:
+    started = provenance(args)  # the code as the run starts (the tree may change during a long run)
+    import json
+
+    from m3c.body import default_body_model
+    from m3c.eval.real_benchmark import DEFAULT_SEQUENCES, run_real_benchmark
+    from m3c.io.atomic import atomic_path
+
+    if args.config and not Path(args.config).is_file():
+        raise FileNotFoundError(f"pipeline config not found: {args.config}")
+    model = default_body_model(args.body_model)
+    modes = ("true", "estimated") if args.intrinsics == "both" else (args.intrinsics,)
+    report = run_real_benchmark(model, args.folder, args.out, tuple(args.sequences or DEFAULT_SEQUENCES),
+                                args.frames, modes, args.euroc, args.config, tuple(args.set or ()),
+                                None if args.quiet else log_to_stderr, show_progress=not args.quiet)
+    print(report.text())
+    if args.json:
+        with atomic_path(args.json) as tmp:
+            tmp.write_text(json.dumps({**report.summary(), "provenance": started}, indent=1) + "\n")
+        print(f"wrote {args.json}")
+    return 0 if not any(s.error for s in report.sequences) else 1
 
 
 def eval_3dpw(args) -> int:

@@ -339,6 +339,30 @@ def build_parser() -> argparse.ArgumentParser:
     _add_report_options(mv)
     mv.set_defaults(func=eval_commands.eval_multiview)
 
+    rb = ev.add_parser("real-benchmark", help="real footage with truth: calibrated still videos warped by "
+                       "known camera rotations (pan, tilt, shake), scored against the calibration's ground "
+                       "and the triangulated person; and the odometry alone on EuRoC")
+    rb.add_argument("folder", nargs="?", default="examples/pose2sim_single_person",
+                    help="Pose2Sim-layout folder: Calib_qualisys.toml, a .trc, videos/ (default: the "
+                    "repository's examples/pose2sim_single_person)")
+    rb.add_argument("--sequences", nargs="+", metavar="CAMERA:MOTION",
+                    help="camera and motion (still, pan, tilt or shake) of each sequence (default: the four "
+                    "cameras still, pan of cam_02 and cam_03, tilt of cam_01 and cam_04, shake of cam_01 and "
+                    "cam_03)")
+    rb.add_argument("--frames", type=int, default=60,
+                    help="frames per sequence from the start (default 60 of 100)")
+    rb.add_argument("--intrinsics", choices=("both", "true", "estimated"), default="both",
+                    help="give the pipeline the warped video's true intrinsics, let it estimate them, or "
+                    "both runs (default both)")
+    rb.add_argument("--euroc", metavar="DIR", help="a EuRoC-layout folder (cam0/data/*.png, "
+                    "cam0/sensor.yaml, groundtruth*.txt) to score the odometry alone on; skipped, with the "
+                    "reason printed, when not given or absent")
+    rb.add_argument("--out", default="out/real_benchmark", help="folder for the warped videos and the runs "
+                    "(cached; default out/real_benchmark)")
+    _add_config_options(rb)
+    _add_report_options(rb)
+    rb.set_defaults(func=eval_commands.eval_real_benchmark)
+
     pw = ev.add_parser("3dpw", help="evaluate prediction files on 3DPW (users bring the dataset and SMPL)")
     pw.add_argument("root", help="the 3DPW folder that holds sequenceFiles/")
     pw.add_argument("--split", default="test", choices=("train", "validation", "test"))
