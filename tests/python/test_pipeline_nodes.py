@@ -185,7 +185,8 @@ def test_camera_scale_from_planted_feet():
     # The truth's planted joints roll a little within a stance (heel to toe); the camera walks along its view, the
     # axis the estimator trusts least (depth): 1.2% off, within its stated uncertainty.
     assert estimate.value == pytest.approx(2.5, rel=0.02)
-    feet, ground = estimate.observations
+    feet, gait, ground = estimate.observations
+    assert gait.reason == "no frame rate"  # the gait source needs the video's
     assert estimate.source == "planted feet" and 0 < feet.detail["bootstrap_sigma"] < 0.1
     assert abs(np.log(estimate.value / 2.5)) < 2 * estimate.sigma
     assert feet.frames > 20 and "map points" in ground.reason  # no odometry map here

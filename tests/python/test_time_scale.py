@@ -66,7 +66,7 @@ def test_no_gait_no_time_scale(model):
     standing = np.repeat(_gait(model, 0.9, 1.2, 5.0)[:1], 150, axis=0)
     shuffle = track_plausibility(_gait(model, 0.45, 0.25, 6.0), 30.0)  # a slow, short step: a stroll, not slow motion
     estimate = estimate_time_scale([None, track_plausibility(standing, 30.0), shuffle])
-    assert shuffle["step_length_legs"] < 0.6 and gait_time_scale(shuffle) is None
+    assert shuffle["step_length_legs"] < 0.4 and gait_time_scale(shuffle) is None
     assert estimate["factor"] == 1.0 and estimate["log_sigma"] is None and not estimate["confident"]
     assert "no track" in estimate["reason"]
     with pytest.raises(ValueError, match="slow motion"):
@@ -169,3 +169,19 @@ def test_stride_fit_stays_near_its_peak():
     for guess in (0.11, 0.4, 0.79):
         f = _fit_frequency(signal, t, guess, min(0.2, 0.5 * guess))
         assert guess - min(0.2, 0.5 * guess) - 1e-9 <= f <= guess + min(0.2, 0.5 * guess) + 1e-9
+
+
+def test_a_step_rate_with_a_step_too_short_to_classify_is_timed_as_a_walk_not_confident():
+    """The bundled walker after the limb fix: his feet swap at 50 steps a minute (truly 2.085x slow motion) but at
+    an uncertain camera scale his steps read 0.56 leg lengths, neither a walk's nor a run's. The rate is still a
+    walk's timed (possible slow motion, 110 / 50), never confident; a stroll's length at a normal rate says 1x."""
+    from m3c.motion.time_scale import IMAGE_CADENCE, UNCLASSIFIED_GAIT
+
+    short = {"step_rate_spm": 50.0, "step_length_legs": 0.56, "image_step_rate_spm": None}
+    estimate = estimate_time_scale([short])
+    assert estimate["tracks"][0]["gait"] == UNCLASSIFIED_GAIT
+    assert estimate["factor"] == pytest.approx(IMAGE_CADENCE[0] / 50.0, rel=1e-12)
+    assert estimate["possible"] and not estimate["confident"]
+    assert abs(estimate["factor"] / 2.085 - 1) < 0.1
+    normal = estimate_time_scale([{"step_rate_spm": 105.0, "step_length_legs": 0.5}])
+    assert not normal["possible"] and normal["factor"] == pytest.approx(110 / 105, rel=1e-12)

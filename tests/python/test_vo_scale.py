@@ -378,3 +378,72 @@ def test_info_warns_when_the_world_size_is_uncertain():
     assert _world_size_warning({"scale_estimate": agree.to_dict()}) == [] and _world_size_warning({}) == []
     wide = fuse([ScaleObservation("planted feet", 2.2, 0.4)])
     assert wide.confidence == "low" and "factor of" in _world_size_warning({"scale_estimate": wide.to_dict()})[0]
+
+
+def _followed_walker(scale, stride=0.9 / 30, leg=0.8, step_legs=None, n=150, camera_share=1.0, seed=0):
+    """A pelvis walking straight along +z at the step GAIT_STEP_LEGS * leg per half stride (metres a frame), with
+    a gait's sway, seen from a camera that follows it (camera_share of its travel, the rest the person's own in
+    the camera) 4 m behind; VO poses in units of `scale` metres."""
+    from m3c.vo.scale import GAIT_STEP_LEGS
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(n, dtype=np.float64)
+    speed = 2.0 * stride * (step_legs or GAIT_STEP_LEGS) * leg  # metres a frame
+    pelvis = np.column_stack([0.03 * np.sin(2 * np.pi * stride * t), np.full(n, -0.9), speed * t])
+    centres = np.column_stack([np.zeros(n), np.zeros(n), camera_share * speed * t - 4.0])
+    R = np.stack([look_rotation(0.05 * np.sin(0.1 * i), -0.1, 0.0) for i in range(n)])
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, :3, :3] = R
+    poses[:, :3, 3] = centres / scale
+    in_camera = np.einsum("nji,nj->ni", R, pelvis - centres) + rng.normal(0, 0.01, (n, 3))
+    return in_camera, poses, t
+
+
+@pytest.mark.parametrize("scale", [0.3, 7.0, 72.0])
+def test_scale_from_gait_recovers_the_scale_of_a_followed_walker(scale):
+    from m3c.vo.scale import GAIT_STEP_SIGMA, scale_from_gait
+
+    pelvis, poses, t = _followed_walker(scale)
+    obs = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
+    assert obs.value == pytest.approx(scale, rel=0.01)
+    assert obs.sigma == pytest.approx(GAIT_STEP_SIGMA, rel=0.05)  # the travel is the camera's: sensitivity 1
+    # Half the walk the person's own in the camera: the scale still follows, less tightly.
+    pelvis, poses, t = _followed_walker(scale, camera_share=0.6)
+    half = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
+    assert half.value == pytest.approx(scale, rel=0.02) and half.sigma > obs.sigma
+    # A step 30% longer than a walk's (a jog) taken for a walk reads as a 1.3x smaller scale, inside 2 sigma.
+    pelvis, poses, t = _followed_walker(scale, step_legs=1.3 * 0.87)
+    jog = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
+    assert jog.value == pytest.approx(scale / 1.3, rel=0.02) and abs(np.log(jog.value / scale)) < 2 * jog.sigma
+
+
+def test_scale_from_gait_needs_a_gait_and_a_camera_that_carries_the_travel():
+    from m3c.vo.scale import scale_from_gait
+
+    pelvis, poses, t = _followed_walker(5.0)
+    assert scale_from_gait([pelvis], [None], [0.8], [t.astype(int)], poses, UP).reason == "no steady gait"
+    # A still camera: the person's travel is all his own in the camera; no scale in it.
+    pelvis, poses, t = _followed_walker(5.0, camera_share=0.0)
+    obs = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
+    assert not obs.usable() and "camera" in obs.reason
+
+
+def test_fuse_sets_aside_the_one_source_that_disagrees_with_the_others():
+    """The bundled clip: planted feet 24 (+-35%) against the ground 71 (+-1%), 3.1 combined sigmas apart; a third
+    source that sides with one of them settles it. Two camps that each agree within themselves are left to the
+    random-effects mean."""
+    feet = ScaleObservation("planted feet", 10.0, 0.2)
+    ground = ScaleObservation("ground", 71.3, 0.01)
+    gait = ScaleObservation("gait", 75.0, 0.2)
+    est = fuse([feet, ground, gait])
+    assert est.consistent and est.source == "ground+gait"
+    aside = next(o for o in est.observations if o.source == "planted feet")
+    assert aside.value is None and aside.detail["set_aside"]["value"] == 10.0 and "disagrees with" in aside.reason
+    assert est.value == pytest.approx(fuse([ground, gait]).value, rel=1e-12)
+    assert feet.value == 10.0  # the caller's observation is left as it was
+    # Without the third source nothing is set aside.
+    assert fuse([feet, ground]).source == "planted feet+ground" and not fuse([feet, ground]).consistent
+    # Two camps: no source disagrees with both others.
+    camps = fuse([ScaleObservation("planted feet", 10.0, 0.05), ScaleObservation("ground", 11.0, 0.05),
+                  ScaleObservation("gait", 40.0, 0.05), ScaleObservation("depth map", 44.0, 0.05, person_size=False)])
+    assert not camps.consistent and all(o.usable() for o in camps.observations)

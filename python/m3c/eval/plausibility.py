@@ -209,25 +209,39 @@ def gait_figures(joints: np.ndarray, fps: float, up: np.ndarray, mean_speed: flo
     (hip-knee-ankle, the median over frames and legs)."""
     none = {"step_rate_spm": None, "step_length_m": None, "step_length_legs": None}
     n = len(joints)
-    lead = _lead(joints, up)
-    if n < 8 or lead is None:
+    if n < 8:
         return none
     t = np.arange(n) / fps
     travel = joints[-1, list(PELVIS)].mean(axis=0) - joints[0, list(PELVIS)].mean(axis=0)
     travel -= (travel @ up[-1]) * up[-1]
     if np.linalg.norm(travel) < GAIT_MIN_TRAVEL_MPS * t[-1]:
         return none
-    lead = lead - np.polyval(np.polyfit(t, lead, 1), t)
-    if np.sqrt(2.0) * lead.std() < GAIT_MIN_AMPLITUDE_M:
-        return none
-    stride = _stride_frequency(lead, fps)
+    stride = stride_frequency(joints, fps, up)
     if stride is None:
         return none
-    leg = np.median([np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1) +
-                     np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1) for hip, knee, ankle in LEGS])
     step = mean_speed / (2.0 * stride)
     return {"step_rate_spm": float(120.0 * stride), "step_length_m": float(step),
-            "step_length_legs": float(step / leg)}
+            "step_length_legs": float(step / leg_length(joints))}
+
+
+def stride_frequency(joints: np.ndarray, fps: float, up: np.ndarray) -> float | None:
+    """The stride frequency (Hz) of the feet's alternation (gait_figures' rule, without its travel check), or None
+    where they do not alternate steadily. It reads only each frame's own joints (the lead of one ankle over the
+    other), so it holds in any frame whose rotation is right, whatever its translation or scale."""
+    lead = _lead(joints, up) if len(joints) >= 8 else None
+    if lead is None:
+        return None
+    t = np.arange(len(joints)) / fps
+    lead = lead - np.polyval(np.polyfit(t, lead, 1), t)
+    if np.sqrt(2.0) * lead.std() < GAIT_MIN_AMPLITUDE_M:
+        return None
+    return _stride_frequency(lead, fps)
+
+
+def leg_length(joints: np.ndarray) -> float:
+    """Hip-knee-ankle length (m), the median over frames and legs."""
+    return float(np.median([np.linalg.norm(joints[:, hip] - joints[:, knee], axis=1) +
+                            np.linalg.norm(joints[:, knee] - joints[:, ankle], axis=1) for hip, knee, ankle in LEGS]))
 
 
 def track_plausibility(joints: np.ndarray, fps: float, ground_normal=None, ground_offset=None) -> dict:

@@ -13,8 +13,9 @@ from m3c.ground.tracks import contact_vertices, ground_contact_probabilities, tr
 from m3c.ground.world_frame import body_up
 from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.optimize import Cameras, Track, track_joints
+from m3c.eval.plausibility import PELVIS, leg_length, stride_frequency
 from m3c.vo.scale import (PLAUSIBLE_CAMERA_HEIGHT_M, ScaleEstimate, ScaleObservation, fuse, map_ground_plane,
-                          scale_from_camera_height, scale_from_depth, scale_from_planted_feet)
+                          scale_from_camera_height, scale_from_depth, scale_from_gait, scale_from_planted_feet)
 
 
 def contact_joints_in_camera(model, track: dict) -> np.ndarray:
@@ -23,11 +24,38 @@ def contact_joints_in_camera(model, track: dict) -> np.ndarray:
     return joints[:, list(CONTACT_JOINTS)]
 
 
+def gait_observation(model, tracks: list[dict], world_from_cam: np.ndarray, up: np.ndarray,
+                     fps: float | None) -> ScaleObservation:
+    """The gait source (m3c.vo.scale.scale_from_gait) of camera-local tracks: each track's longest run of
+    visible frames, its pelvis in the camera, its stride frequency from the feet's alternation seen in the VO
+    frame's rotation (no scale needed) and its leg length."""
+    if fps is None or not fps > 0:
+        return ScaleObservation("gait", reason="no frame rate")
+    pelvis, strides, legs, frames = [], [], [], []
+    for track in tracks:
+        visible = np.flatnonzero(track["visible"])
+        if len(visible) < 8:
+            continue
+        runs = np.split(visible, np.flatnonzero(np.diff(visible) != 1) + 1)
+        run = max(runs, key=len)
+        idx = int(track["first_frame"]) + run
+        joints = model.joints(track_poses(track)[run], track["betas"], np.asarray(track["transl"])[run])
+        rotated = np.einsum("nij,nkj->nki", world_from_cam[idx, :3, :3], joints)
+        pelvis.append(joints[:, list(PELVIS)].mean(axis=1))
+        stride = stride_frequency(rotated, fps, np.tile(up, (len(run), 1)))
+        strides.append(None if stride is None else stride / fps)
+        legs.append(leg_length(joints))
+        frames.append(idx)
+    return scale_from_gait(pelvis, strides, legs, frames, world_from_cam, up)
+
+
 def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_threshold: float = 0.5,
-                          depth: dict | None = None, intrinsics=None, log=None) -> ScaleEstimate:
+                          depth: dict | None = None, intrinsics=None, log=None, fps: float | None = None
+                          ) -> ScaleEstimate:
     """The camera scale from every observation that carries it (m3c.vo.scale): the planted feet against the
-    camera's motion, the camera's height above the ground (contacts) against the map's ground, and metric
-    depth maps when given. cameras: the vo node's output (world_from_cam, points, static)."""
+    camera's motion, the camera's height above the ground (contacts) against the map's ground, the people's steps
+    against their legs (with the video's fps), and metric depth maps when given. cameras: the vo node's output
+    (world_from_cam, points, static)."""
     vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
     observations = []
     feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
@@ -37,7 +65,9 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
                                    [track_frames(t) for t in tracks], vo)
     observations.append(feet)
     points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    plane = map_ground_plane(points, vo, body_up(model, tracks, vo)) if tracks else None
+    up = body_up(model, tracks, vo) if tracks else np.zeros(3)
+    observations.append(gait_observation(model, tracks, vo, up, fps))
+    plane = map_ground_plane(points, vo, up) if tracks else None
     if plane is None:
         observations.append(ScaleObservation("ground", reason="no ground plane among the odometry's "
                                              f"{len(points)} map points"))

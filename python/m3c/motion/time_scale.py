@@ -5,16 +5,18 @@ People walk at 100-125 steps a minute whatever their step (0.6-1.05 leg lengths)
 1.2 leg lengths): motion capture (Bandai Namco, 5 + 5 clips) walks at 107-118 and runs at 127-162. A track's gait
 (m3c.eval.plausibility.gait_figures: steps a minute in the video's time, step length in leg lengths) so measures
 the slow-motion factor, expected rate / measured rate, with the spread of human cadence as its uncertainty
-(log-sigma WALK_CADENCE[1] or RUN_CADENCE[1]). Steps shorter than 0.6 leg lengths (a shuffle, a stroll: slow
-cadences of their own) and between the walking and running ranges tell nothing. The people of one video share its
+(log-sigma WALK_CADENCE[1] or RUN_CADENCE[1]). Steps shorter than 0.4 leg lengths (a shuffle: a slow cadence of
+its own) and between the walking and running ranges tell nothing; steps of 0.4-0.6 (a stroll, or a walk read short
+at a wrong camera scale) are timed as a walk, never confidently. The people of one video share its
 time scale: their factors are fused by a random-effects mean (m3c.vo.scale.between_source_variance), the spread of
 one person's cadence not shrinking with the number of frames.
 
 The estimate is reported (results.json video.time_scale, `m3c info`), not applied: the frames node fixes the
 frame times before anyone is tracked, and every later node (the motion prior's rate, smoothness, speeds) depends on
 them, so `--slow-motion FACTOR` reruns with real time. `possible`: the factor is at least MIN_FACTOR and over
-CONFIDENT_SIGMAS of its uncertainty above 1; `confident`: possible, with at least one track's world gait (the
-image gait alone misreads a walk that stops for a slow stride: the hard suite's still camera at normal speed).
+CONFIDENT_SIGMAS of its uncertainty above 1; `confident`: possible, with at least one track's world gait that is
+a walk or a run by its step length (the image gait alone misreads a walk that stops for a slow stride: the hard
+suite's still camera at normal speed; a step too short for either rests on an uncertain camera scale).
 """
 
 from __future__ import annotations
@@ -29,9 +31,13 @@ WALK_CADENCE = (110.0, 0.1)
 RUN_CADENCE = (165.0, 0.12)
 IMAGE_CADENCE = (110.0, 0.15)
 IMAGE_GAIT = "stepping (image)"
+UNCLASSIFIED_GAIT = "stepping (step length unclassified)"
 # Step lengths (leg lengths) that classify a gait: walking within WALK_STEP_LEGS, running over RUN_STEP_LEGS.
 WALK_STEP_LEGS = (0.6, 1.05)
 RUN_STEP_LEGS = 1.2
+# Shorter steps are a shuffle, with a slow cadence of its own: they time nothing. Between this and a walk's, a step
+# may be a walk read short at a wrong camera scale: timed, not confidently.
+SHUFFLE_STEP_LEGS = 0.4
 MIN_FACTOR = 1.3
 CONFIDENT_SIGMAS = 3.0
 
@@ -51,6 +57,11 @@ def gait_time_scale(figures: dict) -> tuple[float, float, str] | None:
         (cadence, sigma), gait = WALK_CADENCE, "walking"
     elif legs > RUN_STEP_LEGS:
         (cadence, sigma), gait = RUN_CADENCE, "running"
+    elif SHUFFLE_STEP_LEGS <= legs < WALK_STEP_LEGS[0]:
+        # A step rate without a step length that tells a walk from a run: timed as the image gait is (a walk
+        # assumed, never confident). The length rests on the camera scale, the rate does not: the bundled walker's
+        # steps read 0.56 leg lengths at an uncertain scale while his feet swap at 50 steps a minute.
+        return IMAGE_CADENCE[0] / float(rate), IMAGE_CADENCE[1], UNCLASSIFIED_GAIT
     else:
         return None
     return cadence / float(rate), sigma, gait
@@ -80,7 +91,7 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
     sigma = float(np.sqrt(1.0 / np.sum(weights)))
     measured = float(np.exp(mean))
     possible = bool(measured >= MIN_FACTOR and mean > CONFIDENT_SIGMAS * sigma)
-    image_only = all(t["gait"] == IMAGE_GAIT for t in per_track)
+    image_only = all(t["gait"] in (IMAGE_GAIT, UNCLASSIFIED_GAIT) for t in per_track)
     confident = possible and not image_only
     if confident:
         reason = (f"the people step {measured:.2f}x slower than people walk or run: the video plays slower "

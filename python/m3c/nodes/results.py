@@ -166,8 +166,9 @@ class ResultsNode(Node):
     # video.slow_motion; 7: a gait needs the track to travel; 8: camera.feet_focal; 9: the tracks' lean;
     # 10: video.time_scale, camera.scale_estimate's spread, confidence and disagreement; video.total_frames,
     # frames_in_container, truncated; 11: the tracks' legs (plausibility lead_changes, longest_lead_s, knee_flex_deg,
-    # knee_bent_fraction, surge_ratio)
-    version = "11"
+    # knee_bent_fraction, surge_ratio); 12: a step rate whose step is 0.4-0.6 leg lengths timed as a walk, not
+    # confidently (m3c.motion.time_scale)
+    version = "12"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")

@@ -18,13 +18,16 @@ class ScaleNode(Node):
     observations (per source: value, sigma, frames, reason), ground_plane (the odometry map's ground, VO frame and
     units, that the ground source measured against; None without one)."""
 
-    version = "4"  # 2: per-person ground source, the feet's model error, the map's ground plane in the output;
+    # 2: per-person ground source, the feet's model error, the map's ground plane in the output;
     # 3: the planted-feet source on the ground contacts (the feet surely on the ground); 4: m3c.vo.scale's
-    # random-effects fusion and the ground source's camera-height check (a cached scale is the old fusion's)
+    # random-effects fusion and the ground source's camera-height check (a cached scale is the old fusion's);
+    # 5: the gait source (the people's steps against their legs), a source that disagrees with all the others
+    # while they agree set aside
+    version = "5"
     type_name = "scale"
     level = "track"
-    inputs = ("tracks", "cameras", "depth", "camera")
-    optional_inputs = ("depth", "camera")
+    inputs = ("tracks", "cameras", "depth", "camera", "video")
+    optional_inputs = ("depth", "camera", "video")
     outputs = ("scale",)
     settings = ("body_model",)
 
@@ -45,7 +48,8 @@ class ScaleNode(Node):
         camera = inputs.get("camera")
         estimate = estimate_camera_scale(ctx.loaded("body_model"), inputs["tracks"]["tracks"], cameras,
                                          self.config.contact_threshold, inputs.get("depth"),
-                                         camera["intrinsics"] if camera is not None else None, ctx.log)
+                                         camera["intrinsics"] if camera is not None else None, ctx.log,
+                                         fps=float(inputs["video"]["fps"]) if inputs.get("video") else None)
         if estimate.sigma is None:
             ctx.log.warning("nothing measured the camera's scale; starting from 1 m per VO unit")
         else:

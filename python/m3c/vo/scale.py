@@ -23,6 +23,14 @@ Observations (each returns a ScaleObservation, or one with a reason when it has 
                  people's scatter about their mean when that is larger. This cue barely depends on the focal
                  length (a height is an image-plane offset times depth / focal, and the body's depth scales with
                  the focal length).
+  gait           (`scale_from_gait`) a walker's step is about GAIT_STEP_LEGS of his leg length, whatever the
+                 camera and whatever the video's speed (slow motion changes the cadence, not the step). His
+                 pelvis in the world at scale s is s c_t + R_t p_t (p_t in camera t, metres); the straight line
+                 fitted to it over the frames moves s A + B a frame, and a step is |s A + B| / (2 f) for a stride
+                 frequency f (cycles a frame, from the feet's alternation, which reads each frame's own joints and
+                 so needs no scale). Solving |s A + B| = 2 f GAIT_STEP_LEGS leg gives s; its uncertainty is
+                 GAIT_STEP_SIGMA times how strongly s follows the step (1 where the person's travel is the
+                 camera's; a person walking before a still camera gives no scale and is left out).
   depth map      (`scale_from_depth`) metric depth maps (a depth node that says `metric`) against the depths
                  of the map points in each frame.
 Sources measured from the people's size (feet, ground) share one systematic relative error (PERSON_SIZE_SIGMA, the
@@ -34,14 +42,19 @@ floor, contacts that are not) are not settled by trusting the tighter one: the f
 (DerSimonian-Laird). The spread of the sources beyond their own errors, tau^2, is added to every source's
 variance, so the mean moves towards an equal-weight mean of the sources and its uncertainty covers their spread;
 when two of them lie more than 3 combined standard deviations apart (`consistent` False) the 2-sigma interval
-also reaches every source's value. The ground source checks the camera height it implies (metres, from the
-people): a camera whose scale can be measured moves, and one carried or held sits 0.3-3 m above the floor
-(PLAUSIBLE_CAMERA_HEIGHT_M); a height outside that range says the map's plane or the contacts are wrong by at least
-that ratio, which joins the source's uncertainty (`detail["camera_height_suspect"]`).
+also reaches every source's value. With three or more sources, one that disagrees with all the others while they
+agree among themselves is the wrong one: it is set aside (`reason` says with whom it disagreed) and the rest
+fused; two camps that each agree within themselves are not settled that way.
+
+The ground source checks the camera height it implies (metres, from the people): a camera whose scale can be
+measured moves, and one carried or held sits 0.3-3 m above the floor (PLAUSIBLE_CAMERA_HEIGHT_M); a height outside
+that range says the map's plane or the contacts are wrong by at least that ratio, which joins the source's
+uncertainty (`detail["camera_height_suspect"]`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -67,6 +80,17 @@ FEET_MODEL_SIGMA = 0.23
 # raised gimbal (the video benchmark's moving cameras: 1.2-3 m). The bundled-clip-like failure it catches: a hall
 # with a plain floor whose map "ground" put a chest-height camera 3.6 m up.
 PLAUSIBLE_CAMERA_HEIGHT_M = (0.3, 3.0)
+# A walking step in leg lengths (hip-knee-ankle) and its log spread: motion capture walks 0.77-0.98 (Bandai Namco,
+# 5 clips; m3c.eval.plausibility), runs 0.89-1.83. The spread is a walk's across people and speeds and takes in
+# slow jogs at 2 sigma (0.58-1.30); a run taken for a walk reads as a smaller scale (its longer step taken for
+# a faster camera).
+GAIT_STEP_LEGS = 0.87
+GAIT_STEP_SIGMA = 0.2
+# A track whose scale follows its step more weakly than this (d log s / d log step, > 1 where the person's own
+# motion in the camera adds to the camera's) says little about the scale; one whose pelvis path at the solved scale
+# is over GAIT_MAX_PATH_RATIO its displacement is not walking a straight line, which the step's speed assumes.
+GAIT_MAX_SENSITIVITY = 2.0
+GAIT_MAX_PATH_RATIO = 1.3
 # The fused scale's confidence (ScaleEstimate.confidence) from its log-sigma: "high" under the first, "medium" under
 # the second, else "low"; sources that disagree make it "low" whatever the sigma.
 CONFIDENCE_SIGMA = (0.1, 0.25)
@@ -200,19 +224,53 @@ def between_source_variance(logs: np.ndarray, sigmas: np.ndarray) -> float:
     return max(0.0, (q - (len(logs) - 1)) / denominator) if denominator > 0 else 0.0
 
 
+def _consistent(logs: np.ndarray, sigmas: np.ndarray) -> bool:
+    """No two sources more than 3 combined standard deviations apart."""
+    return all(abs(logs[i] - logs[j]) <= 3.0 * np.hypot(sigmas[i], sigmas[j])
+               for i in range(len(logs)) for j in range(i + 1, len(logs)))
+
+
+def odd_one_out(observations: list[ScaleObservation]) -> int | None:
+    """The index (into observations) of the one usable source that disagrees with all the others while they
+    agree among themselves (three or more usable sources, inconsistent together); None otherwise."""
+    usable = [i for i, o in enumerate(observations) if o.usable()]
+    if len(usable) < 3:
+        return None
+    logs = np.log([observations[i].value for i in usable])
+    sigmas = np.array([observations[i].sigma for i in usable])
+    if _consistent(logs, sigmas):
+        return None
+    odd = []
+    for k in range(len(usable)):
+        rest = np.arange(len(usable)) != k
+        apart = all(abs(logs[k] - logs[j]) > 3.0 * np.hypot(sigmas[k], sigmas[j]) for j in np.flatnonzero(rest))
+        if apart and _consistent(logs[rest], sigmas[rest]):
+            odd.append(usable[k])
+    return odd[0] if len(odd) == 1 else None
+
+
 def fuse(observations: list[ScaleObservation], default: float = 1.0) -> ScaleEstimate:
     """The random-effects mean of the usable observations' log values (module docstring): each source's variance is
     its sigma^2 plus tau^2 (between_source_variance), the people's size error shared; `default` (source "default",
     sigma None) when none is usable. Sources that agree (chi^2 within its expectation) give the inverse-variance
     mean. Sources whose difference exceeds 3 standard deviations of their sampling errors make the estimate
     inconsistent, and its 2-sigma interval then reaches every source's value."""
+    odd = odd_one_out(observations)
+    if odd is not None:
+        wrong = observations[odd]
+        others = " and ".join(o.source for i, o in enumerate(observations) if o.usable() and i != odd)
+        observations = list(observations)
+        observations[odd] = dataclasses.replace(
+            wrong, value=None, sigma=None, detail={**wrong.detail, "set_aside": {"value": wrong.value,
+                                                                                 "sigma": wrong.sigma}},
+            reason=f"set aside: {wrong.value:.4g} m per VO unit (+-{100 * wrong.sigma:.0f}%) disagrees with {others}, "
+                   "which agree")
     usable = [o for o in observations if o.usable()]
     if not usable:
         return ScaleEstimate(float(default), None, "default", list(observations))
     logs = np.log([o.value for o in usable])
     sigmas = np.array([o.sigma for o in usable])
-    consistent = all(abs(logs[i] - logs[j]) <= 3.0 * np.hypot(sigmas[i], sigmas[j])
-                     for i in range(len(usable)) for j in range(i + 1, len(usable)))
+    consistent = _consistent(logs, sigmas)
     person = np.array([bool(o.person_size) for o in usable], dtype=bool)
     tau2 = between_source_variance(logs, sigmas)
     mean, sigma = _grouped(logs, sigmas ** 2 + tau2, person)
@@ -302,6 +360,70 @@ def scale_from_planted_feet(joints_cam: list[np.ndarray], planted: list[np.ndarr
     bootstrap_sigma = float(np.std(samples[np.isfinite(samples)]))
     obs.sigma = float(np.hypot(bootstrap_sigma, FEET_MODEL_SIGMA))
     obs.detail = {"runs": len(members), "bootstrap_sigma": bootstrap_sigma}
+    return obs
+
+
+def scale_from_gait(pelvis_cam: list[np.ndarray], strides: list[float | None], legs: list[float],
+                    frames: list[np.ndarray], world_from_cam: np.ndarray, up: np.ndarray, *,
+                    step_legs: float = GAIT_STEP_LEGS, step_sigma: float = GAIT_STEP_SIGMA) -> ScaleObservation:
+    """The gait observation (module docstring).
+
+    Per track: pelvis_cam (n, 3) the pelvis in each frame's camera (metres) over consecutive frames, strides its
+    stride frequency in cycles a frame (None: the feet do not alternate), legs its leg length (m), frames (n,)
+    indices into world_from_cam (T, 4, 4) (VO poses, translation in VO units); up (3,) the world's up in the VO
+    frame. The people's estimates are fused in log with their variances (each person's step is his own)."""
+    obs = ScaleObservation("gait")
+    world_from_cam = np.asarray(world_from_cam, dtype=np.float64)
+    up = np.asarray(up, dtype=np.float64)
+    if not np.linalg.norm(up) > 0:
+        obs.reason = "no up direction"
+        return obs
+    up = up / np.linalg.norm(up)
+    horizontal = np.eye(3) - np.outer(up, up)
+    logs, variances, used, reasons = [], [], 0, []
+    for pelvis, stride, leg, idx in zip(pelvis_cam, strides, legs, frames):
+        idx = np.asarray(idx, np.int64)
+        if stride is None or not stride > 0 or len(idx) < 8:
+            reasons.append("no steady gait")
+            continue
+        R, c = world_from_cam[idx, :3, :3], world_from_cam[idx, :3, 3]
+        own = np.einsum("nij,nj->ni", R, np.asarray(pelvis, np.float64))  # R_t p_t, metres
+        t = np.arange(len(idx), dtype=np.float64)
+        A = horizontal @ np.polyfit(t, c, 1)[0]    # VO units a frame
+        B = horizontal @ np.polyfit(t, own, 1)[0]  # metres a frame
+        target = 2.0 * stride * step_legs * leg    # metres a frame
+        a2, ab, b2 = A @ A, A @ B, B @ B
+        disc = ab * ab - a2 * (b2 - target * target)
+        if a2 < 1e-18 or disc < 0:
+            reasons.append("the camera does not move with the person")
+            continue
+        s = (-ab + np.sqrt(disc)) / a2
+        along = (s * A + B) @ A
+        if not s > 0 or along <= 0:
+            reasons.append("the camera does not move with the person")
+            continue
+        sensitivity = target * target / (s * along)
+        if sensitivity > GAIT_MAX_SENSITIVITY:
+            reasons.append("the person's travel is mostly his own in the camera, not the camera's")
+            continue
+        path = (s * c + own) @ horizontal
+        half = max(1, int(round(0.5 / stride)))  # one sample a step: the sway averages out
+        coarse = path[::half]
+        length = np.linalg.norm(np.diff(coarse, axis=0), axis=1).sum()
+        if length > GAIT_MAX_PATH_RATIO * np.linalg.norm(coarse[-1] - coarse[0]):
+            reasons.append("the walk is not straight")
+            continue
+        logs.append(np.log(s))
+        variances.append((step_sigma * sensitivity) ** 2)
+        used += len(idx)
+    if not logs:
+        obs.reason = "; ".join(sorted(set(reasons))) or "no track"
+        return obs
+    weights = 1.0 / np.asarray(variances)
+    obs.value = float(np.exp(np.sum(weights * np.asarray(logs)) / weights.sum()))
+    obs.sigma = float(1.0 / np.sqrt(weights.sum()))
+    obs.frames = used
+    obs.detail = {"people": len(logs), "step_legs": step_legs}
     return obs
 
 
