@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.io.manifest import MANIFEST, check_complete, folder_state
-from m3c.motion.time_scale import CONFIDENT_SIGMAS, MIN_FACTOR, gait_time_scale
+from m3c.motion.time_scale import CONFIDENT_SIGMAS, MIN_FACTOR, UNCLASSIFIED_GAIT, gait_time_scale
 
 SCHEMA = "m3c.results/1"
 
@@ -91,7 +91,8 @@ def _slow_gait_hint(figures: dict) -> str:
     measured = gait_time_scale(figures)
     if measured is not None and measured[0] >= MIN_FACTOR \
             and np.log(measured[0]) > CONFIDENT_SIGMAS * measured[1]:
-        return (f"; a {measured[2]} step at a slow rate: if the video is slow motion (x{measured[0]:.1f}?), give "
+        what = "a step" if measured[2] == UNCLASSIFIED_GAIT else f"a {measured[2]} step"
+        return (f"; {what} at a slow rate: if the video is slow motion (x{measured[0]:.1f}?), give "
                 "--slow-motion (then speeds are real time)")
     return ""
 
@@ -109,7 +110,7 @@ def _legs_line(figures: dict) -> str:
         words.append(f"fastest second x{figures['surge_ratio']:.1f} the mean speed")
     odd = []
     if max(bent) > 1 / 3:
-        odd.append("a knee bent most of the time")
+        odd.append("a knee bent over 45 degrees in over a third of the frames")
     travelling = figures["mean_speed_mps"] > 0.3 and figures["displacement_m"] > 1.0
     if travelling and figures.get("longest_lead_s") is not None and figures["longest_lead_s"] > 2.0:
         odd.append("one foot leads for over 2 s while the person travels")

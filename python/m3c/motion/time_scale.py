@@ -97,8 +97,10 @@ def estimate_time_scale(track_figures: list[dict | None], applied: float = 1.0) 
         reason = (f"the people step {measured:.2f}x slower than people walk or run: the video plays slower "
                   "than it was filmed")
     elif possible:
-        reason = (f"the people's ankles step {measured:.2f}x slower than people walk (timed from the image "
-                  "alone, a walk assumed: not confident)")
+        how = ("timed from the image alone" if all(t["gait"] == IMAGE_GAIT for t in per_track) else
+               "their step too short at this camera scale to tell a walk from a run")
+        reason = (f"the people step {measured:.2f}x slower than people walk ({how}, a walk assumed: not "
+                  "confident)")
     elif mean < -CONFIDENT_SIGMAS * sigma:
         reason = (f"the people step {1 / measured:.2f}x faster than people walk or run (sped up, or a wrong "
                   "gait)")
