@@ -358,3 +358,28 @@ def test_perception_picture_draws_the_boxes_it_hands_over(tmp_path):
     x0 = int(round(float(detections["square"][1, 0])))
     assert np.abs(picture[40, x0] - [0, 0, 255]).max() < 60  # its square box, red
     assert np.abs(picture[5, 5] - [90, 90, 90]).max() < 20  # nothing drawn elsewhere
+
+
+def test_a_camera_the_odometry_saw_no_baseline_for_is_rotation_only(monkeypatch):
+    """The odometry's static_camera (it never moved enough to initialise: translation zero, rotation fitted) makes
+    the cameras rotation_only, so the scale node reads no scale from them and m3c info says still or rotating (the
+    real benchmark's still cameras were reported as a default scale of a moving camera)."""
+    from m3c.io.results import _camera_motion
+    from m3c.nodes.scale import ScaleNode
+    from m3c.nodes.vo import VisualOdometryNode as VONode
+
+    T = 12
+    rotations = Rotation.from_rotvec(np.outer(np.linspace(0, 0.05, T), [0, 1, 0])).as_matrix()
+    poses = np.tile(np.eye(4), (T, 1, 1))
+    poses[:, :3, :3] = rotations
+    points = np.random.default_rng(0).uniform(-1, 1, (50, 3)) + [0, 0, 5]
+    for static in (True, False):
+        out = {"world_from_cam": poses, "points": points, "source": "test", "fit": None, "static_camera": static}
+        monkeypatch.setattr(VONode, "_patch_vo", lambda self, ctx, inputs, out=out: out)
+        cameras = VONode("vo").run(FakeContext(), {"video": {"num_frames": T}})["cameras"]
+        assert cameras.get("rotation_only", False) == static
+    monkeypatch.setattr(VONode, "_patch_vo", lambda self, ctx, inputs: {**out, "static_camera": True})
+    still = VONode("vo").run(FakeContext(), {"video": {"num_frames": T}})["cameras"]
+    scale = ScaleNode("scale").run(FakeContext(), {"cameras": still, "tracks": {"tracks": []}})["scale"]
+    assert scale["source"] == "rotation only" and scale["sigma"] is None
+    assert _camera_motion({"static": False, "rotation_only": True}).startswith("still or rotating")

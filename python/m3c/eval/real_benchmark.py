@@ -392,7 +392,8 @@ def score_sequence(model, truth: SequenceTruth, summary: dict, arrays: dict) -> 
         ),
         "camera_reported": "static" if camera["static"] else camera.get("scale_source"),
         "rotation_only_reported": bool(
-            camera["static"] or camera.get("scale_source") in ("rotation only", "static camera")
+            camera["static"] or camera.get("rotation_only")
+            or camera.get("scale_source") in ("rotation only", "static camera")
         ),
         "camera_path_m": float(np.linalg.norm(np.diff(centres, axis=0), axis=-1).sum()),
         "focal_true_px": float(truth.intrinsics[0]),

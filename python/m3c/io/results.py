@@ -153,9 +153,12 @@ def _focal_uncertainty(camera: dict) -> str:
 
 
 def _camera_motion(camera: dict) -> str:
-    """static (declared), still (the focal search saw no window move) or moving."""
+    """static (declared), rotation only (the odometry found no translation to trust), still (the focal search saw
+    no window move) or moving."""
     if camera["static"]:
         return "static"
+    if camera.get("rotation_only"):
+        return "still or rotating (the odometry found no translation it could trust; no scale read from it)"
     if (camera.get("focal_estimate") or {}).get("still"):
         return "still (no motion in the focal search's windows)"
     return "moving"

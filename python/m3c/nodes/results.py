@@ -137,6 +137,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                        "num_joints": int(J)},
         "camera": {"intrinsics": [float(v) for v in camera["intrinsics"]], "intrinsics_source": camera["source"],
                    "static": bool(cameras["static"]), "odometry": cameras["source"],
+                   # the odometry found no translation it could trust (turned in place, or never a baseline)
+                   "rotation_only": bool(cameras.get("rotation_only", False)),
                    # m3c.nodes.vo.odometry_fit: the kept odometry run's keyframe reprojection rms (px) and the others'
                    "odometry_fit": json_ready(cameras.get("fit")),
                    "scale": float(result["camera_scale"]), "scale_source": scale["source"],
@@ -167,8 +169,8 @@ class ResultsNode(Node):
     # 10: video.time_scale, camera.scale_estimate's spread, confidence and disagreement; video.total_frames,
     # frames_in_container, truncated; 11: the tracks' legs (plausibility lead_changes, longest_lead_s, knee_flex_deg,
     # knee_bent_fraction, surge_ratio); 12: a step rate whose step is 0.4-0.6 leg lengths timed as a walk, not
-    # confidently (m3c.motion.time_scale)
-    version = "12"
+    # confidently (m3c.motion.time_scale); 13: camera.rotation_only
+    version = "13"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")

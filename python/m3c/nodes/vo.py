@@ -43,7 +43,9 @@ class VisualOdometryNode(Node):
     the camera is taken not to move (identity poses) and no odometry runs."""
 
     type_name = "vo"
-    version = "2"  # 2: m3c.vo runs VOConfig.hypotheses odometries and keeps the best fit
+    # 2: m3c.vo runs VOConfig.hypotheses odometries and keeps the best fit; 3: a camera the odometry saw no
+    # baseline for (translation zero) is marked rotation_only, as one that turned in place
+    version = "3"
     level = "patch"
     inputs = ("video", "masks", "detections", "depth", "camera")
     optional_inputs = ("masks", "detections", "depth")
@@ -138,6 +140,8 @@ class VisualOdometryNode(Node):
             raise PipelineError(f"node {self.name!r}: world_from_cam must be ({T}, 4, 4) and finite, got "
                                 f"{poses.shape}")
         cameras = {"world_from_cam": poses, "static": False, "source": str(out.get("source", self.config.backend))}
+        if out.get("static_camera"):  # the odometry never saw a baseline: translation zero, rotation fitted
+            cameras["rotation_only"] = True
         if out.get("fit") is not None:
             cameras["fit"] = out["fit"]
         points = np.asarray(out.get("points", np.zeros((0, 3))), dtype=np.float32).reshape(-1, 3)
@@ -192,4 +196,4 @@ class VisualOdometryNode(Node):
                             "stood still)")
         source = "patch visual odometry (m3c.vo)" + (" with DPVO's networks" if front_end is not None else "")
         return {"world_from_cam": result.world_from_cam, "points": result.points, "source": source,
-                "fit": odometry_fit(result)}
+                "fit": odometry_fit(result), "static_camera": bool(result.static_camera)}
