@@ -54,3 +54,33 @@ def test_shipped_pose_prior_exports_to_the_cpp_runtime(shipped, tmp_path, one_to
     got_mean, got_scale = runtime.encode(pose)
     np.testing.assert_allclose(got_mean, mean.numpy(), atol=1e-4)
     np.testing.assert_allclose(got_scale, scale.numpy(), atol=1e-4)
+
+
+def test_the_shipped_runtime_file_is_made_once_and_named_by_optimize(shipped, tmp_path, monkeypatch,
+                                                                     one_torch_thread):
+    """optimize.pose_prior=shipped: the checkpoint exported once into the cache (the folder named by the
+    checkpoint's digest, written whole), decoding as the checkpoint does; "none" names no weights."""
+    from m3c.models.weights import shipped_vposer_runtime
+    from m3c.nn import VPoser
+    from m3c.nodes.optimize import OptimizeNode
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    path = shipped_vposer_runtime()
+    assert path.is_file() and path.parent.parent == tmp_path / "m3c" / "weights"
+    assert [p.name for p in path.parent.parent.iterdir()] == [path.parent.name]  # no work folder left behind
+    stamp = path.stat().st_mtime_ns
+    assert shipped_vposer_runtime() == path and path.stat().st_mtime_ns == stamp  # reused, not rewritten
+    model, _, _ = shipped
+    z = np.random.default_rng(1).normal(size=(3, 32))
+    with torch.no_grad():
+        expected = model.decode(torch.as_tensor(z, dtype=torch.float32)).numpy()
+    np.testing.assert_allclose(VPoser(path).decode(z), expected, atol=1e-4)
+
+    class Context:
+        def models_dir(self):
+            return None
+
+    assert OptimizeNode("optimize", OptimizeNode.Config(pose_prior="shipped"))._weights(
+        Context(), "pose_prior", "vposer.safetensors") == path
+    assert OptimizeNode("optimize", OptimizeNode.Config(pose_prior="none"))._weights(
+        Context(), "pose_prior", "vposer.safetensors") is None

@@ -15,6 +15,8 @@ from m3c.motion.windows import check_windows, optimize_in_windows
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
 
+SHIPPED = "shipped"  # optimize.pose_prior naming M3C's own pose prior (m3c.models.weights)
+
 
 def optimizer_config(overrides: dict) -> OptimizerConfig:
     """The default recipe (from the C++ core) with `overrides` (the YAML mapping of OptimizerConfig) applied."""
@@ -114,7 +116,8 @@ class OptimizeNode(Node):
         scale: Literal["free", "fixed"] = "free"
         # Exported weights (python -m m3c.models.export --out DIR): humor.safetensors adds HuMoR's motion prior,
         # vposer.safetensors VPoser's pose prior (with latent pose variables). None: $M3C_MODELS/export/<file>
-        # when it is there, else the stages run without the term (and report it unavailable).
+        # when it is there, else the stages run without the term (and report it unavailable). "shipped": M3C's own
+        # pose prior (m3c.models.weights, non-commercial); "none": never.
         motion_prior: str | None = None
         pose_prior: str | None = None
         # Long videos are optimised in windows of this many frames overlapping by window_overlap, blended
@@ -128,6 +131,15 @@ class OptimizeNode(Node):
 
     def _weights(self, ctx, setting: str, file_name: str) -> Path | None:
         value = getattr(self.config, setting)
+        if value == "none":
+            return None
+        if value == SHIPPED:
+            if setting != "pose_prior":
+                raise PipelineError(f"optimize.{setting}: M3C ships no {setting.replace('_', ' ')} yet; give exported "
+                                    f"weights (python -m m3c.models.export --out DIR writes DIR/{file_name})")
+            from m3c.models.weights import shipped_vposer_runtime
+
+            return shipped_vposer_runtime()
         if value is not None:
             path = Path(value).expanduser()
             if not path.is_file():
