@@ -51,6 +51,18 @@ ARRAYS: dict[str, tuple[str, str, str]] = {
     "reprojection_error": ("P x T", "float32",
                            "mean distance (pixels) between observed keypoints (confidence >= 0.4) and the projected "
                            "final body's keypoints"),
+    "left_hand_pose": ("P x T x 15 x 3", "float32",
+                       "left hand's finger rotations relative to their parents (axis-angle; SMPL-H/MANO order "
+                       "index1-3, middle1-3, pinky1-3, ring1-3, thumb1-3; m3c.body.hands); NaN where no hand "
+                       "was fitted"),
+    "right_hand_pose": ("P x T x 15 x 3", "float32", "right hand's finger rotations, as left_hand_pose"),
+    "hand_keypoints_2d": ("P x T x 2 x 21 x 3", "float32",
+                          "observed MediaPipe hand landmarks, left hand then right: u, v (pixels), confidence "
+                          "(MediaPipe's order: wrist, thumb CMC, MCP, IP, tip, then index, middle, ring, pinky "
+                          "MCP, PIP, DIP, tip); NaN where no hand was found"),
+    "world_hand_keypoints": ("P x T x 2 x 21 x 3", "float32",
+                             "the fitted hands' 21 points (hand_keypoints_2d's order) in the world (metres); "
+                             "NaN where no hand was fitted"),
 }
 
 
