@@ -3,15 +3,15 @@
 
     python tools/build_open_hand_model.py [ASSETS] [--out python/m3c/body/data/m3c_open_hands.npz]
 
-ASSETS as for tools/build_open_body_model.py, whose build() it runs (same re-posing, same shape space; the body
-arrays it yields must match the shipped m3c_open_body.npz). Steps:
+ASSETS as for tools/build_open_body_model.py, whose build() it runs (same re-posing, same shape space; the
+body arrays it yields must match the shipped m3c_open_body.npz). Steps:
 1. Every MakeHuman finger bone (finger1-* = thumb, finger2-* = index, finger3 = middle, finger4 = ring,
    finger5 = little) is one SMPL-H finger joint: its head, re-posed to the T-pose like the body, is the joint;
    the third bones' tails are the fingertips. Mean shape and the 10 shape components, as the body's joints.
-2. The vertices the body's hand joint carries get MakeHuman's own weights on the 15 finger bones (which the body
-   merged into its hand joint), so they sum to the body's hand-joint weight.
-3. The wrists' rest positions and shape directions come from the body's J_regressor, so the fingers hang off the
-   same wrist joints the body poses.
+2. The vertices the body's hand joint carries get MakeHuman's own weights on the 15 finger bones (which the
+   body merged into its hand joint), so they sum to the body's hand-joint weight.
+3. The wrists' rest positions and shape directions come from the body's J_regressor, so the fingers hang off
+   the same wrist joints the body poses.
 """
 
 from __future__ import annotations
@@ -27,19 +27,20 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "python"))
 
-from m3c.body.hands import FINGERS, HAND_JOINT_NAMES, HAND_JOINTS, HAND_MODEL_NAME, SIDES, TIP_JOINTS  # noqa: E402
-from m3c.body.hands import WRIST_JOINTS  # noqa: E402
+from m3c.body.hands import (FINGERS, HAND_JOINT_NAMES, HAND_JOINTS, HAND_MODEL_NAME, SIDES,  # noqa: E402
+                            TIP_JOINTS, WRIST_JOINTS)
 from m3c.body.open_model import OPEN_MODEL_NAME, open_body_model_path  # noqa: E402
 
 DEFAULT_OUT = REPO / "python" / "m3c" / "body" / "data" / "m3c_open_hands.npz"
 MAKEHUMAN_FINGER = {"thumb": 1, "index": 2, "middle": 3, "ring": 4, "pinky": 5}
-ORIGIN = ("Built by tools/build_open_hand_model.py from the MakeHuman hm08 assets (base.obj, default skeleton and "
-          "weights, macrodetails targets) of makehumancommunity/makehuman @a8bc2d54, released under CC0 1.0 "
-          "(see LICENSE.ASSETS.md next to this file). The derived hand model is also CC0 1.0.")
+ORIGIN = ("Built by tools/build_open_hand_model.py from the MakeHuman hm08 assets (base.obj, default "
+          "skeleton and weights, macrodetails targets) of makehumancommunity/makehuman @a8bc2d54, released "
+          "under CC0 1.0 (see LICENSE.ASSETS.md next to this file). The derived hand model is also CC0 1.0.")
 
 
 def load_body_builder():
-    spec = importlib.util.spec_from_file_location("build_open_body_model", REPO / "tools" / "build_open_body_model.py")
+    path = REPO / "tools" / "build_open_body_model.py"
+    spec = importlib.util.spec_from_file_location("build_open_body_model", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up there
     spec.loader.exec_module(module)
@@ -56,13 +57,15 @@ def build(assets_dir: Path, verbose: bool = True):
     builder = load_body_builder()
     body, report = builder.build(assets_dir, verbose=verbose)
     assets, skeleton, world = report["assets"], report["skeleton"], report["world"]
-    mean_w, coeffs, offsets = report["mean_target_weights"], report["component_target_weights"], report["target_offsets"]
+    mean_w, coeffs = report["mean_target_weights"], report["component_target_weights"]
+    offsets = report["target_offsets"]
 
     raw = json.loads((assets_dir / "rigs" / "default.mhskel").read_text())
     tail_ids = [np.asarray(raw["joints"][raw["bones"][b]["tail"]]) for b in skeleton.bones]
 
     def posed_points(vertices):
-        """Re-posed bone heads and tails (... x bones x 3) of meshes or target offsets (... x N x 3): linear."""
+        """Re-posed bone heads and tails (... x bones x 3) of meshes or target offsets (... x N x 3), linear
+        in them."""
         heads = skeleton.heads(vertices)
         tails = np.stack([vertices[..., ids, :].mean(axis=-2) for ids in tail_ids], axis=-2)
         _, posed_heads = builder.skinning_transforms(skeleton, world, heads)
@@ -105,7 +108,8 @@ def build(assets_dir: Path, verbose: bool = True):
         w = assets.weights[ids][:, bones[s]]
         arrays[f"{side}_vertex_ids"] = ids.astype(np.int32)
         arrays[f"{side}_weights"] = w.astype(np.float32)
-        hand_report[side] = dict(vertices=len(ids), weight_error=float(np.abs(w.sum(axis=1) - carried[ids]).max()))
+        weight_error = float(np.abs(w.sum(axis=1) - carried[ids]).max())
+        hand_report[side] = dict(vertices=len(ids), weight_error=weight_error)
         # The skeleton's wrist head against the body's regressed wrist (mean shape).
         wrist_bone = skeleton.index["wrist" + (".L" if side == "left" else ".R")]
         hand_report[side]["wrist_gap_mm"] = float(1000 * np.linalg.norm(
@@ -125,8 +129,9 @@ def main(argv=None) -> int:
     with np.load(open_body_model_path()) as shipped:
         for key in ("v_template", "shapedirs", "J_regressor", "weights"):
             if not np.allclose(shipped[key], body[key], rtol=0, atol=2e-5):
-                raise SystemExit(f"the rebuilt body's {key} differs from the shipped {open_body_model_path()}: "
-                                 "rebuild the body first (tools/build_open_body_model.py)")
+                raise SystemExit(f"the rebuilt body's {key} differs from the shipped "
+                                 f"{open_body_model_path()}: rebuild the body first "
+                                 "(tools/build_open_body_model.py)")
     builder.write_npz(args.out, arrays)
     print(f"wrote {args.out} ({args.out.stat().st_size / 1e6:.2f} MB)")
     return 0

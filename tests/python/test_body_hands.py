@@ -1,7 +1,7 @@
-"""The open body model's hands (m3c.body.hands, data/m3c_open_hands.npz): SMPL-H finger layout, rest joints that
-agree with the body, skinning weights that split the body's hand joint, and forward kinematics and skinning
-checked against the independent numpy LBS reference (m3c.body.reference, matrix-exponential rotations) run on
-a 52-joint SMPL-H-layout model assembled from the two files."""
+"""The open body model's hands (m3c.body.hands, data/m3c_open_hands.npz): SMPL-H finger layout, rest joints
+that agree with the body, skinning weights that split the body's hand joint, and forward kinematics and
+skinning checked against the independent numpy LBS reference (m3c.body.reference, matrix-exponential
+rotations) run on a 52-joint SMPL-H-layout model assembled from the two files."""
 
 from dataclasses import replace
 
@@ -77,7 +77,8 @@ def smplh_reference(body: BodyModelData, hand) -> tuple[BodyModelData, int]:
     points, and the body's hand-joint weights split onto the fingers."""
     V, B = body.num_vertices, body.num_betas
     points = np.concatenate([hand.joints_template.reshape(-1, 3), hand.tips_template.reshape(-1, 3)])
-    point_dirs = np.concatenate([hand.joints_shapedirs.reshape(-1, 3, B), hand.tips_shapedirs.reshape(-1, 3, B)])
+    point_dirs = np.concatenate([hand.joints_shapedirs.reshape(-1, 3, B),
+                                 hand.tips_shapedirs.reshape(-1, 3, B)])
     N = V + len(points)
     weights = np.zeros((N, 52))
     weights[:V, :22] = body.weights[:, :22]
@@ -94,7 +95,8 @@ def smplh_reference(body: BodyModelData, hand) -> tuple[BodyModelData, int]:
         for f, j in enumerate(TIP_JOINTS):
             weights[V + 30 + 5 * s + f, first + j] = 1.0
     data = BodyModelData(
-        v_template=np.concatenate([body.v_template, points]), shapedirs=np.concatenate([body.shapedirs, point_dirs]),
+        v_template=np.concatenate([body.v_template, points]),
+        shapedirs=np.concatenate([body.shapedirs, point_dirs]),
         posedirs=np.zeros((N, 3, 51 * 9)), J_regressor=regressor, weights=weights,
         parents=np.asarray(parents), faces=body.faces, name="open+hands (SMPL-H layout)")
     return data, V
@@ -121,7 +123,8 @@ def test_forward_kinematics_and_skinning_match_the_reference(hand, body):
     for s, side in enumerate(SIDES):
         first = SMPLH_FIRST_FINGER_JOINT[side]
         np.testing.assert_allclose(posed.joints[:, s], ref_joints[:, first:first + 15], atol=1e-6)
-        np.testing.assert_allclose(posed.tips[:, s], ref_vertices[:, V + 30 + 5 * s:V + 35 + 5 * s], atol=1e-6)
+        tips = ref_vertices[:, V + 30 + 5 * s:V + 35 + 5 * s]
+        np.testing.assert_allclose(posed.tips[:, s], tips, atol=1e-6)
         np.testing.assert_allclose(posed.wrists[:, s], ref_joints[:, HAND_JOINTS[side] - 2], atol=1e-6)
     keypoints = posed.keypoints()
     assert keypoints.shape == (n, 2, 21, 3)
@@ -137,7 +140,8 @@ def test_forward_kinematics_and_skinning_match_the_reference(hand, body):
 
 
 def test_smplh_reference_reduces_to_the_24_joint_body(hand, body):
-    """SMPL-H files still load into the 24-joint layout; the assembled open SMPL-H model reduces to the body."""
+    """SMPL-H files still load into the 24-joint layout; the assembled open SMPL-H model reduces to the
+    body."""
     reference, V = smplh_reference(body, hand)
     reduced = to_smpl_layout(replace(reference, posedirs=np.zeros((reference.num_vertices, 3, 51 * 9))))
     assert reduced.num_joints == 24
@@ -153,7 +157,8 @@ def test_rebuild_from_makehuman_assets_reproduces_the_shipped_hands():
     from pathlib import Path
 
     repo = Path(__file__).resolve().parents[2]
-    spec = importlib.util.spec_from_file_location("build_open_hand_model", repo / "tools" / "build_open_hand_model.py")
+    path = repo / "tools" / "build_open_hand_model.py"
+    spec = importlib.util.spec_from_file_location("build_open_hand_model", path)
     tool = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = tool
     spec.loader.exec_module(tool)

@@ -1,6 +1,6 @@
-"""The per-frame hand fit (m3c.perception.hand_fit) on synthetic hands: the open model's fingers posed from known
-degrees of freedom (within the joint limits), the wrist's rotation off by a few degrees, projected by a camera
-with 1 px of landmark noise; the fit must recover the 21 hand points after Procrustes on the hand."""
+"""The per-frame hand fit (m3c.perception.hand_fit) on synthetic hands: the open model's fingers posed from
+known degrees of freedom (within the joint limits), the wrist's rotation off by a few degrees, projected by a
+camera with 1 px of landmark noise; the fit must recover the 21 hand points after Procrustes on the hand."""
 
 import numpy as np
 import pytest
@@ -20,7 +20,8 @@ def setup():
     hand = load_hand_model()
     model = BodyModel(open_body_model_data())
     pose = np.zeros((1, 24, 3))
-    pose[0, 16], pose[0, 17], pose[0, 18] = [0, 0, -1.2], [0, 0, 1.2], [0, -0.8, 0]  # arms down, left elbow bent
+    # Arms down, the left elbow bent.
+    pose[0, 16], pose[0, 17], pose[0, 18] = [0, 0, -1.2], [0, 0, 1.2], [0, -0.8, 0]
     rotation, position = wrist_frames(model, pose, np.zeros(10))
     return hand, rotation[0], position[0]
 
@@ -38,8 +39,8 @@ def procrustes_errors(estimate: np.ndarray, truth: np.ndarray) -> np.ndarray:
 def test_axes_are_orthonormal_and_flexion_curls_towards_the_palm(setup):
     hand, _, _ = setup
     axes = hand_axes(hand, np.zeros(10))
-    np.testing.assert_allclose(np.einsum("sjab,sjcb->sjac", axes, axes), np.broadcast_to(np.eye(3), axes.shape),
-                               atol=1e-9)
+    np.testing.assert_allclose(np.einsum("sjab,sjcb->sjac", axes, axes),
+                               np.broadcast_to(np.eye(3), axes.shape), atol=1e-9)
     model = SideModel(hand, np.zeros(10), "left")
     rest = model.landmarks(np.zeros((1, NUM_DOFS)), np.eye(3)[None], np.zeros(3))[0]
     curled_dofs = np.zeros((1, NUM_DOFS))
@@ -98,4 +99,5 @@ def test_smoothing_stays_within_runs():
     np.testing.assert_allclose(out[:4], 0.0)
     np.testing.assert_allclose(out[5:], 1.0)
     noisy = np.random.default_rng(0).normal(0, 1, (50, 1))
-    assert np.std(np.diff(smooth_dofs(noisy, np.ones(50, bool)), axis=0)) < 0.3 * np.std(np.diff(noisy, axis=0))
+    smoothed = smooth_dofs(noisy, np.ones(50, bool))
+    assert np.std(np.diff(smoothed, axis=0)) < 0.3 * np.std(np.diff(noisy, axis=0))

@@ -2,14 +2,14 @@
 body's wrists (see data/m3c_open_hands.md).
 
 The hand model is a separate file (data/m3c_open_hands.npz, CC0, built by tools/build_open_hand_model.py from
-the same MakeHuman assets as the body), so the 24-joint body is unchanged. Its finger joints hang off the body's
-wrist joints (20, 21) as in SMPL-H; the body's hand joints (22, 23), which M3C keeps at rest, move rigidly with
-the wrists, and the hand layer re-skins the vertices they carry onto the finger joints.
+the same MakeHuman assets as the body), so the 24-joint body is unchanged. Its finger joints hang off the
+body's wrist joints (20, 21) as in SMPL-H; the body's hand joints (22, 23), which M3C keeps at rest, move
+rigidly with the wrists, and the hand layer re-skins the vertices they carry onto the finger joints.
 
 Layout (SMPL-H, MANO): per hand index1-3, middle1-3, pinky1-3, ring1-3, thumb1-3; joint 1 of each finger hangs
 off the wrist, 2 off 1, 3 off 2. Tips are the ends of each finger's third bone, in the same finger order. Rest
-pose (zero finger pose): the open model's T-pose hands (palms down, fingers along +-x). Rotations are axis-angle
-relative to the parent, in the body's rest axes (as SMPL-H's hand poses).
+pose (zero finger pose): the open model's T-pose hands (palms down, fingers along +-x). Rotations are
+axis-angle relative to the parent, in the body's rest axes (as SMPL-H's hand poses).
 """
 
 from __future__ import annotations
@@ -33,18 +33,18 @@ WRIST_JOINTS = {"left": 20, "right": 21}  # SMPL joints the fingers hang off
 HAND_JOINTS = {"left": 22, "right": 23}  # SMPL joints the fingers replace
 SMPLH_FIRST_FINGER_JOINT = {"left": 22, "right": 37}  # SMPL-H's 52 joints: 22 body, 15 left, 15 right
 
-# MediaPipe's 21 hand landmarks (wrist; thumb CMC, MCP, IP, tip; index MCP, PIP, DIP, tip; middle; ring; pinky)
-# as rows of [wrist, 15 finger joints, 5 tips] (hand_keypoints).
+# MediaPipe's 21 hand landmarks (wrist; thumb CMC, MCP, IP, tip; index MCP, PIP, DIP, tip; middle; ring;
+# pinky) as rows of [wrist, 15 finger joints, 5 tips] (hand_keypoints).
 MEDIAPIPE_HAND_NAMES = (
-    "wrist", "thumb_cmc", "thumb_mcp", "thumb_ip", "thumb_tip", "index_mcp", "index_pip", "index_dip", "index_tip",
-    "middle_mcp", "middle_pip", "middle_dip", "middle_tip", "ring_mcp", "ring_pip", "ring_dip", "ring_tip",
-    "pinky_mcp", "pinky_pip", "pinky_dip", "pinky_tip",
+    "wrist", "thumb_cmc", "thumb_mcp", "thumb_ip", "thumb_tip", "index_mcp", "index_pip", "index_dip",
+    "index_tip", "middle_mcp", "middle_pip", "middle_dip", "middle_tip", "ring_mcp", "ring_pip", "ring_dip",
+    "ring_tip", "pinky_mcp", "pinky_pip", "pinky_dip", "pinky_tip",
 )
 MEDIAPIPE_FROM_HAND = (0, 13, 14, 15, 20, 1, 2, 3, 16, 4, 5, 6, 17, 10, 11, 12, 19, 7, 8, 9, 18)
 # Bones between landmarks, for drawing (MediaPipe's hand connections).
 MEDIAPIPE_HAND_BONES = ((0, 1), (1, 2), (2, 3), (3, 4), (0, 5), (5, 6), (6, 7), (7, 8), (5, 9), (9, 10),
-                        (10, 11), (11, 12), (9, 13), (13, 14), (14, 15), (15, 16), (13, 17), (0, 17), (17, 18),
-                        (18, 19), (19, 20))
+                        (10, 11), (11, 12), (9, 13), (13, 14), (14, 15), (15, 16), (13, 17), (0, 17),
+                        (17, 18), (18, 19), (19, 20))
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,8 @@ def load_hand_model(path: str | Path | None = None) -> HandModel:
     """The hand model file (default: the shipped open model's hands)."""
     path = hand_model_path() if path is None else Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"hand model {path} is missing; rebuild it with python tools/build_open_hand_model.py")
+        raise FileNotFoundError(f"hand model {path} is missing; rebuild it with "
+                                "python tools/build_open_hand_model.py")
     with np.load(path, allow_pickle=False) as f:
         a = {k: f[k] for k in f.files}
     if tuple(str(n) for n in a["joint_names"]) != HAND_JOINT_NAMES:
@@ -131,8 +132,9 @@ def rotations(axis_angle: np.ndarray) -> np.ndarray:
 
 def pose_hands(hand: HandModel, betas, wrist_rotation: np.ndarray, wrist_position: np.ndarray,
                hand_pose: np.ndarray) -> HandOutput:
-    """Forward kinematics of the fingers. betas: B; wrist_rotation: N x 2 x 3 x 3, the wrists' world rotations;
-    wrist_position: N x 2 x 3, the posed wrist joints; hand_pose: N x 2 x 15 x 3 axis-angle (zeros: rest)."""
+    """Forward kinematics of the fingers. betas: B; wrist_rotation: N x 2 x 3 x 3, the wrists' world
+    rotations; wrist_position: N x 2 x 3, the posed wrist joints; hand_pose: N x 2 x 15 x 3 axis-angle (zeros:
+    rest)."""
     wrist_rest, joints_rest, tips_rest = hand.rest(betas)
     R_local = rotations(hand_pose)
     wrist_rotation = np.asarray(wrist_rotation, dtype=np.float64)
@@ -144,7 +146,8 @@ def pose_hands(hand: HandModel, betas, wrist_rotation: np.ndarray, wrist_positio
         if p < 0:
             parent_R, parent_x, offset = wrist_rotation, wrist_position, joints_rest[:, j] - wrist_rest
         else:
-            parent_R, parent_x, offset = R_world[:, :, p], position[:, :, p], joints_rest[:, j] - joints_rest[:, p]
+            parent_R, parent_x = R_world[:, :, p], position[:, :, p]
+            offset = joints_rest[:, j] - joints_rest[:, p]
         position[:, :, j] = parent_x + np.einsum("nsab,sb->nsa", parent_R, offset)
         R_world[:, :, j] = parent_R @ R_local[:, :, j]
     tip_offsets = tips_rest - joints_rest[:, list(TIP_JOINTS)]
@@ -174,17 +177,18 @@ def wrist_frames(model, pose: np.ndarray, betas, transl=None) -> tuple[np.ndarra
 
 def skin_hands(hand: HandModel, betas, rest_vertices: np.ndarray, body_vertices: np.ndarray,
                wrist_rotation: np.ndarray, wrist_position: np.ndarray, hand_pose: np.ndarray) -> np.ndarray:
-    """The body's posed vertices N x V x 3 with the fingers posed: each hand vertex moves by its finger weights
-    w_f from the wrist's rigid transform A_w (which the body's unrotated hand joint applies) to the finger joints'
-    A_f: v' = v + sum_f w_f (A_f - A_w) v_rest. rest_vertices: V x 3, the body's rest vertices of shape betas
-    (no pose blend shapes: the open model has none)."""
+    """The body's posed vertices N x V x 3 with the fingers posed: each hand vertex moves by its finger
+    weights w_f from the wrist's rigid transform A_w (which the body's unrotated hand joint applies) to the
+    finger joints' A_f: v' = v + sum_f w_f (A_f - A_w) v_rest. rest_vertices: V x 3, the body's rest vertices
+    of shape betas (no pose blend shapes: the open model has none)."""
     out = np.array(body_vertices, dtype=np.float64, copy=True)
     posed = pose_hands(hand, betas, wrist_rotation, wrist_position, hand_pose)
     wrist_rest, joints_rest, _ = hand.rest(betas)
     for s, side in enumerate(SIDES):
         ids, w = hand.vertex_ids[side], hand.weights[side]
         v = rest_vertices[ids]  # H x 3
-        wrist_moved = np.einsum("nab,hb->nha", wrist_rotation[:, s], v - wrist_rest[s]) + wrist_position[:, s, None]
+        wrist_moved = (np.einsum("nab,hb->nha", wrist_rotation[:, s], v - wrist_rest[s])
+                       + wrist_position[:, s, None])
         finger_moved = (np.einsum("nfab,fhb->nfha", posed.transforms[:, s, :, :3, :3],
                                   v[None] - joints_rest[s][:, None]) + posed.joints[:, s, :, None])
         out[:, ids] += np.einsum("hf,nfha->nha", w, finger_moved) - w.sum(axis=1)[None, :, None] * wrist_moved

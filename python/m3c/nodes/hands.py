@@ -36,7 +36,8 @@ class HandsNode(Node):
     inputs = ("video", "camera", "result")
     outputs = ("hands",)
     settings = ("body_model",)
-    nonfinite_outputs = ("hands.tracks[].keypoints", "hands.tracks[].hand_pose", "hands.tracks[].wrist_correction")
+    nonfinite_outputs = ("hands.tracks[].keypoints", "hands.tracks[].hand_pose",
+                         "hands.tracks[].wrist_correction")
 
     @dataclass
     class Config:
@@ -53,7 +54,8 @@ class HandsNode(Node):
         model = ctx.loaded("body_model")
         hand = hand_model_for(model.data.name)
         if hand is None:
-            return disabled(f"no hand model for the body model {model.data.name} (only M3C's open model has one)")
+            return disabled(f"no hand model for the body model {model.data.name} (only M3C's open model has "
+                            "one)")
         if not mediapipe_available():
             LOG.warning("hands: MediaPipe is not installed (pip install 'm3c[perception]'); no hands")
             return disabled("MediaPipe is not installed")
@@ -96,9 +98,11 @@ def track_hands(ctx, model, hand, video: dict, camera: dict, result: dict, confi
                     found = detect_hands(engine, rgb, s["keypoints"][k])
                     s["landmarks"][k] = found
                     for side in range(2):
-                        fit = fit_hand(s["sides"][side], found[side], s["rotation"][k, side],
-                                       s["position"][k, side], world_from_cam[i], intrinsics,
-                                       previous=s["previous"][side]) if np.isfinite(found[side, 0, 0]) else None
+                        fit = None
+                        if np.isfinite(found[side, 0, 0]):
+                            fit = fit_hand(s["sides"][side], found[side], s["rotation"][k, side],
+                                           s["position"][k, side], world_from_cam[i], intrinsics,
+                                           previous=s["previous"][side])
                         s["previous"][side] = fit
                         if fit is not None:
                             s["dofs"][k, side] = np.r_[fit.dofs, fit.wrist_correction]
@@ -117,8 +121,9 @@ def track_hands(ctx, model, hand, video: dict, camera: dict, result: dict, confi
                 values = smooth_dofs(np.nan_to_num(values), found, config.smoothing_frames)
             hand_pose[found, side] = dofs_to_pose(values[found, :NUM_DOFS], s["sides"][side].axes)
             correction[found, side] = values[found, NUM_DOFS:]
-        out_tracks.append({"track_id": int(track["track_id"]), "first_frame": s["first"], "num_frames": s["n"],
-                           "keypoints": s["landmarks"], "hand_pose": hand_pose, "wrist_correction": correction})
+        out_tracks.append({"track_id": int(track["track_id"]), "first_frame": s["first"],
+                           "num_frames": s["n"], "keypoints": s["landmarks"], "hand_pose": hand_pose,
+                           "wrist_correction": correction})
     seconds = time.time() - start
     LOG.info("hands: %d hands fitted in %d person-frames, %.2f s (%.3f s per frame)", hand_frames, frames,
              seconds, seconds / max(video["num_frames"], 1))

@@ -15,8 +15,8 @@ from m3c.pipeline import FileRef, Node, register_node
 
 @register_node
 class OverlayNode(Node):
-    """overlay.mp4: the final bodies rendered over the input frames (depth-tested, shaded, one colour per track),
-    and the fitted fingers as lines between the 21 hand points."""
+    """overlay.mp4: the final bodies rendered over the input frames (depth-tested, shaded, one colour per
+    track), and the fitted fingers as lines between the 21 hand points."""
 
     version = "2"  # 2: hands
     type_name = "overlay"
@@ -52,8 +52,8 @@ class OverlayNode(Node):
 
 
 def tracks_with_hands(model, tracks: list[dict], hands: dict | None) -> tuple[list[dict], list[tuple]]:
-    """The tracks with the hand fit's wrists, and per track with hands (first_frame, world points n x 2 x 21 x 3,
-    track id)."""
+    """The tracks with the hand fit's wrists, and per track with hands (first_frame, world points n x 2 x 21 x
+    3, track id)."""
     from m3c.ground.tracks import track_poses
     from m3c.nodes.hands import corrected_body_pose
     from m3c.nodes.results import world_hand_keypoints

@@ -1,21 +1,22 @@
 """Per-frame hand fits: finger articulation from MediaPipe's 21 hand landmarks (u, v, confidence), given the
 body's wrist (world position and rotation) and the camera, smoothed over time.
 
-The fingers move by anatomical degrees of freedom with joint limits (no learned hand prior: M3C has no open hand
-pose data): each finger's first joint flexes and spreads, its second and third flex; the thumb's first joint
-turns about three axes, its second flexes and spreads, its third flexes. Flexion turns a bone towards the palm
-(axis bone x palm normal, from the rest hand), spread turns it about the palm normal. A joint's axis-angle is
-the sum of its degrees of freedom along those axes, in the body's rest axes (SMPL-H's hand pose convention).
+The fingers move by anatomical degrees of freedom with joint limits (no learned hand prior: M3C has no open
+hand pose data): each finger's first joint flexes and spreads, its second and third flex; the thumb's first
+joint turns about three axes, its second flexes and spreads, its third flexes. Flexion turns a bone towards
+the palm (axis bone x palm normal, from the rest hand), spread turns it about the palm normal. A joint's
+axis-angle is the sum of its degrees of freedom along those axes, in the body's rest axes (SMPL-H's hand pose
+convention).
 
 The fit minimises, over the degrees of freedom and a small correction of the wrist's rotation,
 
     E = sum_i c_i |(p_i - p_0) - (o_i - o_0)|^2 / s^2 + |W_prior theta|^2 + w_wrist^2 |delta|^2
         + w_time^2 |theta - theta_prev|^2
 
-with p_i the projected model landmarks, o_i the observed ones (0 = the wrist: the body's wrist need not project
-exactly onto MediaPipe's), c_i their confidence and s the observed hand's size in pixels, so the weights do not
-depend on how large the hand is in the image. The fitted poses are then smoothed over each run of frames with
-a hand (smooth_dofs).
+with p_i the projected model landmarks, o_i the observed ones (0 = the wrist: the body's wrist need not
+project exactly onto MediaPipe's), c_i their confidence and s the observed hand's size in pixels, so the
+weights do not depend on how large the hand is in the image. The fitted poses are then smoothed over each run
+of frames with a hand (smooth_dofs).
 """
 
 from __future__ import annotations
@@ -60,9 +61,9 @@ class HandFit:
 
 
 def hand_axes(hand: HandModel, betas) -> np.ndarray:
-    """Per side and finger joint, the rest axes (2 x 15 x 3 x 3; rows: flexion, spread, twist): twist along the
-    bone to the next joint (or tip), spread along the palm normal (the side of the palm, from the rest knuckles),
-    flexion = bone x normal (a positive flexion turns the bone towards the palm)."""
+    """Per side and finger joint, the rest axes (2 x 15 x 3 x 3; rows: flexion, spread, twist): twist along
+    the bone to the next joint (or tip), spread along the palm normal (the side of the palm, from the rest
+    knuckles), flexion = bone x normal (a positive flexion turns the bone towards the palm)."""
     wrist, joints, tips = hand.rest(betas)
     axes = np.zeros((2, 15, 3, 3))
     for s in range(2):
@@ -114,7 +115,8 @@ class SideModel:
         self.tip_offsets = tips[s] - joints[s, list(TIP_JOINTS)]
         self.axes = hand_axes(hand, betas)[s]
 
-    def landmarks(self, dofs: np.ndarray, wrist_rotation: np.ndarray, wrist_position: np.ndarray) -> np.ndarray:
+    def landmarks(self, dofs: np.ndarray, wrist_rotation: np.ndarray,
+                  wrist_position: np.ndarray) -> np.ndarray:
         """(K, NUM_DOFS), (K, 3, 3), (3,) -> (K, 21, 3) world landmarks in MediaPipe order."""
         R_local = _rodrigues(dofs_to_pose(dofs, self.axes))  # K x 15 x 3 x 3
         K = len(dofs)
@@ -130,12 +132,13 @@ class SideModel:
         return points[:, list(MEDIAPIPE_FROM_HAND)]
 
 
-def fit_hand(side_model: SideModel, observed: np.ndarray, wrist_rotation: np.ndarray, wrist_position: np.ndarray,
-             world_from_cam: np.ndarray, intrinsics, previous: HandFit | None = None,
-             weights: FitWeights = FitWeights(), max_evaluations: int = 40) -> HandFit | None:
+def fit_hand(side_model: SideModel, observed: np.ndarray, wrist_rotation: np.ndarray,
+             wrist_position: np.ndarray, world_from_cam: np.ndarray, intrinsics,
+             previous: HandFit | None = None, weights: FitWeights = FitWeights(),
+             max_evaluations: int = 40) -> HandFit | None:
     """The fit of one hand in one frame (module docstring). observed: 21 x 3 landmarks (u, v, confidence);
-    wrist_rotation 3 x 3 and wrist_position (3,) in the world; world_from_cam 4 x 4; intrinsics fx, fy, cx, cy.
-    None when the observation is unusable (the wrist or too few landmarks below MIN_CONFIDENCE)."""
+    wrist_rotation 3 x 3 and wrist_position (3,) in the world; world_from_cam 4 x 4; intrinsics fx, fy, cx,
+    cy. None when the observation is unusable (the wrist or too few landmarks below MIN_CONFIDENCE)."""
     observed = np.asarray(observed, dtype=np.float64)
     conf = np.where(np.isfinite(observed[:, 2]), observed[:, 2], 0.0)
     if conf[0] < MIN_CONFIDENCE or (conf >= MIN_CONFIDENCE).sum() < 8:
@@ -157,7 +160,8 @@ def fit_hand(side_model: SideModel, observed: np.ndarray, wrist_rotation: np.nda
         z = np.maximum(cam[..., 2], 1e-3)
         pix = np.stack([k[0] * cam[..., 0] / z + k[2], k[1] * cam[..., 1] / z + k[3]], axis=-1)
         rel = pix[:, 1:] - pix[:, :1]
-        parts = [(w * (rel - rel_obs) / scale).reshape(len(x), -1), prior_weights * dofs, weights.wrist * delta]
+        parts = [(w * (rel - rel_obs) / scale).reshape(len(x), -1), prior_weights * dofs,
+                 weights.wrist * delta]
         if prev is not None:
             parts.append(weights.time * (dofs - prev))
         return np.concatenate(parts, axis=1)
@@ -172,13 +176,15 @@ def fit_hand(side_model: SideModel, observed: np.ndarray, wrist_rotation: np.nda
 
     lower = np.r_[LOWER, -np.full(3, weights.max_wrist_correction)]
     upper = np.r_[UPPER, np.full(3, weights.max_wrist_correction)]
-    # Starts: the previous frame's fit, else the rest hand and a half-closed one (the 2D fit has local minima).
+    # Starts: the previous frame's fit, else the rest hand and a half-closed one (the 2D fit has local
+    # minima).
     starts = [np.r_[previous.dofs, previous.wrist_correction]] if previous is not None else [
         np.zeros(NUM_DOFS + 3), np.r_[np.where(FLEXION, 0.6, 0.0), np.zeros(3)]]
     best = None
     for start in starts:
         start = np.clip(start, lower + 1e-9, upper - 1e-9)
-        solution = least_squares(fun, start, jac=jac, bounds=(lower, upper), method="trf", max_nfev=max_evaluations)
+        solution = least_squares(fun, start, jac=jac, bounds=(lower, upper), method="trf",
+                                 max_nfev=max_evaluations)
         if best is None or solution.cost < best.cost:
             best = solution
     solution = best
@@ -191,8 +197,8 @@ def fit_hand(side_model: SideModel, observed: np.ndarray, wrist_rotation: np.nda
 
 
 def smooth_dofs(values: np.ndarray, found: np.ndarray, sigma: float = 1.5) -> np.ndarray:
-    """Gaussian smoothing over time (sigma in frames) of per-frame values (T x D) within each run of consecutive
-    found frames; frames without a fit stay NaN."""
+    """Gaussian smoothing over time (sigma in frames) of per-frame values (T x D) within each run of
+    consecutive found frames; frames without a fit stay NaN."""
     out = np.full(values.shape, np.nan)
     T = len(values)
     radius = int(np.ceil(3 * sigma))

@@ -59,9 +59,10 @@ class MediaPipeHands:
 
 
 def wrist_crop(keypoints: np.ndarray, side: str) -> tuple[np.ndarray, float] | None:
-    """(square box x0, y0, x1, y1 in frame pixels, reach px) around a wrist of COCO-17 keypoints (17 x 3), or None
-    when the wrist or elbow is not confident. The reach is the forearm's length in the image, at least half the
-    torso's (shoulders' to hips' midpoints, when confident: a forearm pointing at the camera looks short)."""
+    """(square box x0, y0, x1, y1 in frame pixels, reach px) around a wrist of COCO-17 keypoints (17 x 3), or
+    None when the wrist or elbow is not confident. The reach is the forearm's length in the image, at least
+    half the torso's (shoulders' to hips' midpoints, when confident: a forearm pointing at the camera looks
+    short)."""
     wrist, elbow = keypoints[COCO_WRIST[side]], keypoints[COCO_ELBOW[side]]
     if not (wrist[2] >= MIN_KEYPOINT_CONFIDENCE and elbow[2] >= MIN_KEYPOINT_CONFIDENCE):
         return None
@@ -81,8 +82,8 @@ def wrist_crop(keypoints: np.ndarray, side: str) -> tuple[np.ndarray, float] | N
 
 
 def crop_square(frame_rgb: np.ndarray, box: np.ndarray, size: int = CROP_SIZE) -> tuple[np.ndarray, float]:
-    """The box (may reach outside the frame: grey there) resampled to size x size; returns (crop, pixels of the
-    frame per crop pixel)."""
+    """The box (may reach outside the frame: grey there) resampled to size x size; returns (crop, pixels of
+    the frame per crop pixel)."""
     import cv2
 
     scale = (box[2] - box[0]) / size
@@ -95,14 +96,14 @@ def crop_square(frame_rgb: np.ndarray, box: np.ndarray, size: int = CROP_SIZE) -
 
 
 def person_side(label: str) -> str:
-    """MediaPipe's handedness label (mirrored-image convention) -> the person's side in an unmirrored video."""
+    """MediaPipe's handedness label (mirrored-image convention) -> the person's side (unmirrored video)."""
     return "right" if label == "Left" else "left"
 
 
 def match_hands(candidates: dict, wrists: dict, forearms: dict) -> dict:
-    """candidates: side -> [(landmarks 21 x 2 frame px, label, score)] found in that wrist's crop; wrists: side ->
-    the body's wrist (2,) px; forearms: side -> forearm length px. Returns side -> (landmarks, score) for the
-    matched hands (module docstring)."""
+    """candidates: side -> [(landmarks 21 x 2 frame px, label, score)] found in that wrist's crop; wrists:
+    side -> the body's wrist (2,) px; forearms: side -> forearm length px. Returns side -> (landmarks, score)
+    for the matched hands (module docstring)."""
     best = {}
     for side, found in candidates.items():
         for landmarks, label, score in found:
@@ -119,8 +120,8 @@ def match_hands(candidates: dict, wrists: dict, forearms: dict) -> dict:
 
 
 def detect_hands(engine: MediaPipeHands, frame_rgb: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
-    """21 x 3 landmarks (u, v, confidence) per side (2 x 21 x 3; NaN where no hand) of one person in one frame,
-    from their COCO-17 keypoints (17 x 3)."""
+    """21 x 3 landmarks (u, v, confidence) per side (2 x 21 x 3; NaN where no hand) of one person in one
+    frame, from their COCO-17 keypoints (17 x 3)."""
     out = np.full((2, 21, 3), np.nan)
     candidates, wrists, forearms = {}, {}, {}
     for side in ("left", "right"):

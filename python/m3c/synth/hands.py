@@ -15,15 +15,15 @@ from m3c.perception.hand_fit import dofs_to_pose, hand_axes
 
 SKIN = np.array([0.87, 0.68, 0.58])
 # The left arm out to the side, a little down, the forearm bent forwards; the right arm down.
-ARM_POSE = {"left_shoulder": (0.0, 0.0, -0.35), "right_shoulder": (0.0, 0.0, 1.2), "left_elbow": (0.0, -0.9, 0.0),
-            "left_wrist": (0.0, 0.0, 0.0)}
+ARM_POSE = {"left_shoulder": (0.0, 0.0, -0.35), "right_shoulder": (0.0, 0.0, 1.2),
+            "left_elbow": (0.0, -0.9, 0.0), "left_wrist": (0.0, 0.0, 0.0)}
 
 
 @dataclass
 class HandScene:
     """image (H x W x 3 BGR), keypoints (17 x 3 COCO-17 u, v, confidence of the body), hand_keypoints_in_world
-    (2 x 21 x 3, MediaPipe order), hand_pixels (2 x 21 x 2), wrist_rotation (2 x 3 x 3), wrist_position (2 x 3),
-    world_from_cam (4 x 4), intrinsics (4,), hand_pose (2 x 15 x 3)."""
+    (2 x 21 x 3, MediaPipe order), hand_pixels (2 x 21 x 2), wrist_rotation (2 x 3 x 3), wrist_position (2 x
+    3), world_from_cam (4 x 4), intrinsics (4,), hand_pose (2 x 15 x 3)."""
 
     image: np.ndarray
     keypoints: np.ndarray
@@ -47,8 +47,9 @@ def body_pose(wrist_turn=(0.0, 0.0, 0.0)) -> np.ndarray:
 def render_hand_scene(model, dofs: np.ndarray, distance: float = 0.8, view=(0.3, -0.2, 1.0), betas=None,
                       width: int = 640, height: int = 480, focal: float = 900.0, wrist_turn=(0.0, 0.0, 0.0),
                       hand=None) -> HandScene:
-    """The left hand posed by dofs (m3c.perception.hand_fit.DOFS; the right hand at rest), seen from `distance`
-    metres along `view` (world direction from the left wrist), the camera looking at the left palm's centre."""
+    """The left hand posed by dofs (m3c.perception.hand_fit.DOFS; the right hand at rest), seen from
+    `distance` metres along `view` (world direction from the left wrist), the camera looking at the left
+    palm's centre."""
     from m3c.viz.raster import Mesh, render
 
     hand = load_hand_model() if hand is None else hand
@@ -61,7 +62,8 @@ def render_hand_scene(model, dofs: np.ndarray, distance: float = 0.8, view=(0.3,
     posed = pose_hands(hand, betas, rotation, position, hand_pose)
     keys = posed.keypoints()[0]
     rest = model.data.v_template + model.data.shapedirs @ betas
-    vertices = skin_hands(hand, betas, rest, model.forward(pose, betas).vertices, rotation, position, hand_pose)[0]
+    body = model.forward(pose, betas).vertices
+    vertices = skin_hands(hand, betas, rest, body, rotation, position, hand_pose)[0]
     target = keys[0, 0] + 0.5 * (keys[0, 9] - keys[0, 0])
     view = np.asarray(view, dtype=np.float64)
     world_from_cam = look_at(target + distance * view / np.linalg.norm(view), target)

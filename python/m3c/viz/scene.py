@@ -32,7 +32,8 @@ def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces
 def draw_hands(frame: np.ndarray, hands: list[tuple[np.ndarray, int]], world_from_cam: np.ndarray,
                intrinsics) -> np.ndarray:
     """hands: (world points 2 x 21 x 3 in MediaPipe's order, NaN where no hand; track id). Draws each hand's
-    bones (m3c.body.hands.MEDIAPIPE_HAND_BONES) in a lighter shade of the track's colour, in place; returns it."""
+    bones (m3c.body.hands.MEDIAPIPE_HAND_BONES) in a lighter shade of the track's colour, in place; returns
+    it."""
     import cv2
 
     from m3c.body.hands import MEDIAPIPE_HAND_BONES
@@ -49,8 +50,9 @@ def draw_hands(frame: np.ndarray, hands: list[tuple[np.ndarray, int]], world_fro
                 continue
             pixels = project(cam, intrinsics)
             for a, b in MEDIAPIPE_HAND_BONES:
-                cv2.line(frame, tuple(int(round(v)) for v in pixels[a]), tuple(int(round(v)) for v in pixels[b]),
-                         colour, thickness, cv2.LINE_AA)
+                start = tuple(int(round(v)) for v in pixels[a])
+                end = tuple(int(round(v)) for v in pixels[b])
+                cv2.line(frame, start, end, colour, thickness, cv2.LINE_AA)
     return frame
 
 
