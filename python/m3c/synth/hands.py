@@ -44,7 +44,7 @@ def body_pose(wrist_turn=(0.0, 0.0, 0.0)) -> np.ndarray:
     return pose
 
 
-def render_hand_scene(model, dofs: np.ndarray, distance: float = 0.8, view=(0.3, -0.2, 1.0), betas=None,
+def render_hand_scene(model, dofs: np.ndarray, distance: float = 0.8, view=(0.2, -1.0, 0.6), betas=None,
                       width: int = 640, height: int = 480, focal: float = 900.0, wrist_turn=(0.0, 0.0, 0.0),
                       hand=None) -> HandScene:
     """The left hand posed by dofs (m3c.perception.hand_fit.DOFS; the right hand at rest), seen from
