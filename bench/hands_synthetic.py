@@ -16,13 +16,12 @@ import sys
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-
 from m3c.body import BodyModel, open_body_model_data
 from m3c.body.hands import MEDIAPIPE_FROM_HAND, load_hand_model
 from m3c.perception.hand_fit import LOWER, NUM_DOFS, UPPER, SideModel, fit_hand
 from m3c.perception.hands import MediaPipeHands, detect_hands
 from m3c.synth.hands import render_hand_scene
+from scipy.spatial.transform import Rotation
 
 # Rows of the 21 MediaPipe points that are SMPL-H finger joints (not the wrist, not the tips).
 FINGER_JOINT_ROWS = [row for row, source in enumerate(MEDIAPIPE_FROM_HAND) if 1 <= source <= 15]

@@ -7,11 +7,20 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from m3c.body import BodyModel, BodyModelData, open_body_model_data
-from m3c.body.hands import (HAND_JOINT_NAMES, HAND_JOINTS, HAND_PARENTS, MEDIAPIPE_FROM_HAND, SIDES,
-                            SMPLH_FIRST_FINGER_JOINT, TIP_JOINTS, load_hand_model, pose_hands, skin_hands,
-                            wrist_frames)
+from m3c.body.hands import (
+    HAND_JOINT_NAMES,
+    HAND_JOINTS,
+    HAND_PARENTS,
+    MEDIAPIPE_FROM_HAND,
+    SIDES,
+    SMPLH_FIRST_FINGER_JOINT,
+    TIP_JOINTS,
+    load_hand_model,
+    pose_hands,
+    skin_hands,
+    wrist_frames,
+)
 from m3c.body.joint_names import SMPL_PARENTS
 from m3c.body.layouts import to_smpl_layout
 from m3c.body.reference import lbs

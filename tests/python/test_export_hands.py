@@ -6,11 +6,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from export_scene import write_results
 from m3c.body import default_body_model
-from m3c.body.hands import (HAND_JOINT_NAMES, MEDIAPIPE_FROM_HAND, SIDES, load_hand_model, skin_hands,
-                            wrist_frames)
+from m3c.body.hands import (
+    HAND_JOINT_NAMES,
+    MEDIAPIPE_FROM_HAND,
+    SIDES,
+    load_hand_model,
+    skin_hands,
+    wrist_frames,
+)
 from m3c.export import export_results, load_source
 from m3c.io.bvh import read_bvh
 from m3c.io.results import load_results

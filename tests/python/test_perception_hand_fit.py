@@ -4,13 +4,20 @@ camera with 1 px of landmark noise; the fit must recover the 21 hand points afte
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from m3c.body import BodyModel, open_body_model_data
 from m3c.body.hands import SIDES, load_hand_model, pose_hands, wrist_frames
 from m3c.camera import look_at, project, to_camera
-from m3c.perception.hand_fit import (LOWER, NUM_DOFS, UPPER, SideModel, dofs_to_pose, fit_hand, hand_axes,
-                                     smooth_dofs)
+from m3c.perception.hand_fit import (
+    LOWER,
+    NUM_DOFS,
+    UPPER,
+    SideModel,
+    dofs_to_pose,
+    fit_hand,
+    hand_axes,
+    smooth_dofs,
+)
+from scipy.spatial.transform import Rotation
 
 K = np.array([1000.0, 1000.0, 480.0, 270.0])
 

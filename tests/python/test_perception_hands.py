@@ -4,12 +4,11 @@ mediapipe), followed by the per-frame fit."""
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from m3c.body import BodyModel, open_body_model_data
 from m3c.body.hands import load_hand_model
 from m3c.perception.hand_fit import LOWER, UPPER, SideModel, fit_hand
 from m3c.perception.hands import crop_square, match_hands, person_side, wrist_crop
+from scipy.spatial.transform import Rotation
 
 
 def coco(wrists: dict, elbows: dict) -> np.ndarray:
@@ -86,7 +85,6 @@ def engine():
 
 def test_mediapipe_finds_and_fits_the_rendered_hand(engine):
     import cv2
-
     from m3c.perception.hands import detect_hands
     from m3c.synth.hands import render_hand_scene
     from test_perception_hand_fit import procrustes_errors

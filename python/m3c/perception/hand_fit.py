@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 from m3c.body.hands import HAND_PARENTS, MEDIAPIPE_FROM_HAND, SIDES, TIP_JOINTS, HandModel
 
 # Degrees of freedom: (joint, axis, lower, upper) radians; axis 0 flexion, 1 spread, 2 twist (along the bone).
-_FINGER = lambda f: [(3 * f, 0, -0.35, 1.6), (3 * f, 1, -0.35, 0.35), (3 * f + 1, 0, -0.2, 1.9),  # noqa: E731
+_FINGER = lambda f: [(3 * f, 0, -0.35, 1.6), (3 * f, 1, -0.35, 0.35), (3 * f + 1, 0, -0.2, 1.9),
                      (3 * f + 2, 0, -0.2, 1.4)]
 DOFS = tuple(_FINGER(0) + _FINGER(1) + _FINGER(2) + _FINGER(3) + [
     (12, 0, -0.5, 1.0), (12, 1, -0.6, 0.6), (12, 2, -0.5, 0.5), (13, 0, -0.3, 1.0), (13, 1, -0.3, 0.3),
