@@ -184,6 +184,16 @@ def _odometry_fit(camera: dict) -> str:
     return f" (fit {fit['keyframe_rms_px']:.2f} px)"
 
 
+def _hands_line(hands: dict | None) -> list[str]:
+    """The hands node's outcome (results.json hands), when the results have one."""
+    if not hands:
+        return []
+    if not hands["enabled"]:
+        return [f"hands       none: {hands['reason']}"]
+    return [f"hands       {hands['hands_fitted']} hands fitted in {hands['person_frames']} person-frames "
+            f"({hands['seconds_per_frame']:.3f} s per frame)"]
+
+
 def json_ready(value):
     """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
     (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
@@ -275,6 +285,7 @@ def describe(folder: str | Path) -> str:
              f"lift        {summary['lift']['method']}; optimization: "
              f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"
              if summary["optimization"]["optimized"] else f"lift        {summary['lift']['method']}; no optimization",
+             *_hands_line(summary.get("hands")),
              f"tracks      {len(summary['tracks'])}"]
     for track in summary["tracks"]:
         err = track["mean_reprojection_error_px"]
