@@ -529,6 +529,8 @@ def build(assets_dir: Path, num_samples: int = 20000, seed: int = 0, verbose: bo
         if flat[np.argmax(np.abs(flat))] < 0:
             shapedirs[:, :, b] *= -1
             jointdirs[:, :, b] *= -1
+    # The components' signs against coeffs (build_open_hand_model.py follows every bone head along them).
+    signs = np.sign(np.einsum("vcb,vcb->b", shapedirs, np.einsum("tb,tvc->vcb", coeffs, posed_targets)))
 
     weights = smpl_weights(assets, skeleton)
     shapes = np.concatenate([template[None], shapedirs.transpose(2, 0, 1)])
@@ -565,7 +567,10 @@ def build(assets_dir: Path, num_samples: int = 20000, seed: int = 0, verbose: bo
     log(f"template height {np.ptp(template[:, 1]):.4f} m, {V} vertices, {len(triangles)} triangles, "
         f"keypoints {keypoints} ({time.time() - start:.1f} s)")
     report = dict(mean_shape_joint_error=mean_error, component_joint_error=component_error,
-                  explained_variance=explained, template_height=float(np.ptp(template[:, 1])))
+                  explained_variance=explained, template_height=float(np.ptp(template[:, 1])),
+                  # for build_open_hand_model.py: the re-posing and the shape space, bone by bone
+                  assets=assets, skeleton=skeleton, world=world, shift=shift, mean_target_weights=mean_w,
+                  component_target_weights=coeffs * signs, target_names=names, target_offsets=offsets)
     # No 'posedirs': in an M3C model file (m3c_model_format) that means zero pose blend shapes.
     arrays = dict(
         m3c_model_format=np.asarray(M3C_FORMAT_VERSION),

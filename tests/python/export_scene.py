@@ -51,8 +51,28 @@ def make_tracks(num_frames: int, seed: int):
     return tracks
 
 
-def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, ground: bool = True) -> Path:
-    """Writes folder/results.npz and results.json under a complete manifest; returns folder."""
+def make_hands(tracks: list[dict], seed: int) -> dict:
+    """The hands node's output for the tracks: random finger poses and wrist corrections, no hand in a few
+    frames."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for track in tracks:
+        n = track["num_frames"]
+        hand_pose = rng.normal(scale=0.3, size=(n, 2, 15, 3))
+        correction = rng.normal(scale=0.1, size=(n, 2, 3))
+        keypoints = np.concatenate([rng.uniform(0, 100, (n, 2, 21, 2)), np.full((n, 2, 21, 1), 0.9)], axis=-1)
+        missing = np.arange(n) % 4 == 1
+        for array in (hand_pose, correction, keypoints):
+            array[missing, 1] = np.nan
+        out.append({"track_id": track["track_id"], "first_frame": track["first_frame"], "num_frames": n,
+                    "keypoints": keypoints, "hand_pose": hand_pose, "wrist_correction": correction})
+    return {"enabled": True, "reason": None, "seconds": 1.0, "frames": 10, "hand_frames": 10, "tracks": out}
+
+
+def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, ground: bool = True,
+                  hands: bool = False) -> Path:
+    """Writes folder/results.npz and results.json under a complete manifest; returns folder. hands: with
+    finger poses (make_hands)."""
     folder.mkdir(parents=True, exist_ok=True)
     tracks = make_tracks(num_frames, seed)
     centres = np.stack([np.linspace(0.0, 0.8, num_frames), np.full(num_frames, 1.5), np.zeros(num_frames)], 1)
@@ -71,7 +91,7 @@ def write_results(folder: Path, model, num_frames: int = 12, seed: int = 0, grou
     arrays, summary = build_results(model, video, {"intrinsics": INTRINSICS, "source": "test"},
                                     {"static": False, "source": "test"}, {"source": "test"},
                                     {"up_source": "ground" if ground else "camera", "contact_points": 0}, world,
-                                    result, {})
+                                    result, {}, hands=make_hands(tracks, seed) if hands else None)
     write_npz(folder / "results.npz", arrays)
     (folder / "results.json").write_text(json.dumps(summary, indent=1) + "\n")
     seal(folder, ["results.npz", "results.json"])  # as `m3c run` would publish them

@@ -63,6 +63,8 @@ def _add_video_options(parser, many: bool) -> None:
                              "timestamps contradict (frame times are then frame id / RATE)")
     parser.add_argument("--frames", type=_frame_range, metavar="START:STOP[:STEP]",
                         help="process frames START..STOP-1 (every STEP-th)" + (" of each video" if many else ""))
+    parser.add_argument("--no-hands", action="store_true",
+                        help="no hands: skip MediaPipe Hands and the finger fit (results then hold no hand poses)")
     parser.add_argument("--side-by-side", action="store_true",
                         help="world.mp4 shows the input video beside the world view (world_view.beside_video)")
     parser.add_argument("--body-model", metavar="FILE", help="SMPL-layout body model .pkl/.npz (default: the open "

@@ -21,6 +21,8 @@ def pipeline_config(args):
         overrides["camera.hfov"] = float(args.hfov)
     if getattr(args, "force_intrinsics", False):
         overrides["camera.force_intrinsics"] = True
+    if getattr(args, "no_hands", False):
+        overrides["hands.enabled"] = False
     if getattr(args, "side_by_side", False):
         overrides["world_view.beside_video"] = True
     if getattr(args, "fps", None) is not None:

@@ -1,10 +1,12 @@
 """BVH export: one file per person, SMPL's 24-joint hierarchy at the person's own shape.
 
-The rest pose is the body model's T pose at the track's betas: each OFFSET is a joint's rest position minus its
-parent's. The root's position channels hold the root joint's world position per frame (rest root + SMPL
+The rest pose is the body model's T pose at the track's betas: each OFFSET is a joint's rest position minus
+its parent's. The root's position channels hold the root joint's world position per frame (rest root + SMPL
 translation: SMPL rotates the body about that joint), the rotation channels each joint's rotation relative to
-its parent (Z, Y, X Euler angles in degrees, R = Rz Ry Rx). Axes are the results' world (y up, metres, +z the
-first camera's viewing direction); the unit is centimetres by default (unit="m" for metres).
+its parent (Z, Y, X Euler angles in degrees, R = Rz Ry Rx). Where the results hold hand poses (the open
+model's hands), 30 SMPL-H finger joints follow, hanging off the wrists, with the fingertips as end sites. Axes
+are the results' world (y up, metres, +z the first camera's viewing direction); the unit is centimetres by
+default (unit="m" for metres).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from m3c.export.source import ExportSource, TrackMotion, per_track_paths
+from m3c.export.source import ExportSource, TrackMotion, finger_skeleton, per_track_paths
 from m3c.io.bvh import BVHJoint, BVHMotion, write_bvh
 
 UNITS = {"cm": 100.0, "m": 1.0}
@@ -51,6 +53,18 @@ def track_bvh(source: ExportSource, track: TrackMotion, unit: str = "cm") -> BVH
                                start))
         columns.append(euler[:, j])
         start += 3
+    fingers = finger_skeleton(track)
+    if fingers is not None:  # 30 finger joints below the wrists, their tips as end sites
+        all_rest = np.concatenate([rest, fingers.rest * scale])
+        finger_euler = euler_zyx_degrees(fingers.pose)
+        for k, (name, parent) in enumerate(zip(fingers.names, fingers.parents)):
+            joints.append(BVHJoint(name, int(parent), all_rest[24 + k] - all_rest[parent],
+                                   list(_ROTATION_CHANNELS), start))
+            columns.append(finger_euler[:, k])
+            start += 3
+        for k, parent in enumerate(fingers.tip_parents):
+            joints.append(BVHJoint(f"{fingers.names[parent - 24]}_end", int(parent),
+                                   fingers.tips[k] * scale - all_rest[parent], [], start, end_site=True))
     for j in range(len(parents)):
         if j not in parents:  # a leaf: head, hands, feet
             joints.append(BVHJoint(f"{names[j]}_end", j, _END_SITE_FRACTION * (rest[j] - rest[parents[j]]), [],

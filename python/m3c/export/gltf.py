@@ -11,7 +11,9 @@ stepped keys).
 Per person: the body model's mesh at the track's betas in the rest pose (no pose blend shapes: glTF has no
 pose correctives), the 24 SMPL joints as nodes (rest translation = offset from the parent, animated rotation =
 the joint's rotation relative to its parent, the root's translation animated), and at most 4 skinning
-influences per vertex (the model's largest 4 weights, renormalised to sum to 1, as glTF requires).
+influences per vertex (the model's largest 4 weights, renormalised to sum to 1, as glTF requires). Where the
+results hold hand poses (the open model's hands), 30 SMPL-H finger joints follow below the wrists, animated
+the same way, and the hand vertices are skinned to them (m3c.body.hands).
 The camera: glTF cameras look down their local -z with y up; M3C's are OpenCV (z forward, y down), so each
 pose is world_from_cam @ diag(1, -1, -1). The field of view is the vertical one of fy and the aspect ratio the
 image's; glTF cannot hold a principal point off the image centre or fx != fy.
@@ -25,7 +27,8 @@ import numpy as np
 import pygltflib as gl
 from scipy.spatial.transform import Rotation
 
-from m3c.export.source import ExportSource, TrackMotion
+from m3c.body.hands import HAND_JOINTS, SIDES
+from m3c.export.source import ExportSource, TrackMotion, finger_skeleton
 from m3c.io.atomic import atomic_path
 from m3c.viz.raster import vertex_normals
 from m3c.viz.scene import track_colour
@@ -136,17 +139,30 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
     for j, name in enumerate(names):
         offset = rest[j] - (rest[parents[j]] if parents[j] >= 0 else 0.0)
         b.node(name=f"{prefix}_{name}", translation=[float(v) for v in offset])
-    for j in range(1, len(names)):
+    fingers = finger_skeleton(track)
+    weights = np.asarray(model.data.weights)
+    if fingers is not None:  # 30 finger joints below the wrists (m3c.body.hands), their vertices re-weighted
+        parents = np.concatenate([parents, fingers.parents])
+        rest = np.concatenate([rest, fingers.rest])
+        for k, name in enumerate(fingers.names):
+            offset = rest[24 + k] - rest[parents[24 + k]]
+            b.node(name=f"{prefix}_{name}", translation=[float(v) for v in offset])
+        weights = np.concatenate([weights, np.zeros((len(weights), 30))], axis=1)
+        for s, side in enumerate(SIDES):
+            ids = track.hands.vertex_ids[side]
+            weights[ids, HAND_JOINTS[side]] = 0.0
+            weights[ids, 24 + 15 * s:39 + 15 * s] = track.hands.weights[side]
+    for j in range(1, len(parents)):
         b.gltf.nodes[first + parents[j]].children.append(first + j)
-    joint_nodes = list(range(first, first + len(names)))
+    joint_nodes = list(range(first, first + len(parents)))
     # Inverse bind matrices: joint j's rest frame is a translation by its rest position (column-major in glTF).
-    inverse_bind = np.tile(np.eye(4), (len(names), 1, 1))
+    inverse_bind = np.tile(np.eye(4), (len(parents), 1, 1))
     inverse_bind[:, :3, 3] = -rest
     b.gltf.skins.append(gl.Skin(name=prefix, joints=joint_nodes, skeleton=first,
                                 inverseBindMatrices=b.accessor(inverse_bind.transpose(0, 2, 1).astype(np.float32),
                                                                "MAT4")))
     vertices = model.forward(np.zeros((1, 24, 3)), track.betas).vertices[0]
-    joints, weights = top_influences(np.asarray(model.data.weights))
+    joints, weights = top_influences(weights)
     mesh = b.mesh(f"{prefix}_body", vertices, np.asarray(model.faces), b.material(prefix,
                   track_colour(track.track_id)), joints, weights)
     b.node(name=f"{prefix}_body", mesh=mesh, skin=len(b.gltf.skins) - 1)
@@ -161,6 +177,11 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
     quat = continuous_quaternions(local)
     for j in range(len(names)):
         b.animate(animation, first + j, "rotation", times, quat[:, j])
+    if fingers is not None:
+        rotations = Rotation.from_rotvec(fingers.pose.reshape(-1, 3)).as_matrix()
+        quat = continuous_quaternions(rotations.reshape(len(track.frames), 30, 3, 3))
+        for k in range(30):
+            b.animate(animation, first + 24 + k, "rotation", times, quat[:, k])
     return person
 
 

@@ -30,6 +30,9 @@ class TrackMotion:
     pose: np.ndarray            # (n, 24, 3) axis-angle: world root orientation, then body_pose
     transl: np.ndarray          # (n, 3) SMPL translation in the world (metres)
     world_joints: np.ndarray    # (n, 24, 3) results.npz's joints (metres)
+    # (n, 2, 15, 3) left, right SMPL-H finger poses (zeros where none was fitted); None: the results hold none
+    hand_pose: np.ndarray | None = None
+    hands: object = None        # m3c.body.hands.HandModel of the body model, with hand_pose
 
     @property
     def root_positions(self) -> np.ndarray:
@@ -146,6 +149,9 @@ def load_source(folder: str | Path, tracks=None, body_model: str | Path | None =
     folder = Path(folder)
     summary, arrays = load_results(folder)
     model = results_body_model(summary, body_model)
+    from m3c.body.hands import hand_model_for
+
+    hands = hand_model_for(model.data.name)
     rows = select_tracks(arrays["track_ids"], tracks)
     if not rows:
         raise ValueError(f"{folder}: the results hold no tracks; nothing to export")
@@ -156,7 +162,44 @@ def load_source(folder: str | Path, tracks=None, body_model: str | Path | None =
         rest = model.joints(np.zeros((1, 24, 3)), betas)[0]
         pose = np.concatenate([arrays["world_root_orient"][p, frames][:, None], arrays["body_pose"][p, frames]],
                               axis=1).astype(np.float64)
+        hand_pose = None
+        if hands is not None and "left_hand_pose" in arrays:
+            hand_pose = np.stack([arrays["left_hand_pose"][p, frames], arrays["right_hand_pose"][p, frames]],
+                                 axis=1).astype(np.float64)
+            hand_pose = np.nan_to_num(hand_pose) if np.isfinite(hand_pose).any() else None
         motions.append(TrackMotion(int(arrays["track_ids"][p]), p, frames, betas, rest, pose,
                                    arrays["world_transl"][p, frames].astype(np.float64),
-                                   arrays["world_joints"][p, frames].astype(np.float64)))
+                                   arrays["world_joints"][p, frames].astype(np.float64), hand_pose,
+                                   hands if hand_pose is not None else None))
     return ExportSource(folder, summary, arrays, model, motions)
+
+
+@dataclass
+class FingerSkeleton:
+    """A track's 30 finger joints (left hand's 15 in SMPL-H order, then the right's) below the 24 SMPL joints:
+    names, parents (indices into the 24 + 30 joints: the wrists, or the previous finger joint), rest (30, 3)
+    rest positions, pose (n, 30, 3) local axis-angle, tips (10, 3) rest fingertips, tip_parents (10,)."""
+    names: tuple[str, ...]
+    parents: np.ndarray
+    rest: np.ndarray
+    pose: np.ndarray
+    tips: np.ndarray
+    tip_parents: np.ndarray
+
+
+def finger_skeleton(track: TrackMotion) -> FingerSkeleton | None:
+    """The track's fingers (m3c.body.hands), None when the results hold no hand poses for it."""
+    from m3c.body.hands import HAND_JOINT_NAMES, HAND_PARENTS, SIDES, TIP_JOINTS, WRIST_JOINTS
+
+    if track.hand_pose is None:
+        return None
+    _, joints, tips = track.hands.rest(track.betas)
+    names, parents, tip_parents = [], [], []
+    for s, side in enumerate(SIDES):
+        first = 24 + 15 * s
+        names += [f"{side}_{name}" for name in HAND_JOINT_NAMES]
+        parents += [WRIST_JOINTS[side] if p < 0 else first + p for p in HAND_PARENTS]
+        tip_parents += [first + j for j in TIP_JOINTS]
+    return FingerSkeleton(tuple(names), np.asarray(parents), joints.reshape(30, 3),
+                          track.hand_pose.reshape(len(track.frames), 30, 3), tips.reshape(10, 3),
+                          np.asarray(tip_parents))

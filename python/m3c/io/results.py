@@ -51,6 +51,18 @@ ARRAYS: dict[str, tuple[str, str, str]] = {
     "reprojection_error": ("P x T", "float32",
                            "mean distance (pixels) between observed keypoints (confidence >= 0.4) and the projected "
                            "final body's keypoints"),
+    "left_hand_pose": ("P x T x 15 x 3", "float32",
+                       "left hand's finger rotations relative to their parents (axis-angle; SMPL-H/MANO order "
+                       "index1-3, middle1-3, pinky1-3, ring1-3, thumb1-3; m3c.body.hands); NaN where no hand "
+                       "was fitted"),
+    "right_hand_pose": ("P x T x 15 x 3", "float32", "right hand's finger rotations, as left_hand_pose"),
+    "hand_keypoints_2d": ("P x T x 2 x 21 x 3", "float32",
+                          "observed MediaPipe hand landmarks, left hand then right: u, v (pixels), confidence "
+                          "(MediaPipe's order: wrist, thumb CMC, MCP, IP, tip, then index, middle, ring, pinky "
+                          "MCP, PIP, DIP, tip); NaN where no hand was found"),
+    "world_hand_keypoints": ("P x T x 2 x 21 x 3", "float32",
+                             "the fitted hands' 21 points (hand_keypoints_2d's order) in the world (metres); "
+                             "NaN where no hand was fitted"),
 }
 
 
@@ -176,6 +188,16 @@ def _odometry_fit(camera: dict) -> str:
     return f" (fit {fit['keyframe_rms_px']:.2f} px)"
 
 
+def _hands_line(hands: dict | None) -> list[str]:
+    """The hands node's outcome (results.json hands), when the results have one."""
+    if not hands:
+        return []
+    if not hands["enabled"]:
+        return [f"hands       none: {hands['reason']}"]
+    return [f"hands       {hands['hands_fitted']} hands fitted in {hands['person_frames']} person-frames "
+            f"({hands['seconds_per_frame']:.3f} s per frame)"]
+
+
 def json_ready(value):
     """`value` (dicts, lists, numbers) with every NaN/inf float as None: results.json writes a value that is missing
     (a stage that could not evaluate its objective, a figure without data) as null, never as NaN, which JSON lacks."""
@@ -267,6 +289,7 @@ def describe(folder: str | Path) -> str:
              f"lift        {summary['lift']['method']}; optimization: "
              f"{'stopped early' if summary['optimization']['stopped_early'] else 'complete'}"
              if summary["optimization"]["optimized"] else f"lift        {summary['lift']['method']}; no optimization",
+             *_hands_line(summary.get("hands")),
              f"tracks      {len(summary['tracks'])}"]
     for track in summary["tracks"]:
         err = track["mean_reprojection_error_px"]

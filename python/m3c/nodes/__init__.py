@@ -3,7 +3,7 @@
 frame level   frames, camera, depth
 patch level   perception (tracks, and per frame detections and masks), patches, focal, vo
 SMPL level    ground
-track level   local_tracks, scale, lift, optimize
+track level   local_tracks, scale, lift, optimize, hands
 outputs       results, overlay, world_view, camera_plot
 any           load (outputs read from a folder)
 
@@ -19,8 +19,9 @@ from pathlib import Path
 def register_builtin_nodes() -> None:
     """Registers the built-in node types with m3c.pipeline (importing their modules runs their @register_node) and
     the loader of the body-model setting they read. Idempotent."""
-    from m3c.nodes import (camera, camera_plot, depth, focal, frames, ground, lean, lift, load,  # noqa: F401
-                           local_tracks, optimize, overlay, patches, perception, results, scale, vo, world_view)
+    from m3c.nodes import (camera, camera_plot, depth, focal, frames, ground, hands, lean, lift,  # noqa: F401
+                           load, local_tracks, optimize, overlay, patches, perception, results, scale, vo,
+                           world_view)
     from m3c.pipeline.node import register_setting_loader
 
     register_setting_loader("body_model", _body_model_fingerprint, _load_body_model)

@@ -14,16 +14,20 @@ from m3c.motion.time_scale import estimate_time_scale
 from m3c.ground.tracks import track_frames, track_poses
 from m3c.io.npz import write_npz
 from m3c.io.results import ARRAYS, SCHEMA, check_arrays, json_ready
+from m3c.nodes.hands import corrected_body_pose
 from m3c.pipeline import FileRef, Node, register_node
 
 MIN_CONFIDENCE = 0.4  # keypoints below this confidence are not scored (the optimizer ignores them too)
 
 
 def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, ground: dict, world: dict,
-                  result: dict, backends: dict, lean: dict | None = None) -> tuple[dict, dict]:
+                  result: dict, backends: dict, lean: dict | None = None,
+                  hands: dict | None = None) -> tuple[dict, dict]:
     """(arrays of results.npz, summary of results.json); see m3c.io.results.ARRAYS for the arrays. lean: the lean
-    node's tracks output (its per-track records go into each track's "lean")."""
+    node's tracks output (its per-track records go into each track's "lean"). hands: the hands node's output
+    (its finger poses and landmarks; the wrists it refined replace the body's wrist rotations)."""
     leaned = {r["track_id"]: r for r in (lean or {}).get("lean", [])}
+    handed = {t["track_id"]: t for t in (hands or {}).get("tracks", [])}
     T = int(video["num_frames"])
     tracks = result["tracks"]
     P, B = len(tracks), model.num_betas
@@ -53,7 +57,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                         ("lift_world_root_orient", (3,)), ("lift_world_transl", (3,)),
                         ("lift_body_pose", (J - 1, 3)), ("keypoints_2d", (17, 3)),
                         ("contacts", (4,)), ("ground_normal", (3,)), ("ground_offset", ()),
-                        ("reprojection_error", ())):
+                        ("reprojection_error", ()), ("left_hand_pose", (15, 3)), ("right_hand_pose", (15, 3)),
+                        ("hand_keypoints_2d", (2, 21, 3)), ("world_hand_keypoints", (2, 21, 3))):
         arrays[name] = np.full((P, T) + shape, nan)
     regressor = model.coco17_regressor()
     summary_tracks = []
@@ -61,6 +66,9 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     for p, track in enumerate(tracks):
         lifted = lifted_by_id[track["track_id"]]
         frames = track_frames(track)
+        hand = handed.get(track["track_id"])
+        if hand is not None:
+            track = {**track, "body_pose": corrected_body_pose(track["body_pose"], hand["wrist_correction"])}
         betas = np.asarray(track["betas"], dtype=np.float64)
         pose = track_poses(track)
         transl = np.asarray(track["transl"], dtype=np.float64)
@@ -72,6 +80,12 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         arrays["body_pose"][p, frames] = track["body_pose"]
         joints = model.joints(pose, betas, transl)
         arrays["world_joints"][p, frames] = joints
+        if hand is not None:
+            arrays["left_hand_pose"][p, frames] = hand["hand_pose"][:, 0]
+            arrays["right_hand_pose"][p, frames] = hand["hand_pose"][:, 1]
+            arrays["hand_keypoints_2d"][p, frames] = hand["keypoints"]
+            arrays["world_hand_keypoints"][p, frames] = world_hand_keypoints(model, pose, betas, transl,
+                                                                             hand["hand_pose"])
         cam_from_world = np.linalg.inv(world_from_cam[frames])
         cam_root, cam_transl = transform_smpl(cam_from_world, track["root_orient"], transl,
                                               rest_root_joint(model, betas))
@@ -151,6 +165,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
                    # m3c.vo.ground_focal's estimate from a still camera's people: focal, measured, log_sigma, people
                    "feet_focal": json_ready(camera.get("feet_focal"))},
         "lift": {"method": world["method"]},
+        # m3c.nodes.hands: whether it ran, the person-frames it searched, the hands it fitted, its time
+        "hands": hands_summary(hands, T),
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"], "windows": result.get("windows", [])},
         "backends": backends,
@@ -161,6 +177,30 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
     return arrays, summary
 
 
+def world_hand_keypoints(model, pose: np.ndarray, betas: np.ndarray, transl: np.ndarray,
+                         hand_pose: np.ndarray) -> np.ndarray:
+    """n x 2 x 21 x 3 world points of the fitted hands (NaN where hand_pose is NaN) of SMPL poses n x 24 x 3."""
+    from m3c.body.hands import hand_model_for, pose_hands, wrist_frames
+
+    out = np.full(hand_pose.shape[:2] + (21, 3), np.nan)
+    hand_model = hand_model_for(model.data.name)
+    if hand_model is None:
+        return out
+    rotation, position = wrist_frames(model, pose, betas, transl)
+    points = pose_hands(hand_model, betas, rotation, position, np.nan_to_num(hand_pose)).keypoints()
+    found = np.isfinite(hand_pose).all(axis=(2, 3))
+    out[found] = points[found]
+    return out
+
+
+def hands_summary(hands: dict | None, num_frames: int) -> dict:
+    if hands is None:
+        return {"enabled": False, "reason": "no hands node in the pipeline"}
+    return {"enabled": bool(hands["enabled"]), "reason": hands.get("reason"), "person_frames": int(hands["frames"]),
+            "hands_fitted": int(hands["hand_frames"]), "seconds": float(hands["seconds"]),
+            "seconds_per_frame": float(hands["seconds"]) / max(num_frames, 1)}
+
+
 @register_node
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
@@ -169,12 +209,13 @@ class ResultsNode(Node):
     # 10: video.time_scale, camera.scale_estimate's spread, confidence and disagreement; video.total_frames,
     # frames_in_container, truncated; 11: the tracks' legs (plausibility lead_changes, longest_lead_s, knee_flex_deg,
     # knee_bent_fraction, surge_ratio); 12: a step rate whose step is 0.4-0.6 leg lengths timed as a walk, not
-    # confidently (m3c.motion.time_scale); 13: camera.rotation_only
-    version = "13"
+    # confidently (m3c.motion.time_scale); 13: camera.rotation_only; 14: hands (left/right_hand_pose,
+    # hand_keypoints_2d, world_hand_keypoints, the hand fit's wrists in body_pose, results.json hands)
+    version = "14"
     type_name = "results"
     level = "output"
-    inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean")
-    optional_inputs = ("lean",)
+    inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean", "hands")
+    optional_inputs = ("lean", "hands")
     outputs = ("npz", "json")
     settings = ("body_model",)
     publish = {"npz": "results.npz", "json": "results.json"}
@@ -189,7 +230,7 @@ class ResultsNode(Node):
             backends[name] = entry
         arrays, summary = build_results(ctx.loaded("body_model"), inputs["video"], inputs["camera"], inputs["cameras"],
                                         inputs["scale"], inputs["ground"], inputs["world"], inputs["result"],
-                                        backends, inputs.get("lean"))
+                                        backends, inputs.get("lean"), inputs.get("hands"))
         write_npz(ctx.work_path("results.npz"), arrays, compress=True)
         ctx.work_path("results.json").write_text(json.dumps(json_ready(summary), indent=1, allow_nan=False) + "\n")
         return {"npz": FileRef("results.npz"), "json": FileRef("results.json")}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from m3c.camera import look_at, to_camera, world_to_image
+from m3c.camera import look_at, project, to_camera, world_to_image
 from m3c.ground.tracks import track_poses
 from m3c.viz.raster import Mesh, render
 
@@ -27,6 +27,33 @@ def overlay_frame(frame: np.ndarray, bodies: list[tuple[np.ndarray, int]], faces
     height, width = frame.shape[:2]
     image, _ = render(meshes, intrinsics, width, height, background=frame, alpha=alpha)
     return image
+
+
+def draw_hands(frame: np.ndarray, hands: list[tuple[np.ndarray, int]], world_from_cam: np.ndarray,
+               intrinsics) -> np.ndarray:
+    """hands: (world points 2 x 21 x 3 in MediaPipe's order, NaN where no hand; track id). Draws each hand's
+    bones (m3c.body.hands.MEDIAPIPE_HAND_BONES) in a lighter shade of the track's colour, in place; returns
+    it."""
+    import cv2
+
+    from m3c.body.hands import MEDIAPIPE_HAND_BONES
+
+    height, width = frame.shape[:2]
+    thickness = max(1, round(min(width, height) / 540))
+    for points, tid in hands:
+        colour = tuple(int(c) for c in (255 * (0.5 + 0.5 * track_colour(tid)))[::-1])  # BGR
+        for hand in points:
+            if not np.isfinite(hand).all():
+                continue
+            cam = to_camera(hand, world_from_cam)
+            if np.any(cam[:, 2] <= 0.05):
+                continue
+            pixels = project(cam, intrinsics)
+            for a, b in MEDIAPIPE_HAND_BONES:
+                start = tuple(int(round(v)) for v in pixels[a])
+                end = tuple(int(round(v)) for v in pixels[b])
+                cv2.line(frame, start, end, colour, thickness, cv2.LINE_AA)
+    return frame
 
 
 def nice_step(length: float) -> float:
