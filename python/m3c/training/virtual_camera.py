@@ -199,7 +199,7 @@ class DetectorErrors:
         occluded = np.zeros((n, k), dtype=bool)
         if rng.random() < config.occlusion_prob:
             part = list(OCCLUDED_PARTS[rng.integers(len(OCCLUDED_PARTS))])
-            length = max(1, int(round(rng.uniform(*config.occlusion_length) * n)))
+            length = max(1, round(rng.uniform(*config.occlusion_length) * n))
             start = rng.integers(0, n - length + 1)
             occluded[start:start + length, part] = True
         confidence = (inside & ~missing & ~occluded).astype(np.float64)
