@@ -196,3 +196,24 @@ def test_train_regressor_command(tiny_corpus, tmp_path, open_model, one_torch_th
         assert net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
                    batch["init_pose"])["pose"].shape == (2, 10, 24, 6)
 
+
+
+def test_teacher_forcing_with_its_own_outputs_is_the_autoregressive_network(tiny_corpus, open_model):
+    config = RegressorConfig(frames=10, width=16)
+    batch = make_batch(np.random.default_rng(2), prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10),
+                       config, DetectorErrors(), size=3)
+    torch.manual_seed(0)
+    net = WorldRegressor(16).eval()
+    with torch.no_grad():
+        out = net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
+                  batch["init_pose"])
+        b, f = batch["x"].shape[:2]
+        previous = {"keypoints_3d": torch.cat([batch["init_kp"][..., :51], out["keypoints_3d"].reshape(b, f, -1)],
+                                              1)[:, :-1],
+                    "root_6d": out["root_6d"][:, :-1],
+                    "pose": torch.cat([batch["init_pose"].reshape(b, 1, -1), out["pose"].reshape(b, f, -1)],
+                                      1)[:, :-1]}
+        forced = net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"],
+                                    batch["angvel"], batch["init_pose"], previous)
+    for key in ("keypoints_3d", "root_6d", "velocity", "pose", "betas", "contact"):
+        torch.testing.assert_close(forced[key], out[key], rtol=1e-5, atol=1e-5)

@@ -286,6 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--frames", type=int, default=48, help="window length in frames (default 48)")
     rg.add_argument("--width", type=int, default=128, help="motion-encoder width (WHAM's: 512; default 128)")
     rg.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate, cosine decay (default 1e-3)")
+    rg.add_argument("--teacher-noise", type=float, default=0.05,
+                    help="noise on the teacher-forced previous-frame rotations (6D; a fifth of it, in metres, "
+                         "on the 3D keypoints; default 0.05)")
+    rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt)")
     rg.add_argument("--eval-windows", type=int, default=256,
                     help="held-out windows for the figures (fixed seed; default 256)")
     rg.add_argument("--seed", type=int, default=0)

@@ -104,7 +104,8 @@ def train_regressor_command(args) -> int:
                                         mean_training_targets, prepare_clips, train_regressor)
 
     config = RegressorConfig(steps=args.steps, batch_size=args.batch_size, frames=args.frames, width=args.width,
-                             lr=args.lr, seed=args.seed, checkpoint_minutes=args.checkpoint_minutes)
+                             lr=args.lr, teacher_noise=args.teacher_noise, seed=args.seed,
+                             checkpoint_minutes=args.checkpoint_minutes)
     if config.frames < 2 or config.width < 1:
         raise ValueError("--frames must be at least 2 and --width positive")
     out, model, log, train_clips, held_clips = _prepare(args, config)
@@ -112,7 +113,8 @@ def train_regressor_command(args) -> int:
     if log:
         log(f"regressor: {len(train)} training clips of at least {config.frames + 1} frames; "
             f"{len(held_clips)} held-out clips")
-    summary = train_regressor(train, out, model, config, resume=args.resume, log=log, minutes=args.minutes)
+    summary = train_regressor(train, out, model, config, resume=args.resume, log=log, minutes=args.minutes,
+                              init=args.init)
     report = {"corpus": str(args.corpus), "train_clips": len(train), "held_out_clips": len(held_clips),
               "steps": summary["steps_done"], "of_steps": config.steps,
               "final_loss": summary["history"][-1] if summary["history"] else None}

@@ -50,7 +50,7 @@ class RegressorConfig:
     contact_weight: float = 0.1
     init_pose_noise: float = 0.15     # rad, per joint, on the initial camera-frame pose
     init_kp_noise: float = 0.02       # m, on the initial 3D keypoints
-    teacher_noise: float = 0.05       # on the teacher-forced previous-frame values (6D, m)
+    teacher_noise: float = 0.05       # on the teacher-forced previous 6D values (a fifth of it in m on keypoints)
     seed: int = 0
     checkpoint_minutes: float = 3.0
     history_every: int = 50
@@ -181,19 +181,19 @@ def run_network(net: WorldRegressor, batch: dict) -> dict:
 
 
 def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float) -> dict:
-    """The network fed the true previous-frame values, perturbed by Gaussian noise of `noise` (6D and metres)
-    (the first frame's: the initial state the batch gives)."""
+    """The network fed the true previous-frame values, perturbed by Gaussian noise: `noise` on the 6D rotations,
+    noise / 5 metres on the 3D keypoints (the first frame's: the initial state the batch gives)."""
     b, f = batch["x"].shape[:2]
 
-    def shifted(first, rest):
+    def shifted(first, rest, scale):
         values = torch.cat([first, rest[:, :-1]], dim=1)
-        return values + noise * torch.randn_like(values)
+        return values + scale * torch.randn_like(values)
 
     previous = {"keypoints_3d": shifted(batch["init_kp"][..., :3 * wham.NUM_KEYPOINTS],
-                                        batch["kp3d"].reshape(b, f, -1)),
-                "root_6d": shifted(batch["init_root"], matrix_to_rotation_6d_rows(batch["root"])),
+                                        batch["kp3d"].reshape(b, f, -1), noise / 5),
+                "root_6d": shifted(batch["init_root"], matrix_to_rotation_6d_rows(batch["root"]), noise),
                 "pose": shifted(batch["init_pose"].reshape(b, 1, -1),
-                                matrix_to_rotation_6d_rows(batch["pose"]).reshape(b, f, -1))}
+                                matrix_to_rotation_6d_rows(batch["pose"]).reshape(b, f, -1), noise)}
     return net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
                               batch["init_pose"], previous)
 
@@ -235,15 +235,21 @@ def batch_rng(seed: int, step: int) -> np.random.Generator:
 
 def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: RegressorConfig,
                     resume: bool = False, log=print, stop_after: int | None = None,
-                    minutes: float | None = None, errors: DetectorErrors | None = None) -> dict:
+                    minutes: float | None = None, errors: DetectorErrors | None = None,
+                    init: str | Path | None = None) -> dict:
     """Trains on prepare_clips() clips into out_dir (checkpoint.pt, regressor.pt, train.json); returns the
     summary. stop_after: stop (with a checkpoint) after this many steps of this call; minutes: after this much
-    wall-clock time (both resumable)."""
+    wall-clock time (both resumable); init: start from the weights of another run (its regressor.pt or
+    checkpoint.pt, the same width) instead of a random initialisation (ignored on resume)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seed_everything(config.seed)
     errors = errors or DetectorErrors()
     net = WorldRegressor(config.width)
+    if init is not None and not resume:
+        from m3c.io.safe_pickle import load_torch_checkpoint
+
+        net.load_state_dict(load_torch_checkpoint(Path(init))["model"])
     loss_fn = RegressorLoss(JointKinematics.from_model(body_model), config)
     run = ResumableRun(net, config, out_dir, resume, log)
     start = time.perf_counter()
@@ -264,7 +270,7 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
             break
     net.eval()
     save_regressor(net, out_dir / "regressor.pt")
-    summary = {"config": asdict(config), "steps_done": run.step, "train_clips": len(clips), "history": run.history}
+    summary = {"config": asdict(config), "init": None if init is None else str(init), "steps_done": run.step, "train_clips": len(clips), "history": run.history}
     with atomic_path(out_dir / "train.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1) + "\n")
     return summary
