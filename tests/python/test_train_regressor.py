@@ -1,6 +1,7 @@
 """`m3c train regressor`: the virtual cameras project as m3c.camera and a plain pinhole do, the detector-error
 sampler reproduces the measured model, a few-step run on a tiny corpus (the two shipped CMU clips) lowers its
-loss and a resumed run ends where the uninterrupted one does, and the network keeps WHAM's checkpoint layout."""
+loss and a resumed run ends where the uninterrupted one does, and the network keeps WHAM's checkpoint
+layout."""
 
 import json
 
@@ -16,9 +17,9 @@ from m3c.io.atomic import save_npz_atomic
 from m3c.mocap.corpus import foot_contacts, load_corpus
 from m3c.models.wham import WhamLifter
 from m3c.training.detector_errors import load_detector_errors
-from m3c.training.regressor import (RegressorConfig, WorldRegressor, evaluate, evaluation_batch, load_regressor,
-                                    make_batch, mean_training_targets, prepare_clips, procrustes_mpjpe,
-                                    train_regressor)
+from m3c.training.regressor import (RegressorConfig, WorldRegressor, evaluate, evaluation_batch,
+                                    load_regressor, make_batch, mean_training_targets, prepare_clips,
+                                    procrustes_mpjpe, train_regressor)
 from m3c.training.virtual_camera import (MOTIONS, DetectorErrors, VirtualCameraConfig, ar1, project_keypoints,
                                          sample_camera)
 
@@ -147,7 +148,8 @@ def test_training_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, ope
     assert torch.load(tmp_path / "split" / "checkpoint.pt", weights_only=False)["step"] == 15
     resumed = train_regressor(clips, tmp_path / "split", open_model, config, resume=True, log=None)
     assert resumed["steps_done"] == 40
-    a, b = load_regressor(tmp_path / "whole" / "regressor.pt"), load_regressor(tmp_path / "split" / "regressor.pt")
+    a = load_regressor(tmp_path / "whole" / "regressor.pt")
+    b = load_regressor(tmp_path / "split" / "regressor.pt")
     assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
     with pytest.raises(ValueError, match="other settings"):
         other = RegressorConfig(steps=41, batch_size=8, frames=12, width=24)
@@ -182,8 +184,8 @@ def test_evaluation_scores_the_truth_perfectly(tiny_corpus, open_model):
 
 def test_train_regressor_command(tiny_corpus, tmp_path, open_model, one_torch_thread, capsys):
     out = tmp_path / "run"
-    assert main(["train", "regressor", str(tiny_corpus), "--out", str(out), "--steps", "3", "--batch-size", "4",
-                 "--frames", "10", "--width", "16", "--eval-windows", "4", "--quiet"]) == 0
+    assert main(["train", "regressor", str(tiny_corpus), "--out", str(out), "--steps", "3", "--batch-size",
+                 "4", "--frames", "10", "--width", "16", "--eval-windows", "4", "--quiet"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["steps"] == 3 and metrics["held_out"]["windows"] == 4
     assert set(metrics["held_out"]["regressor"]) >= {"pa_mpjpe_mm", "velocity_mps", "contact_f1"}
@@ -200,16 +202,16 @@ def test_train_regressor_command(tiny_corpus, tmp_path, open_model, one_torch_th
 
 def test_teacher_forcing_with_its_own_outputs_is_the_autoregressive_network(tiny_corpus, open_model):
     config = RegressorConfig(frames=10, width=16)
-    batch = make_batch(np.random.default_rng(2), prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10),
-                       config, DetectorErrors(), size=3)
+    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10)
+    batch = make_batch(np.random.default_rng(2), clips, config, DetectorErrors(), size=3)
     torch.manual_seed(0)
     net = WorldRegressor(16).eval()
     with torch.no_grad():
         out = net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
                   batch["init_pose"])
         b, f = batch["x"].shape[:2]
-        previous = {"keypoints_3d": torch.cat([batch["init_kp"][..., :51], out["keypoints_3d"].reshape(b, f, -1)],
-                                              1)[:, :-1],
+        kp = out["keypoints_3d"].reshape(b, f, -1)
+        previous = {"keypoints_3d": torch.cat([batch["init_kp"][..., :51], kp], 1)[:, :-1],
                     "root_6d": out["root_6d"][:, :-1],
                     "pose": torch.cat([batch["init_pose"].reshape(b, 1, -1), out["pose"].reshape(b, f, -1)],
                                       1)[:, :-1]}

@@ -1,4 +1,5 @@
-"""`m3c train pose-prior|motion-prior|regressor`: M3C's own priors and world regressor, trained on a corpus of `m3c data mocap`."""
+"""`m3c train pose-prior|motion-prior|regressor`: M3C's own priors and world regressor, trained on a corpus of
+`m3c data mocap`."""
 
 from __future__ import annotations
 
@@ -103,8 +104,8 @@ def train_regressor_command(args) -> int:
     from m3c.training.regressor import (RegressorConfig, evaluate, evaluation_batch, load_regressor,
                                         mean_training_targets, prepare_clips, train_regressor)
 
-    config = RegressorConfig(steps=args.steps, batch_size=args.batch_size, frames=args.frames, width=args.width,
-                             lr=args.lr, teacher_noise=args.teacher_noise, seed=args.seed,
+    config = RegressorConfig(steps=args.steps, batch_size=args.batch_size, frames=args.frames,
+                             width=args.width, lr=args.lr, teacher_noise=args.teacher_noise, seed=args.seed,
                              checkpoint_minutes=args.checkpoint_minutes)
     if config.frames < 2 or config.width < 1:
         raise ValueError("--frames must be at least 2 and --width positive")
@@ -121,8 +122,8 @@ def train_regressor_command(args) -> int:
     if held_clips:
         held = prepare_clips(held_clips, model, config.frames)
         batch = evaluation_batch(held, config, windows=args.eval_windows)
-        report["held_out"] = evaluate(load_regressor(out / "regressor.pt"), batch, JointKinematics.from_model(model),
-                                      mean_training_targets(train, config))
+        report["held_out"] = evaluate(load_regressor(out / "regressor.pt"), batch,
+                                      JointKinematics.from_model(model), mean_training_targets(train, config))
     _write_metrics(out, report)
     print(f"wrote {out}/regressor.pt ({summary['steps_done']} of {config.steps} steps)")
     if "held_out" in report:

@@ -1,15 +1,16 @@
-"""How M3C's 2D detector errs, measured on rendered video-benchmark sequences against their projected truth; the
-model the regressor's virtual cameras corrupt their projected keypoints with (m3c.training.virtual_camera).
+"""How M3C's 2D detector errs, measured on rendered video-benchmark sequences against their projected truth;
+the model the regressor's virtual cameras corrupt their projected keypoints with
+(m3c.training.virtual_camera).
 
-For every track of a run (the `local_tracks` node of its cache: keypoints (n, 17, 3) with confidence, square box
-(n, 4) x0 y0 x1 y1) the person of the truth it follows is the one whose projected COCO-17 keypoints lie nearest
-on average. Then, over the frames where that person's keypoint is inside the image:
-    error_quantiles   per joint, the quantiles (QUANTILES) of |k_det - k_true| / box side, for the keypoints the
-                      detector reports (confidence >= MASK_CONFIDENCE, WHAM's threshold)
+For every track of a run (the `local_tracks` node of its cache: keypoints (n, 17, 3) with confidence, square
+box (n, 4) x0 y0 x1 y1) the person of the truth it follows is the one whose projected COCO-17 keypoints lie
+nearest on average. Then, over the frames where that person's keypoint is inside the image:
+    error_quantiles   per joint, the quantiles (QUANTILES) of |k_det - k_true| / box side, for the keypoints
+                      the detector reports (confidence >= MASK_CONFIDENCE, WHAM's threshold)
     error_lag1        per joint, the lag-1 autocorrelation of the error vectors (how slowly they drift)
     missing_rate      per joint, the share reported below MASK_CONFIDENCE (self-occlusion, blur, misses)
-    box_centre        mean, std and lag-1 autocorrelation of (c_det - c_true) / side, c_true the centre of the true
-                      keypoints' bounding box
+    box_centre        mean, std and lag-1 autocorrelation of (c_det - c_true) / side, c_true the centre of the
+                      true keypoints' bounding box
     box_log_side      the same of log(side_det / side_true), side_true the longer edge of that bounding box
 `python -m m3c.training.detector_errors VIDEOS RUNS` measures and writes DETECTOR_ERRORS_PATH.
 """

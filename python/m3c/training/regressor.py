@@ -1,14 +1,15 @@
-"""Training M3C's own world regressor: WHAM's layout (m3c.models.wham: motion encoder, trajectory decoder, motion
-decoder, under the official module names, at width `width` instead of 512; no image features, no integrator, no
-refiner) on a motion-capture corpus of `m3c data mocap` seen through virtual cameras (m3c.training.virtual_camera),
-as WHAM itself is trained.
+"""Training M3C's own world regressor: WHAM's layout (m3c.models.wham: motion encoder, trajectory decoder,
+motion decoder, under the official module names, at width `width` instead of 512; no image features, no
+integrator, no refiner) on a motion-capture corpus of `m3c data mocap` seen through virtual cameras
+(m3c.training.virtual_camera), as WHAM itself is trained.
 
-A sample is a window of `frames` frames of a training clip (turned about the vertical by a random angle), a random
-virtual camera, the clip's COCO-17 keypoints projected and corrupted by the measured detector errors. The network
-reads WHAM's inputs (m3c.models.wham.keypoint_inputs; the camera's angular velocity; the previous frame's root
-orientation in WHAM's y-down world, 3D keypoints and camera-frame pose as its initial state, the last two
-perturbed) and predicts, per frame, root-centred camera-frame 3D keypoints, the world root orientation and
-velocity (in the previous root frame), the camera-frame pose (24 x 6D), betas and foot contacts. Loss:
+A sample is a window of `frames` frames of a training clip (turned about the vertical by a random angle), a
+random virtual camera, the clip's COCO-17 keypoints projected and corrupted by the measured detector errors.
+The network reads WHAM's inputs (m3c.models.wham.keypoint_inputs; the camera's angular velocity; the previous
+frame's root orientation in WHAM's y-down world, 3D keypoints and camera-frame pose as its initial state, the
+last two perturbed) and predicts, per frame, root-centred camera-frame 3D keypoints, the world root
+orientation and velocity (in the previous root frame), the camera-frame pose (24 x 6D), betas and foot
+contacts. Loss:
     kp_weight |K - K*|^2 + |R_pose - R_pose*|_F^2 + joint_weight |J - J*|^2 + |R_root - R_root*|_F^2
     + |fps (v - v*)|^2 + betas_weight |b - b*|^2 + contact_weight BCE(c, c*)
 (means over frames and joints; J the 24 joints of the camera-frame pose at zero betas, metres). AdamW, cosine
@@ -50,7 +51,7 @@ class RegressorConfig:
     contact_weight: float = 0.1
     init_pose_noise: float = 0.15     # rad, per joint, on the initial camera-frame pose
     init_kp_noise: float = 0.02       # m, on the initial 3D keypoints
-    teacher_noise: float = 0.05       # on the teacher-forced previous 6D values (a fifth of it in m on keypoints)
+    teacher_noise: float = 0.05       # teacher-forced previous 6D values (a fifth of it, in m, on keypoints)
     seed: int = 0
     checkpoint_minutes: float = 3.0
     history_every: int = 50
@@ -58,9 +59,9 @@ class RegressorConfig:
 
 
 class WorldRegressor(wham.WhamLifter):
-    """WhamLifter's motion encoder, trajectory decoder and motion decoder at width `width` (context width + 51),
-    under WHAM's module names: its state dict is a subset of an official checkpoint's layout (width 512 would load
-    one's modules)."""
+    """WhamLifter's motion encoder, trajectory decoder and motion decoder at width `width` (context width +
+    51), under WHAM's module names: its state dict is a subset of an official checkpoint's layout (width 512
+    would load one's modules)."""
 
     def __init__(self, width: int = 128):
         torch.nn.Module.__init__(self)
@@ -72,8 +73,8 @@ class WorldRegressor(wham.WhamLifter):
         self.motion_decoder = wham.MotionDecoder(d_context=context)
 
     def forward(self, x, mask, init_kp, init_root, cam_angvel, init_pose) -> dict:
-        """lift()'s outputs (see WhamLifter.lift) and the motion decoder's: pose (B, F, 24, 6), betas (B, F, 10),
-        contact logits (B, F, 4)."""
+        """lift()'s outputs (see WhamLifter.lift) and the motion decoder's: pose (B, F, 24, 6), betas (B, F,
+        10), contact logits (B, F, 4)."""
         out = self.lift(x, mask, init_kp, init_root, cam_angvel)
         pose, betas, _, contact = self.motion_decoder(out["context"], init_pose)
         return dict(out, pose=pose.reshape(*pose.shape[:2], 24, 6), betas=betas, contact=contact)
@@ -96,10 +97,10 @@ class WorldRegressor(wham.WhamLifter):
                 "pose": pose.reshape(b, -1, 24, 6), "betas": betas, "contact": contact}
 
 
-# Data ---------------------------------------------------------------------------------------------------------
+# Data -------------------------------------------------------------------------------------------------------
 def prepare_clips(clips, model, frames: int) -> list[dict]:
-    """Per clip of at least frames + 1 frames: world joints (T, 24, 3), COCO-17 keypoints (T, 17, 3), root and body
-    rotations (T, 24, 3, 3), betas, contacts (T, 4), fps."""
+    """Per clip of at least frames + 1 frames: world joints (T, 24, 3), COCO-17 keypoints (T, 17, 3), root and
+    body rotations (T, 24, 3, 3), betas, contacts (T, 4), fps."""
     regressor = model.coco17_regressor()
     out = []
     for clip in clips:
@@ -108,8 +109,8 @@ def prepare_clips(clips, model, frames: int) -> list[dict]:
             continue
         betas = np.asarray(clip["betas"], dtype=np.float64)
         transl = np.asarray(clip["transl"], dtype=np.float64)
-        out.append({"joints": model.joints(pose, betas, transl), "coco": model.keypoints(regressor, pose, betas,
-                                                                                         transl),
+        out.append({"joints": model.joints(pose, betas, transl),
+                    "coco": model.keypoints(regressor, pose, betas, transl),
                     "rot": Rotation.from_rotvec(pose.reshape(-1, 3)).as_matrix().reshape(len(pose), 24, 3, 3),
                     "betas": betas[:10], "contacts": np.asarray(clip["contacts"], dtype=np.float64),
                     "fps": float(clip["fps"])})
@@ -138,7 +139,7 @@ def sample_window(rng: np.random.Generator, clips: list[dict], config: Regressor
     pixels, depth = project_keypoints(coco[1:], camera["world_from_cam"], camera["intrinsics"])
     det = errors.corrupt(rng, pixels, depth, camera["image_size"], config.camera)
     x, mask = wham.keypoint_inputs(det["keypoints"], det["confidence"], det["box"], camera["image_size"])
-    cam_from_world = np.transpose(camera["world_from_cam"][:, :3, :3], (0, 2, 1))          # (n, 3, 3), M3C world
+    cam_from_world = np.transpose(camera["world_from_cam"][:, :3, :3], (0, 2, 1))   # (n, 3, 3), M3C world
     # The previous frame's camera: the window's first (the decoder's initial state is in its frame).
     cams = np.concatenate([cam_from_world[:1], cam_from_world])
     centres = np.concatenate([camera["world_from_cam"][:1, :3, 3], camera["world_from_cam"][:, :3, 3]])
@@ -152,10 +153,11 @@ def sample_window(rng: np.random.Generator, clips: list[dict], config: Regressor
     init_pose = Rotation.from_matrix(pose_cam[0]).as_rotvec() + config.init_pose_noise * rng.standard_normal(
         (24, 3))
     init_kp = kp3d[0] + config.init_kp_noise * rng.standard_normal((17, 3))
-    angvel = wham.camera_angular_velocity(torch.as_tensor(np.transpose(FLIP @ camera["world_from_cam"][:, :3, :3],
-                                                                       (0, 2, 1))), clip["fps"]).numpy()
-    return {"x": x.numpy(), "mask": mask.numpy(), "init_kp": np.concatenate([init_kp.reshape(-1), x[0].numpy()]),
-            "init_root": root_wham[0], "angvel": angvel, "init_pose": Rotation.from_rotvec(init_pose).as_matrix(),
+    wham_cam_from_world = np.transpose(FLIP @ camera["world_from_cam"][:, :3, :3], (0, 2, 1))
+    angvel = wham.camera_angular_velocity(torch.as_tensor(wham_cam_from_world), clip["fps"]).numpy()
+    return {"x": x.numpy(), "mask": mask.numpy(),
+            "init_kp": np.concatenate([init_kp.reshape(-1), x[0].numpy()]), "init_root": root_wham[0],
+            "angvel": angvel, "init_pose": Rotation.from_rotvec(init_pose).as_matrix(),
             "kp3d": kp3d[1:], "root": root_wham[1:], "velocity": velocity, "pose": pose_cam[1:],
             "betas": clip["betas"], "contacts": clip["contacts"][s:s + n], "fps": clip["fps"],
             "visible": det["confidence"].mean()}
@@ -181,8 +183,8 @@ def run_network(net: WorldRegressor, batch: dict) -> dict:
 
 
 def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float) -> dict:
-    """The network fed the true previous-frame values, perturbed by Gaussian noise: `noise` on the 6D rotations,
-    noise / 5 metres on the 3D keypoints (the first frame's: the initial state the batch gives)."""
+    """The network fed the true previous-frame values, perturbed by Gaussian noise: `noise` on the 6D
+    rotations, noise / 5 metres on the 3D keypoints (the first frame's: the initial state the batch gives)."""
     b, f = batch["x"].shape[:2]
 
     def shifted(first, rest, scale):
@@ -194,8 +196,8 @@ def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float) -> dict:
                 "root_6d": shifted(batch["init_root"], matrix_to_rotation_6d_rows(batch["root"]), noise),
                 "pose": shifted(batch["init_pose"].reshape(b, 1, -1),
                                 matrix_to_rotation_6d_rows(batch["pose"]).reshape(b, f, -1), noise)}
-    return net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
-                              batch["init_pose"], previous)
+    return net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"],
+                              batch["angvel"], batch["init_pose"], previous)
 
 
 class RegressorLoss(torch.nn.Module):
@@ -217,7 +219,8 @@ class RegressorLoss(torch.nn.Module):
             "pose": ((pose - batch["pose"]) ** 2).sum((-1, -2)).mean(),
             "joints": ((self.joints(pose) - self.joints(batch["pose"])) ** 2).sum(-1).mean(),
             "root": ((root - batch["root"]) ** 2).sum((-1, -2)).mean(),
-            "velocity": (((out["velocity"] - batch["velocity"]) * batch["fps"][:, None, None]) ** 2).sum(-1).mean(),
+            "velocity": (((out["velocity"] - batch["velocity"]) * batch["fps"][:, None, None]) ** 2)
+            .sum(-1).mean(),
             "betas": ((out["betas"] - batch["betas"][:, None]) ** 2).mean(),
             "contact": F.binary_cross_entropy_with_logits(out["contact"], batch["contacts"]),
         }
@@ -258,9 +261,10 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
         batch = make_batch(batch_rng(config.seed, run.step), clips, config, errors)
         terms = loss_fn(run_teacher_forced(net, batch, config.teacher_noise), batch)
         run.optimise(terms["loss"])
-        values = {k: terms[k].item() for k in ("loss", "kp3d", "pose", "joints", "root", "velocity", "contact")}
-        stop = run.record(values, f"loss {values['loss']:.4f} (joints {np.sqrt(values['joints']) * 1000:.0f} mm "
-                                  f"rms, velocity {np.sqrt(values['velocity']):.2f} m/s rms)", stop_after)
+        values = {k: terms[k].item() for k in ("loss", "kp3d", "pose", "joints", "root", "velocity",
+                                               "contact")}
+        stop = run.record(values, f"loss {values['loss']:.4f} (joints {np.sqrt(values['joints']) * 1000:.0f} "
+                                  f"mm rms, velocity {np.sqrt(values['velocity']):.2f} m/s rms)", stop_after)
         if stop:
             break
         if minutes is not None and time.perf_counter() - start > 60 * minutes:
@@ -270,7 +274,8 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
             break
     net.eval()
     save_regressor(net, out_dir / "regressor.pt")
-    summary = {"config": asdict(config), "init": None if init is None else str(init), "steps_done": run.step, "train_clips": len(clips), "history": run.history}
+    summary = {"config": asdict(config), "init": None if init is None else str(init), "steps_done": run.step,
+               "train_clips": len(clips), "history": run.history}
     with atomic_path(out_dir / "train.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1) + "\n")
     return summary
@@ -290,9 +295,10 @@ def load_regressor(path: str | Path) -> WorldRegressor:
     return net.eval()
 
 
-# Evaluation ---------------------------------------------------------------------------------------------------
+# Evaluation -------------------------------------------------------------------------------------------------
 def procrustes_mpjpe(pred: np.ndarray, true: np.ndarray) -> np.ndarray:
-    """(N,) mean joint error after a similarity (rotation, scale, translation) aligns pred (N, J, 3) to true."""
+    """(N,) mean joint error after a similarity (rotation, scale, translation) aligns pred (N, J, 3) to
+    true."""
     p = pred - pred.mean(1, keepdims=True)
     t = true - true.mean(1, keepdims=True)
     u, s, vt = np.linalg.svd(np.einsum("nji,njk->nik", p, t))
@@ -323,12 +329,13 @@ def evaluation_batch(clips, config: RegressorConfig, windows: int = 256, seed: i
 
 def mean_training_targets(clips, config: RegressorConfig, windows: int = 256, seed: int = 777,
                           errors: DetectorErrors | None = None) -> dict:
-    """The baselines' constants from training windows: the mean body pose (rotations projected to SO(3)) and the
-    mean root-frame velocity."""
+    """The baselines' constants from training windows: the mean body pose (rotations projected to SO(3)) and
+    the mean root-frame velocity."""
     batch = make_batch(np.random.default_rng(seed), clips, config, errors or DetectorErrors(), size=windows)
     mean = batch["pose"].double().mean((0, 1)).numpy()
     u, _, vt = np.linalg.svd(mean)
-    return {"pose": np.einsum("jik,jkl->jil", u, vt), "velocity": batch["velocity"].double().mean((0, 1)).numpy()}
+    return {"pose": np.einsum("jik,jkl->jil", u, vt),
+            "velocity": batch["velocity"].double().mean((0, 1)).numpy()}
 
 
 @torch.no_grad()
@@ -366,8 +373,8 @@ def evaluate(net: WorldRegressor | None, batch: dict, kinematics: JointKinematic
                   "mean_pose_pa_mpjpe_mm": pose_error(mean_pose),
                   "init_pose_pa_mpjpe_mm": pose_error(init_pose),
                   "zero_velocity_mps": float(true_world_v.norm(dim=-1).mean()),
-                  "mean_velocity_mps": velocity_error(held_root, torch.as_tensor(means["velocity"]).expand(b, f, 3)
-                                                      / fps),
+                  "mean_velocity_mps": velocity_error(
+                      held_root, torch.as_tensor(means["velocity"]).expand(b, f, 3) / fps),
                   "held_root_deg": float(_angle_deg(held_root.numpy(), true_root.numpy()).mean()),
                   "always_contact_f1": _f1(np.ones_like(contacts), contacts)}}
     if net is None:

@@ -1,7 +1,7 @@
-"""Virtual cameras for training the world regressor, as WHAM is trained: a motion-capture window seen through a
-random camera (height, distance, focal length and one of five motions), its COCO-17 keypoints projected through
-m3c.camera and corrupted the way M3C's detector errs (m3c.training.detector_errors), with occlusions and
-truncation.
+"""Virtual cameras for training the world regressor, as WHAM is trained: a motion-capture window seen through
+a random camera (height, distance, focal length and one of five motions), its COCO-17 keypoints projected
+through m3c.camera and corrupted the way M3C's detector errs (m3c.training.detector_errors), with occlusions
+and truncation.
 
 Cameras (M3C's world, y up; OpenCV cameras, world_from_cam (L, 4, 4)):
     static    fixed, aimed at the window's mean pelvis
@@ -9,19 +9,19 @@ Cameras (M3C's world, y up; OpenCV cameras, world_from_cam (L, 4, 4)):
     follow    moving with the smoothed pelvis at a fixed offset, aimed at it
     orbit     circling the smoothed pelvis at omega (deg/s, either sense), aimed at it
     handheld  static or follow, with AR(1) rotational shake and positional jitter
-Every camera also has a constant aim offset (the person off-centre, often cut by the image's edge). The distance
-is drawn (log-uniformly) so that a 1.7 m person spans min_fill..max_fill of the image height.
+Every camera also has a constant aim offset (the person off-centre, often cut by the image's edge). The
+distance is drawn (log-uniformly) so that a 1.7 m person spans min_fill..max_fill of the image height.
 
 Detector errors, per window (box side s in pixels):
-    box       centre += s * AR(1)(mean, std, lag1) per axis; side *= exp(AR(1)(mean, std, lag1)), from the true
-              keypoints' bounding box (inside the image and in front of the camera)
-    keypoint  k += s * m_j(u) * direction, with (direction, u) from a unit 2D AR(1) Gaussian g (lag1 of joint j):
-              u = 1 - exp(-|g|^2 / 2) (|g|'s Rayleigh CDF) mapped through the joint's measured error quantiles
-              m_j, so the errors have the measured distribution and drift as slowly as measured
-    missing   a frame drops every keypoint with the joints' smallest missing rate; joint j is then dropped with
-              the rest of its rate, by thresholding an AR(1) Gaussian (lag1 0.8: misses come in runs)
-    occlusion with occlusion_prob, a body part (arms, legs, left or right side, lower body) masked over a random
-              interval of occlusion_length of the window
+    box       centre += s * AR(1)(mean, std, lag1) per axis; side *= exp(AR(1)(mean, std, lag1)), from the
+              true keypoints' bounding box (inside the image and in front of the camera)
+    keypoint  k += s * m_j(u) * direction, with (direction, u) from a unit 2D AR(1) Gaussian g (lag1 of joint
+              j): u = 1 - exp(-|g|^2 / 2) (|g|'s Rayleigh CDF) mapped through the joint's measured error
+              quantiles m_j, so the errors have the measured distribution and drift as slowly as measured
+    missing   a frame drops every keypoint with the joints' smallest missing rate; joint j is then dropped
+              with the rest of its rate, by thresholding an AR(1) Gaussian (lag1 0.8: misses come in runs)
+    occlusion with occlusion_prob, a body part (arms, legs, left or right side, lower body) masked over a
+              random interval of occlusion_length of the window
     truncated keypoints outside the image or behind the camera are masked
 Masked keypoints get confidence 0 (below WHAM's 0.3), the others 1.
 """
@@ -38,8 +38,8 @@ from m3c.training.detector_errors import load_detector_errors
 
 MOTIONS = ("static", "pan", "follow", "orbit", "handheld")
 # COCO-17 body parts an occluder hides.
-OCCLUDED_PARTS = ((5, 7, 9, 6, 8, 10), (11, 13, 15, 12, 14, 16), (5, 7, 9, 11, 13, 15), (6, 8, 10, 12, 14, 16),
-                  (13, 14, 15, 16), (9, 10), (15, 16))
+OCCLUDED_PARTS = ((5, 7, 9, 6, 8, 10), (11, 13, 15, 12, 14, 16), (5, 7, 9, 11, 13, 15),
+                  (6, 8, 10, 12, 14, 16), (13, 14, 15, 16), (9, 10), (15, 16))
 PERSON_HEIGHT = 1.7  # m, for the distance range
 
 
@@ -62,8 +62,8 @@ class VirtualCameraConfig:
 
 
 def ar1(rng: np.random.Generator, n: int, shape, lag1) -> np.ndarray:
-    """(n, *shape) stationary AR(1) Gaussian noise with unit variance and lag-1 correlation lag1 (a number, or an
-    array broadcasting against shape): x[0] = e[0], x[t] = lag1 x[t-1] + sqrt(1 - lag1^2) e[t]."""
+    """(n, *shape) stationary AR(1) Gaussian noise with unit variance and lag-1 correlation lag1 (a number, or
+    an array broadcasting against shape): x[0] = e[0], x[t] = lag1 x[t-1] + sqrt(1 - lag1^2) e[t]."""
     shape = tuple(np.atleast_1d(shape))
     lag1 = np.broadcast_to(np.clip(np.asarray(lag1, dtype=np.float64), 0.0, 0.999), shape)
     innovation = rng.standard_normal((n, *shape))
@@ -91,8 +91,8 @@ def _rotation(yaw: np.ndarray, pitch: np.ndarray, roll: np.ndarray) -> np.ndarra
 
 def sample_camera(rng: np.random.Generator, pelvis: np.ndarray, fps: float, config: VirtualCameraConfig,
                   motion: str | None = None) -> dict:
-    """A virtual camera for a window whose pelvis moves along `pelvis` (L, 3) in the world (y up, ground y = 0).
-    Returns world_from_cam (L, 4, 4), intrinsics [fx, fy, cx, cy], image_size (width, height), motion."""
+    """A virtual camera for a window whose pelvis moves along `pelvis` (L, 3) in the world (y up, ground y =
+    0). Returns world_from_cam (L, 4, 4), intrinsics [fx, fy, cx, cy], image_size (width, height), motion."""
     n = len(pelvis)
     motion = motion or MOTIONS[rng.integers(len(MOTIONS))]
     if motion not in MOTIONS:
@@ -134,15 +134,15 @@ def sample_camera(rng: np.random.Generator, pelvis: np.ndarray, fps: float, conf
     poses = np.stack([look_at(e, g) for e, g in zip(eyes, targets)])
     half = config.aim_offset * hfov / 2
     shake = np.radians(config.shake_deg) * ar1(rng, n, 3, 0.9) if motion == "handheld" else np.zeros((n, 3))
-    aim = _rotation(rng.uniform(-half, half) + shake[:, 0], rng.uniform(-half, half) * height / max(width, height)
-                    + shake[:, 1], shake[:, 2])
+    aim = _rotation(rng.uniform(-half, half) + shake[:, 0],
+                    rng.uniform(-half, half) * height / max(width, height) + shake[:, 1], shake[:, 2])
     poses[:, :3, :3] = poses[:, :3, :3] @ aim
     return {"world_from_cam": poses, "intrinsics": np.array([focal, focal, width / 2, height / 2]),
             "image_size": (int(width), int(height)), "motion": motion}
 
 
-def project_keypoints(points_in_world: np.ndarray, world_from_cam: np.ndarray, intrinsics) -> tuple[np.ndarray,
-                                                                                                     np.ndarray]:
+def project_keypoints(points_in_world: np.ndarray, world_from_cam: np.ndarray,
+                      intrinsics) -> tuple[np.ndarray, np.ndarray]:
     """(L, K, 3) world points seen by the window's cameras (L, 4, 4): (pixels (L, K, 2), depth (L, K))."""
     cam = to_camera(points_in_world, world_from_cam)
     return project(cam, intrinsics), cam[..., 2]
@@ -190,10 +190,11 @@ class DetectorErrors:
         g = ar1(rng, n, (k, 2), self.lag1[:, None].repeat(2, -1))
         radius = np.linalg.norm(g, axis=-1)
         u = 1.0 - np.exp(-radius ** 2 / 2)
-        magnitude = np.stack([np.interp(u[:, j], self.quantiles, self.error_quantiles[j]) for j in range(k)], 1)
+        magnitude = np.stack([np.interp(u[:, j], self.quantiles, self.error_quantiles[j])
+                              for j in range(k)], 1)
         direction = g / np.maximum(radius, 1e-9)[..., None]
-        keypoints = np.where(np.isfinite(pixels), pixels, 0.0) + side[:, None, None] * magnitude[..., None] * \
-            direction
+        keypoints = (np.where(np.isfinite(pixels), pixels, 0.0)
+                     + side[:, None, None] * magnitude[..., None] * direction)
         frame_drop = rng.random(n) < self.frame_missing
         missing = frame_drop[:, None] | (ar1(rng, n, k, 0.8) < ndtri(np.maximum(self.joint_missing, 1e-6)))
         occluded = np.zeros((n, k), dtype=bool)
