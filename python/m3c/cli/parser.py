@@ -273,6 +273,35 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--body-model", help="body model file (default: the shipped open model)")
     mp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     mp.set_defaults(func=train_commands.train_motion_prior_command)
+    rg = train.add_parser("regressor", help="the world regressor: WHAM's layout (narrower by --width), on "
+                          "the corpus's training clips seen through virtual cameras with M3C's measured "
+                          "detector errors; evaluated on held-out clips against simple baselines",
+                          description="Writes OUT/regressor.pt, OUT/checkpoint.pt (every "
+                                      "--checkpoint-minutes; --resume continues from it), OUT/train.json and "
+                                      "OUT/metrics.json (held-out figures: camera-frame PA-MPJPE, world root "
+                                      "velocity and orientation, contact F1, and the baselines').")
+    rg.add_argument("corpus", help="a folder written by `m3c data mocap`")
+    rg.add_argument("--out", required=True, help="output folder")
+    rg.add_argument("--steps", type=int, default=20000, help="optimiser steps (default 20000)")
+    rg.add_argument("--minutes", type=float,
+                    help="stop (resumably, with a checkpoint) after this many minutes")
+    rg.add_argument("--batch-size", type=int, default=32)
+    rg.add_argument("--frames", type=int, default=48, help="window length in frames (default 48)")
+    rg.add_argument("--width", type=int, default=128, help="motion-encoder width (WHAM's: 512; default 128)")
+    rg.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate, cosine decay (default 1e-3)")
+    rg.add_argument("--teacher-noise", type=float, default=0.05,
+                    help="noise on the teacher-forced previous-frame rotations (6D; a fifth of it, in "
+                         "metres, on the 3D keypoints; default 0.05)")
+    rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt)")
+    rg.add_argument("--eval-windows", type=int, default=256,
+                    help="held-out windows for the figures (fixed seed; default 256)")
+    rg.add_argument("--seed", type=int, default=0)
+    rg.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
+    rg.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    rg.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    rg.add_argument("--body-model", help="body model file (default: the shipped open model)")
+    rg.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    rg.set_defaults(func=train_commands.train_regressor_command)
 
     ev = sub.add_parser("eval", help="evaluation: metrics tables, benchmark, mocap retargeting").add_subparsers(
         dest="eval_command", required=True)

@@ -1,4 +1,5 @@
-"""`m3c train pose-prior|motion-prior`: M3C's own priors, trained on a corpus of `m3c data mocap`."""
+"""`m3c train pose-prior|motion-prior|regressor`: M3C's own priors and world regressor, trained on a corpus of
+`m3c data mocap`."""
 
 from __future__ import annotations
 
@@ -95,4 +96,42 @@ def train_motion_prior_command(args) -> int:
         print(f"  held out ({r['pairs']} pairs), next-frame joints: motion prior {r['motion_prior_mm']:.1f} "
               "mm, "
               f"constant velocity {r['constant_velocity_mm']:.1f} mm")
+    return 0
+
+
+def train_regressor_command(args) -> int:
+    from m3c.training.common import JointKinematics
+    from m3c.training.regressor import (RegressorConfig, evaluate, evaluation_batch, load_regressor,
+                                        mean_training_targets, prepare_clips, train_regressor)
+
+    config = RegressorConfig(steps=args.steps, batch_size=args.batch_size, frames=args.frames,
+                             width=args.width, lr=args.lr, teacher_noise=args.teacher_noise, seed=args.seed,
+                             checkpoint_minutes=args.checkpoint_minutes)
+    if config.frames < 2 or config.width < 1:
+        raise ValueError("--frames must be at least 2 and --width positive")
+    out, model, log, train_clips, held_clips = _prepare(args, config)
+    train = prepare_clips(train_clips, model, config.frames)
+    if log:
+        log(f"regressor: {len(train)} training clips of at least {config.frames + 1} frames; "
+            f"{len(held_clips)} held-out clips")
+    summary = train_regressor(train, out, model, config, resume=args.resume, log=log, minutes=args.minutes,
+                              init=args.init)
+    report = {"corpus": str(args.corpus), "train_clips": len(train), "held_out_clips": len(held_clips),
+              "steps": summary["steps_done"], "of_steps": config.steps,
+              "final_loss": summary["history"][-1] if summary["history"] else None}
+    if held_clips:
+        held = prepare_clips(held_clips, model, config.frames)
+        batch = evaluation_batch(held, config, windows=args.eval_windows)
+        report["held_out"] = evaluate(load_regressor(out / "regressor.pt"), batch,
+                                      JointKinematics.from_model(model), mean_training_targets(train, config))
+    _write_metrics(out, report)
+    print(f"wrote {out}/regressor.pt ({summary['steps_done']} of {config.steps} steps)")
+    if "held_out" in report:
+        r, b = report["held_out"]["regressor"], report["held_out"]["baselines"]
+        print(f"  held out ({report['held_out']['windows']} windows of {config.frames} frames): PA-MPJPE "
+              f"{r['pa_mpjpe_mm']:.1f} mm (mean pose {b['mean_pose_pa_mpjpe_mm']:.1f}, initial pose held "
+              f"{b['init_pose_pa_mpjpe_mm']:.1f}); root velocity {r['velocity_mps']:.3f} m/s (zero "
+              f"{b['zero_velocity_mps']:.3f}, mean {b['mean_velocity_mps']:.3f}); root orientation "
+              f"{r['root_deg']:.1f} deg (held {b['held_root_deg']:.1f}); contact F1 {r['contact_f1']:.3f} "
+              f"(always {b['always_contact_f1']:.3f})")
     return 0

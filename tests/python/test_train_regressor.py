@@ -1,0 +1,221 @@
+"""`m3c train regressor`: the virtual cameras project as m3c.camera and a plain pinhole do, the detector-error
+sampler reproduces the measured model, a few-step run on a tiny corpus (the two shipped CMU clips) lowers its
+loss and a resumed run ends where the uninterrupted one does, and the network keeps WHAM's checkpoint
+layout."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from m3c.camera import world_to_image
+from m3c.cli import main
+from m3c.eval.benchmark import shipped_clip_paths
+from m3c.eval.retarget import RetargetedMotion
+from m3c.io.atomic import save_npz_atomic
+from m3c.mocap.corpus import foot_contacts, load_corpus
+from m3c.models.wham import WhamLifter
+from m3c.training.detector_errors import load_detector_errors
+from m3c.training.regressor import (RegressorConfig, WorldRegressor, evaluate, evaluation_batch,
+                                    load_regressor, make_batch, mean_training_targets, prepare_clips,
+                                    procrustes_mpjpe, train_regressor)
+from m3c.training.virtual_camera import (MOTIONS, DetectorErrors, VirtualCameraConfig, ar1, project_keypoints,
+                                         sample_camera)
+
+
+@pytest.fixture
+def tiny_corpus(tmp_path, open_model):
+    """A corpus folder as `m3c data mocap` writes it: 131_01 for training, 01_01 held out."""
+    out = tmp_path / "corpus"
+    for path in shipped_clip_paths():
+        clip = RetargetedMotion.load(path)
+        pose = clip.pose()
+        joints = open_model.joints(pose, clip.betas, clip.transl)
+        save_npz_atomic(out / "clips" / f"{path.stem}.npz", pose=pose.astype(np.float32),
+                        transl=clip.transl.astype(np.float32), betas=clip.betas.astype(np.float32),
+                        contacts=foot_contacts(joints, clip.fps, 0.06, 0.3), fps=np.float32(clip.fps),
+                        clip=np.array(path.stem))
+    (out / "split.json").write_text(json.dumps({"train": ["cmu_131_01"], "held_out": ["cmu_01_01"]}))
+    return out
+
+
+def _walk(n=40, fps=30.0):
+    t = np.arange(n) / fps
+    return np.stack([1.3 * t, np.full(n, 0.95), 0.2 * t], axis=1)
+
+
+@pytest.mark.parametrize("motion", MOTIONS)
+def test_virtual_camera_projects_as_m3c_camera_and_a_plain_pinhole(motion, rng):
+    pelvis = _walk()
+    camera = sample_camera(rng, pelvis, 30.0, VirtualCameraConfig(), motion)
+    assert camera["motion"] == motion
+    poses, k = camera["world_from_cam"], camera["intrinsics"]
+    np.testing.assert_allclose(np.einsum("nji,njk->nik", poses[:, :3, :3], poses[:, :3, :3]),
+                               np.broadcast_to(np.eye(3), (len(poses), 3, 3)), atol=1e-12)
+    points = pelvis[:, None] + rng.normal(scale=0.4, size=(len(pelvis), 17, 3))
+    pixels, depth = project_keypoints(points, poses, k)
+    for t in (0, len(pelvis) // 2, len(pelvis) - 1):
+        ref, ref_depth = world_to_image(points[t], poses[t], k)
+        np.testing.assert_allclose(pixels[t], ref, atol=1e-9)
+        np.testing.assert_allclose(depth[t], ref_depth, atol=1e-12)
+    # An independent pinhole: X_cam = R^T (X - c), u = K X_cam / z.
+    R, c = poses[:, :3, :3], poses[:, :3, 3]
+    cam = np.stack([(points[t] - c[t]) @ R[t] for t in range(len(points))])
+    K = np.array([[k[0], 0, k[2]], [0, k[1], k[3]], [0, 0, 1.0]])
+    homogeneous = cam @ K.T
+    np.testing.assert_allclose(pixels, homogeneous[..., :2] / homogeneous[..., 2:], rtol=1e-10, atol=1e-8)
+    np.testing.assert_allclose(depth, cam[..., 2], atol=1e-12)
+    assert (depth[:, 0] > 0).all()        # the person is in front of the camera
+
+
+def test_camera_motions_move_as_named(rng):
+    pelvis, config = _walk(), VirtualCameraConfig(aim_offset=0.0)
+    static = sample_camera(rng, pelvis, 30.0, config, "static")["world_from_cam"]
+    np.testing.assert_allclose(static, np.broadcast_to(static[0], static.shape))
+    pan = sample_camera(rng, pelvis, 30.0, config, "pan")["world_from_cam"]
+    np.testing.assert_allclose(pan[:, :3, 3], np.broadcast_to(pan[0, :3, 3], (len(pan), 3)))
+    assert not np.allclose(pan[0, :3, :3], pan[-1, :3, :3])                  # it turns
+    follow = sample_camera(rng, pelvis, 30.0, config, "follow")["world_from_cam"]
+    assert np.linalg.norm(follow[-1, :3, 3] - follow[0, :3, 3]) > 0.3        # it travels with the person
+    orbit = sample_camera(rng, pelvis, 30.0, config, "orbit")["world_from_cam"]
+    forward = orbit[:, :3, 2] * [1, 0, 1]
+    turned = np.degrees(np.arccos(np.clip((forward[0] @ forward[-1]) / np.linalg.norm(forward[0])
+                                          / np.linalg.norm(forward[-1]), -1, 1)))
+    assert turned > 5.0 * (len(pelvis) - 1) / 30.0 * 0.5                      # at least half the slowest rate
+    heights = [sample_camera(rng, pelvis, 30.0, config)["world_from_cam"][0, 1, 3] for _ in range(50)]
+    assert config.height[0] <= min(heights) and max(heights) <= config.height[1]
+
+
+def test_ar1_has_unit_variance_and_the_asked_correlation(rng):
+    x = ar1(rng, 48, (4000, 2), np.array([0.3, 0.9]))
+    assert x.std(axis=(0, 1)) == pytest.approx([1.0, 1.0], abs=0.03)
+    lag = (x[1:] * x[:-1]).mean(axis=(0, 1))
+    assert lag == pytest.approx([0.3, 0.9], abs=0.03)
+
+
+def test_detector_errors_reproduce_the_measured_model(rng):
+    model = load_detector_errors()
+    assert len(model["sequences"]) >= 5 and len(model["error_quantiles"]) == 17
+    errors, config = DetectorErrors(model), VirtualCameraConfig(occlusion_prob=0.0)
+    n = 48
+    pixels = np.tile(rng.uniform(200, 400, size=(1, 17, 2)), (n, 1, 1))
+    pixels[:, 0] = [300.0, 150.0]
+    pixels[:, 16] = [300.0, 450.0]                                           # the box is 300 px tall
+    depth = np.full((n, 17), 4.0)
+    depth[:, 5] = -1.0                                                       # behind the camera
+    pixels[:, 9] = [2000.0, 300.0]                                           # outside the image
+    measured, confidence = [], []
+    for _ in range(300):
+        det = errors.corrupt(rng, pixels, depth, (960, 540), config)
+        measured.append(np.linalg.norm(det["keypoints"] - pixels, axis=-1) / det["box"][:, 2:])
+        confidence.append(det["confidence"])
+    measured, confidence = np.concatenate(measured), np.concatenate(confidence)
+    assert not confidence[:, [5, 9]].any()                                   # truncated keypoints are masked
+    medians = np.median(measured, axis=0)
+    expected = np.array(model["error_quantiles"])[:, 10]
+    np.testing.assert_allclose(medians, expected, rtol=0.1)
+    keep = [j for j in range(17) if j not in (5, 9)]
+    missing = 1.0 - confidence[:, keep].mean(0)
+    np.testing.assert_allclose(missing, np.array(model["missing_rate"])[keep], atol=0.03)
+
+
+def test_procrustes_ignores_similarity_transforms(rng):
+    from scipy.spatial.transform import Rotation
+
+    true = rng.normal(size=(5, 24, 3))
+    R = Rotation.random(5, random_state=1).as_matrix()
+    moved = 1.7 * np.einsum("nij,nkj->nki", R, true) + rng.normal(size=(5, 1, 3))
+    np.testing.assert_allclose(procrustes_mpjpe(moved, true), 0.0, atol=1e-9)
+    assert (procrustes_mpjpe(true + 0.1 * rng.normal(size=true.shape), true) > 0.05).all()
+
+
+def test_regressor_keeps_whams_layout():
+    small, official = WorldRegressor(512).state_dict(), WhamLifter().state_dict()
+    assert set(small) <= set(official)
+    assert all(small[k].shape == official[k].shape for k in small)
+    assert any(k.startswith("motion_decoder.") for k in small)
+
+
+def test_training_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, open_model, one_torch_thread):
+    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 12)
+    config = RegressorConfig(steps=40, batch_size=8, frames=12, width=24, lr=3e-3, history_every=8,
+                             checkpoint_minutes=100.0)
+    whole = train_regressor(clips, tmp_path / "whole", open_model, config, log=None)
+    losses = [h["loss"] for h in whole["history"]]
+    assert len(losses) == 5 and losses[-1] < 0.6 * losses[0]
+    train_regressor(clips, tmp_path / "split", open_model, config, log=None, stop_after=15)
+    assert torch.load(tmp_path / "split" / "checkpoint.pt", weights_only=False)["step"] == 15
+    resumed = train_regressor(clips, tmp_path / "split", open_model, config, resume=True, log=None)
+    assert resumed["steps_done"] == 40
+    a = load_regressor(tmp_path / "whole" / "regressor.pt")
+    b = load_regressor(tmp_path / "split" / "regressor.pt")
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    with pytest.raises(ValueError, match="other settings"):
+        other = RegressorConfig(steps=41, batch_size=8, frames=12, width=24)
+        train_regressor(clips, tmp_path / "split", open_model, other, resume=True, log=None)
+
+
+def test_evaluation_scores_the_truth_perfectly(tiny_corpus, open_model):
+    from m3c.models.rotations import matrix_to_rotation_6d_rows
+    from m3c.training.common import JointKinematics
+
+    config = RegressorConfig(frames=12, width=16)
+    clips = prepare_clips(load_corpus(tiny_corpus, "held_out"), open_model, config.frames)
+    batch = evaluation_batch(clips, config, windows=6)
+    again = evaluation_batch(clips, config, windows=6)
+    assert all(torch.equal(batch[k], again[k]) for k in batch)              # a fixed evaluation set
+    assert batch["x"].shape == (6, 12, 37) and batch["pose"].shape == (6, 12, 24, 3, 3)
+
+    class Oracle(WorldRegressor):
+        def forward(self, x, mask, init_kp, init_root, cam_angvel, init_pose):
+            return {"pose": matrix_to_rotation_6d_rows(batch["pose"]).double(),
+                    "root_6d": torch.cat([init_root, matrix_to_rotation_6d_rows(batch["root"])], 1).double(),
+                    "velocity": batch["velocity"].double(), "contact": 10 * (2 * batch["contacts"] - 1),
+                    "keypoints_3d": batch["kp3d"]}
+
+    report = evaluate(Oracle(16), batch, JointKinematics.from_model(open_model),
+                      mean_training_targets(clips, config, windows=4), chunk=100)
+    r, base = report["regressor"], report["baselines"]
+    assert r["pa_mpjpe_mm"] < 1e-3 and r["velocity_mps"] < 1e-4 and r["root_deg"] < 0.1
+    assert r["contact_f1"] == pytest.approx(1.0) and r["kp3d_mpjpe_mm"] < 1e-3
+    assert base["mean_pose_pa_mpjpe_mm"] > 10 and base["init_pose_pa_mpjpe_mm"] > 10
+
+
+def test_train_regressor_command(tiny_corpus, tmp_path, open_model, one_torch_thread, capsys):
+    out = tmp_path / "run"
+    assert main(["train", "regressor", str(tiny_corpus), "--out", str(out), "--steps", "3", "--batch-size",
+                 "4", "--frames", "10", "--width", "16", "--eval-windows", "4", "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["steps"] == 3 and metrics["held_out"]["windows"] == 4
+    assert set(metrics["held_out"]["regressor"]) >= {"pa_mpjpe_mm", "velocity_mps", "contact_f1"}
+    assert "PA-MPJPE" in capsys.readouterr().out
+    net = load_regressor(out / "regressor.pt")
+    batch = make_batch(np.random.default_rng(0), prepare_clips(load_corpus(tiny_corpus, "train"),
+                                                               open_model, 10), RegressorConfig(frames=10),
+                       DetectorErrors(), size=2)
+    with torch.no_grad():
+        assert net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
+                   batch["init_pose"])["pose"].shape == (2, 10, 24, 6)
+
+
+
+def test_teacher_forcing_with_its_own_outputs_is_the_autoregressive_network(tiny_corpus, open_model):
+    config = RegressorConfig(frames=10, width=16)
+    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10)
+    batch = make_batch(np.random.default_rng(2), clips, config, DetectorErrors(), size=3)
+    torch.manual_seed(0)
+    net = WorldRegressor(16).eval()
+    with torch.no_grad():
+        out = net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
+                  batch["init_pose"])
+        b, f = batch["x"].shape[:2]
+        kp = out["keypoints_3d"].reshape(b, f, -1)
+        previous = {"keypoints_3d": torch.cat([batch["init_kp"][..., :51], kp], 1)[:, :-1],
+                    "root_6d": out["root_6d"][:, :-1],
+                    "pose": torch.cat([batch["init_pose"].reshape(b, 1, -1), out["pose"].reshape(b, f, -1)],
+                                      1)[:, :-1]}
+        forced = net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"],
+                                    batch["angvel"], batch["init_pose"], previous)
+    for key in ("keypoints_3d", "root_6d", "velocity", "pose", "betas", "contact"):
+        torch.testing.assert_close(forced[key], out[key], rtol=1e-5, atol=1e-5)
