@@ -274,6 +274,7 @@ TEST(BodyFitter, WarmStartTurnedAwayFromThe3DTorsoIsTurnedBack) {
   wrong_side.root = turned.angle() * turned.axis();
   FitOptions old_rule;
   old_rule.max_turn_from_3d_deg = -1.0;
+  old_rule.max_limb_from_3d_m = -1.0;  // the limb check re-solves a half-turned body's limbs (and turns it) too
   const FrameFitResult kept = BodyFitter(&model, &reg, old_rule).Fit(o, &wrong_side);
   const FrameFitResult restarted = BodyFitter(&model, &reg, FitOptions()).Fit(o, &wrong_side);
   // The premise: the warm fit ends half a turn off yet on the keypoints, so only the 3D can tell.
