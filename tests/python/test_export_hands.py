@@ -41,7 +41,7 @@ def finger_truth(arrays, track) -> np.ndarray:
     return np.concatenate([points[:, 0, FINGER_ROWS], points[:, 1, FINGER_ROWS]], axis=1)
 
 
-def test_results_hold_hands_and_the_refined_wrists(results):
+def test_results_hold_hands_and_keep_the_optimizers_wrists(results):
     _, arrays = load_results(results)
     assert arrays["left_hand_pose"].shape[2:] == (15, 3)
     assert arrays["hand_keypoints_2d"].shape[2:] == (2, 21, 3)
@@ -49,11 +49,11 @@ def test_results_hold_hands_and_the_refined_wrists(results):
     assert np.isfinite(arrays["left_hand_pose"][valid]).all()
     right = np.isfinite(arrays["right_hand_pose"][valid]).all(axis=(1, 2))
     assert 0 < right.sum() < valid.sum()  # a few frames without a right hand
-    # The hand fit refines the wrists (body_pose joints 19, 20 = SMPL 20, 21) and nothing else; the scene's
-    # lift is the optimizer's input plus 0.02.
+    # The body keeps the optimizer's pose, wrists included (the hand fit's wrist refinement stays inside the
+    # finger fit: written into body_pose it raised the benchmark's jitter); the scene's lift is the optimizer's
+    # input plus 0.02.
     before = arrays["lift_body_pose"][valid] - 0.02
-    np.testing.assert_allclose(arrays["body_pose"][valid][:, :19], before[:, :19], atol=1e-5)
-    assert np.abs(arrays["body_pose"][valid][:, 19] - before[:, 19]).max() > 0.05
+    np.testing.assert_allclose(arrays["body_pose"][valid], before, atol=1e-5)
 
 
 def test_bvh_carries_the_fingers(results, tmp_path):

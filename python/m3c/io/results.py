@@ -194,8 +194,7 @@ def _hands_line(hands: dict | None) -> list[str]:
         return []
     if not hands["enabled"]:
         return [f"hands       none: {hands['reason']}"]
-    return [f"hands       {hands['hands_fitted']} hands fitted in {hands['person_frames']} person-frames "
-            f"({hands['seconds_per_frame']:.3f} s per frame)"]
+    return [f"hands       {hands['hands_fitted']} hands fitted in {hands['person_frames']} person-frames"]
 
 
 def json_ready(value):
