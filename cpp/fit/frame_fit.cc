@@ -378,6 +378,16 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
     result.state = warm;
     result.warm_started = true;
     Measure(obs, m, &result);
+    // A candidate solved with the warm fit's temporal terms replaces it when the frame's own objective
+    // (keypoints, 3D, priors: without the pull towards the previous frame) is the lower one.
+    auto resolve_warm = [&](BodyState candidate) {
+      const double cost = Solve(obs, m, previous, predicted_transl, true, true, &candidate, &result.iterations);
+      if (FrameCost(obs, m, candidate) < FrameCost(obs, m, result.state)) {
+        result.state = candidate;
+        result.cost = cost;
+        Measure(obs, m, &result);
+      }
+    };
     if (options_.max_turn_from_3d_deg >= 0 && TorsoTurnFrom3d(m, result.state) > options_.max_turn_from_3d_deg) {
       // In a side view the keypoints fit a body turned half a turn about as well as the right one, and the
       // robust 3D term barely pulls a torso that far off: a warm start on the wrong side stays there. The frame
@@ -388,12 +398,7 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
       BodyState turned = ColdState(obs, m);
       turned.transl = result.state.transl;
       turned.betas = result.state.betas;
-      const double cost = Solve(obs, m, previous, predicted_transl, true, true, &turned, &result.iterations);
-      if (FrameCost(obs, m, turned) < FrameCost(obs, m, result.state)) {
-        result.state = turned;
-        result.cost = cost;
-        Measure(obs, m, &result);
-      }
+      resolve_warm(turned);
     }
     if (options_.max_limb_from_3d_m >= 0 && LimbErrorFrom3d(m, result.state) > options_.max_limb_from_3d_m) {
       // A limb the warm start carried into the wrong basin (a knee bent backwards where the 3D has a step
@@ -404,12 +409,7 @@ FrameFitResult BodyFitter::Fit(const FrameObservation& obs, const BodyState* pre
       posed.body.setZero();
       Solve(obs, m, nullptr, nullptr, true, false, &posed, &result.iterations);
       posed.transl = result.state.transl;
-      const double cost = Solve(obs, m, previous, predicted_transl, true, true, &posed, &result.iterations);
-      if (FrameCost(obs, m, posed) < FrameCost(obs, m, result.state)) {
-        result.state = posed;
-        result.cost = cost;
-        Measure(obs, m, &result);
-      }
+      resolve_warm(posed);
     }
     if (result.reprojection_error_px > options_.reinit_error_px) {
       // A warm fit this far off the keypoints means the track's motion no longer predicts it (a fast turn, or a
