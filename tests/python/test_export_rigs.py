@@ -2,8 +2,11 @@
 
 The files are read back independently of the retarget: the GLB by pygltflib and the USD by pxr, with forward
 kinematics of their rest transforms and animated local rotations done here in numpy; the mapped bones must
-land on results.npz's world joints. In real Blender (bpy, skipped without it) each rig's GLB and FBX import
-with the rig's bone names and hierarchy and the GLB's bone positions (within 1 mm at every frame)."""
+land on results.npz's world joints, the finger bones on the fingers posed here by a numpy forward kinematics
+of the hand model (checked against results.npz's world_hand_keypoints). In real Blender (bpy, skipped
+without it) each rig's GLB and FBX import with the rig's bone names (fingers included) and hierarchy and the
+GLB's bone positions (within 1 mm at every frame), and the Mixamo FBX's joints land on the source's within
+1 mm."""
 
 from __future__ import annotations
 
@@ -38,12 +41,70 @@ EXPECTED = {
                "DEF-shoulder.L": "DEF-spine.003", "DEF-toe.R": "DEF-foot.R"},
     "smpl": {"pelvis": None, "left_knee": "left_hip", "left_shoulder": "left_collar"},
 }
+# Finger bones, as the rigs' published definitions name and parent them (see m3c/export/rigs.py).
+EXPECTED_FINGERS = {
+    "mixamo": {"mixamorig:LeftHandThumb1": "mixamorig:LeftHand",
+               "mixamorig:LeftHandIndex1": "mixamorig:LeftHand",
+               "mixamorig:LeftHandIndex4": "mixamorig:LeftHandIndex3",
+               "mixamorig:RightHandPinky2": "mixamorig:RightHandPinky1",
+               "mixamorig:RightHandMiddle4": "mixamorig:RightHandMiddle3"},
+    "ue5": {"thumb_01_l": "hand_l", "thumb_03_l": "thumb_02_l", "index_metacarpal_l": "hand_l",
+            "index_01_l": "index_metacarpal_l", "pinky_metacarpal_r": "hand_r", "ring_03_r": "ring_02_r"},
+    "unity": {"LeftThumbProximal": "LeftHand", "LeftIndexIntermediate": "LeftIndexProximal",
+              "RightLittleProximal": "RightHand", "RightLittleDistal": "RightLittleIntermediate"},
+    "rigify": {"DEF-palm.01.L": "DEF-hand.L", "DEF-f_index.01.L": "DEF-palm.01.L",
+               "DEF-thumb.01.L": "DEF-palm.01.L", "DEF-palm.04.R": "DEF-hand.R",
+               "DEF-f_pinky.01.R": "DEF-palm.04.R", "DEF-f_pinky.03.R": "DEF-f_pinky.02.R"},
+    "smpl": {"left_index1": "left_wrist", "left_index3": "left_index2", "right_thumb1": "right_wrist"},
+}
+# Finger bones per rig: 3 per finger, Mixamo's tip bones (Thumb4 ..), UE5's and Rigify's 4 metacarpal / palm
+# bones per hand.
+FINGER_BONES = {"mixamo": 40, "ue5": 38, "unity": 30, "rigify": 38, "smpl": 30}
 
 
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
+    """Results with hand poses (the open model's fingers; the right hand missing on every 4th frame)."""
     pytest.importorskip("pygltflib", reason="GLB export needs pygltflib (pip install m3c[export])")
-    return write_results(tmp_path_factory.mktemp("rigs") / "out", default_body_model())
+    return write_results(tmp_path_factory.mktemp("rigs") / "out", default_body_model(), hands=True)
+
+
+def _source_joints(source, track) -> np.ndarray:
+    """(n, 64, 3) the retarget skeleton's joints in the world: results.npz's 24 body joints, then the 30
+    finger joints and the 10 fingertips posed here from the body's world wrist rotations (its local rotations
+    composed along SMPL's chain), the hand model's rest offsets and the finger poses (the rest hand where the
+    results hold none); where results.npz has world_hand_keypoints they agree to float32 storage."""
+    from m3c.body.hands import HAND_PARENTS, MEDIAPIPE_FROM_HAND, TIP_JOINTS
+
+    n = len(track.frames)
+    R = Rotation.from_rotvec(track.pose.reshape(-1, 3)).as_matrix().reshape(n, 24, 3, 3)
+    world_R = []
+    for j, p in enumerate(source.parents):
+        world_R.append(R[:, j] if p < 0 else world_R[p] @ R[:, j])
+    wrist_rest, joints_rest, tips_rest = track.hands.rest(track.betas)
+    hand_R = Rotation.from_rotvec(track.hand_pose.reshape(-1, 3)).as_matrix().reshape(n, 2, 15, 3, 3)
+    out = np.zeros((n, 64, 3))
+    out[:, :24] = track.world_joints
+    for s in (0, 1):
+        Rf, xf = [None] * 15, [None] * 15
+        for j, p in enumerate(HAND_PARENTS):
+            if p < 0:
+                pR, px = world_R[20 + s], track.world_joints[:, 20 + s]
+                offset = joints_rest[s, j] - wrist_rest[s]
+            else:
+                pR, px, offset = Rf[p], xf[p], joints_rest[s, j] - joints_rest[s, p]
+            xf[j], Rf[j] = px + pR @ offset, pR @ hand_R[:, s, j]
+            out[:, 24 + 15 * s + j] = xf[j]
+        for f, j in enumerate(TIP_JOINTS):
+            out[:, 54 + 5 * s + f] = xf[j] + Rf[j] @ (tips_rest[s, f] - joints_rest[s, j])
+    stored = source.arrays["world_hand_keypoints"][track.index, track.frames].astype(np.float64)
+    ours = np.concatenate([out[:, None, [20, 21]].transpose(0, 2, 1, 3),
+                           out[:, 24:54].reshape(n, 2, 15, 3), out[:, 54:].reshape(n, 2, 5, 3)], axis=2)
+    ours = ours[:, :, list(MEDIAPIPE_FROM_HAND)]
+    found = np.isfinite(stored).all(axis=(2, 3))
+    assert found.any() and not found.all()
+    np.testing.assert_allclose(ours[found], stored[found], atol=1e-5)
+    return out
 
 
 def _read_glb(path):
@@ -107,15 +168,35 @@ def test_glb_bones_land_on_the_world_joints(results, tmp_path, rig):
     for track, path in zip(source.tracks, paths):
         world, times, parents, _, _ = _glb_world(path)
         assert set(world) == set(definition.names) and len(world) == len(definition.names)
-        for name, parent in EXPECTED[rig].items():
+        for name, parent in {**EXPECTED[rig], **EXPECTED_FINGERS[rig]}.items():
             assert parents[name] == parent, name
+        assert len(definition.finger_bones) == FINGER_BONES[rig]
         first = 1 if rig == "smpl" else 0  # the reference pose's extra frame
         assert len(times) == len(track.frames) + first
         np.testing.assert_allclose(times, np.arange(len(times)) / source.fps, atol=1e-6)
-        for name, joint in definition.mapped().items():
-            error = np.linalg.norm(world[name][first:] - track.world_joints[:, joint], axis=-1).max()
+        truth = _source_joints(source, track)
+        mapped = definition.mapped()
+        assert sum(joint >= 24 for joint in mapped.values()) == {"mixamo": 40, "smpl": 30}.get(rig, 30)
+        for name, joint in mapped.items():
+            error = np.linalg.norm(world[name][first:] - truth[:, joint], axis=-1).max()
             assert error < CM, (name, error)
-            assert error < 1e-4   # float32 storage: far below the centimetre asked
+            assert error < 1e-4, (name, error)   # float32 storage: far below the centimetre asked
+
+
+def test_rigs_without_hand_poses_have_no_finger_bones(tmp_path):
+    """Results without hand poses (an SMPL body, --no-hands): the rigs' body bones only, on the world
+    joints."""
+    pytest.importorskip("pygltflib", reason="GLB export needs pygltflib (pip install m3c[export])")
+    plain = write_results(tmp_path / "out", default_body_model())
+    source = load_source(plain, tracks=[4])
+    assert source.tracks[0].hand_pose is None
+    for rig in ("mixamo", "rigify"):
+        path, = export_results(plain, "glb", tmp_path / rig, tracks=[4], rig=rig)
+        world, _, parents, _, _ = _glb_world(path)
+        body = get_rig(rig).body_only()
+        assert set(world) == set(body.names) and not set(world) & set(get_rig(rig).finger_bones)
+        for name, joint in body.mapped().items():
+            assert np.linalg.norm(world[name] - source.tracks[0].world_joints[:, joint], axis=-1).max() < 1e-4
 
 
 @pytest.mark.parametrize("rig", ("mixamo", "ue5", "rigify"))
@@ -193,9 +274,18 @@ def test_rest_pose_bone_lengths_and_axes(results, tmp_path):
         thigh = head[knee] - head[up_leg]
         assert np.linalg.norm(thigh) == pytest.approx(np.linalg.norm(J[4] - J[1]), abs=1e-5)
         np.testing.assert_allclose(thigh / np.linalg.norm(thigh), [0.0, -1.0, 0.0], atol=1e-5)
-        # Bone axes: Mixamo's +Y along the bone (Blender's convention), UE5's +X (Unreal's).
-        along = rest[arm][:3, 1] if rig == "mixamo" else rest[arm][:3, 0]
-        np.testing.assert_allclose(along, upper_arm / np.linalg.norm(upper_arm), atol=1e-5)
+        # Bone axes: Mixamo's +Y along the bone (Blender's convention), UE5's +X (Unreal's); a finger bone's
+        # toward its next joint, the hand's toward its middle finger.
+        axis = 1 if rig == "mixamo" else 0
+        for bone, child in ((arm, lower_arm),
+                            *((("mixamorig:LeftHandIndex1", "mixamorig:LeftHandIndex2"),
+                               ("mixamorig:RightHandThumb2", "mixamorig:RightHandThumb3"),
+                               ("mixamorig:LeftHand", "mixamorig:LeftHandMiddle1")) if rig == "mixamo" else
+                              (("index_01_l", "index_02_l"), ("thumb_02_r", "thumb_03_r"),
+                               ("hand_l", "middle_metacarpal_l"), ("middle_metacarpal_l", "middle_01_l")))):
+            direction = head[child] - head[bone]
+            np.testing.assert_allclose(rest[bone][:3, axis], direction / np.linalg.norm(direction), atol=1e-5,
+                                       err_msg=bone)
         # The mesh stands on y = 0.
         body = next(n for n in gltf.nodes if n.mesh is not None)
         assert read(gltf.meshes[body.mesh].primitives[0].attributes.POSITION)[:, 1].min() == pytest.approx(
@@ -294,6 +384,7 @@ def test_usd_skeleton_lands_on_the_world_joints(results, tmp_path):
         paths_ = list(skel.GetJointsAttr().Get())
         assert names == definition.names
         parent = [paths_.index(p.rsplit("/", 1)[0]) if "/" in p else -1 for p in paths_]
+        truth = _source_joints(source, track)
         for k in (0, len(track.frames) // 2, len(track.frames) - 1):
             t = np.array(anim.GetTranslationsAttr().Get(k), float)
             q = np.array([[r.GetReal(), *r.GetImaginary()] for r in anim.GetRotationsAttr().Get(k)])
@@ -303,10 +394,10 @@ def test_usd_skeleton_lands_on_the_world_joints(results, tmp_path):
                 Rw[i], tw[i] = (R[i], t[i]) if p < 0 else (Rw[p] @ R[i], tw[p] + Rw[p] @ t[i])
             # USD's own skeleton evaluation agrees (row-vector matrices: the translation is the last row).
             skel_space = UsdSkel.Cache().GetSkelQuery(skel).ComputeJointSkelTransforms(Usd.TimeCode(k))
-            for name, joint in definition.mapped().items():
-                assert np.linalg.norm(tw[names.index(name)] - track.world_joints[k, joint]) < 1e-4
+            for name, joint in definition.mapped().items():   # the fingers and tips included
+                assert np.linalg.norm(tw[names.index(name)] - truth[k, joint]) < 1e-4, name
                 usd = np.array(skel_space[names.index(name)])[3, :3]
-                assert np.linalg.norm(usd - track.world_joints[k, joint]) < 1e-4
+                assert np.linalg.norm(usd - truth[k, joint]) < 1e-4, name
 
 
 def test_cli_rig_options(results, tmp_path, capsys):
@@ -359,14 +450,20 @@ def test_rig_glb_and_fbx_in_blender(results, tmp_path, blender, rig):
     fbx, = export_results(results, "fbx", tmp_path / "fbx", tracks=[7], rig=rig)
     last = len(track.frames) - 1
     world = _glb_world(glb)[0]
+    truth = _source_joints(source, track) @ BLENDER_FROM_M3C.T
+    assert len(definition.finger_bones) == FINGER_BONES[rig]
     for path in (glb, fbx):
         sampled = _sample(blender, path, tmp_path, source.fps, last)
         (armature, parents), = sampled["parents"].items()
-        assert parents == expected_parents, path.name
+        assert parents == expected_parents, path.name   # the finger bones included
         heads = sampled["armatures"][armature]   # every frame, every bone, within 1 mm of the GLB's
         for name in definition.names:
             np.testing.assert_allclose(np.array(heads[name]), world[name] @ BLENDER_FROM_M3C.T, atol=MM,
                                        err_msg=f"{path.name} {name}")
+        if rig == "mixamo":   # re-imported, the joints (fingers included) are the source's within 1 mm
+            for name, joint in definition.mapped().items():
+                error = np.linalg.norm(np.array(heads[name]) - truth[:, joint], axis=-1).max()
+                assert error < MM, (path.name, name, error)
 
 
 def test_usd_without_usd_core_says_how_to_install(results, tmp_path, capsys, monkeypatch):

@@ -27,8 +27,7 @@ import numpy as np
 import pygltflib as gl
 from scipy.spatial.transform import Rotation
 
-from m3c.body.hands import HAND_JOINTS, SIDES
-from m3c.export.source import ExportSource, TrackMotion, finger_skeleton
+from m3c.export.source import ExportSource, TrackMotion, finger_skeleton, finger_skin
 from m3c.io.atomic import atomic_path
 from m3c.viz.raster import vertex_normals
 from m3c.viz.scene import track_colour
@@ -147,11 +146,7 @@ def _add_person(b: _Builder, animation: gl.Animation, source: ExportSource, trac
         for k, name in enumerate(fingers.names):
             offset = rest[24 + k] - rest[parents[24 + k]]
             b.node(name=f"{prefix}_{name}", translation=[float(v) for v in offset])
-        weights = np.concatenate([weights, np.zeros((len(weights), 30))], axis=1)
-        for s, side in enumerate(SIDES):
-            ids = track.hands.vertex_ids[side]
-            weights[ids, HAND_JOINTS[side]] = 0.0
-            weights[ids, 24 + 15 * s:39 + 15 * s] = track.hands.weights[side]
+        weights = finger_skin(track, weights)
     for j in range(1, len(parents)):
         b.gltf.nodes[first + parents[j]].children.append(first + j)
     joint_nodes = list(range(first, first + len(parents)))

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from m3c.export.rigs import RigMotion, retarget
-from m3c.export.source import ExportSource, TrackMotion, per_track_paths
+from m3c.export.source import ExportSource, TrackMotion, finger_skeleton, finger_skin, per_track_paths
 from m3c.io.atomic import atomic_path
 
 USD_HINT = "pip install usd-core (or pip install m3c[usd]; scripts/setup.sh installs it)"
@@ -36,8 +36,10 @@ def track_rig_motion(source: ExportSource, track: TrackMotion, rig: str, **optio
     model = source.model
     rest_mesh = model.forward(np.zeros((1, 24, 3)), track.betas).vertices[0]
     contacts = source.arrays["contacts"][track.index, track.frames] if "contacts" in source.arrays else None
-    return retarget(rig, track.rest_joints, track.pose, track.root_positions, source.fps, rest_mesh,
-                    np.asarray(model.data.weights), contacts, frames=track.frames, **options)
+    fingers = finger_skeleton(track)   # None: the results hold no hand poses; the rig then has no fingers
+    skin = np.asarray(model.data.weights) if fingers is None else finger_skin(track, model.data.weights)
+    return retarget(rig, track.rest_joints, track.pose, track.root_positions, source.fps, rest_mesh, skin,
+                    contacts, frames=track.frames, fingers=fingers, **options)
 
 
 def _write_glb(source: ExportSource, track: TrackMotion, motion: RigMotion, path: Path) -> None:

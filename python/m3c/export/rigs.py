@@ -23,8 +23,36 @@ repository/page):
   Rest pose used: the T pose.
 - smpl: the body model's own 24 joints and rest pose (today's BVH/GLB/FBX skeleton).
 
-Retarget. Every bone's head sits on a body-model joint (`joint`) or on a fixed point of a body-model segment
-(`between`: twist, extra spine and end bones; they carry no rotation of their own and follow their parent).
+Finger bones (when the results hold hand poses; the rig is body-only otherwise), hanging off each rig's hand
+bone, mapped onto the hand model's SMPL-H finger joints (m3c.body.hands: joint 1 near the knuckle, 3 the
+last phalanx) and fingertips:
+- Mixamo: mixamorig:LeftHandThumb1..4, LeftHandIndex1..4, LeftHandMiddle1..4, LeftHandRing1..4,
+  LeftHandPinky1..4 (Right likewise), 1 nearest the palm and 4 the tip's end bone, each chained to the
+  previous, 1 under LeftHand (DayalGupta03/Sign_Bridge1 boneNames.md; the same names in
+  vircadia/vircadia-native-core's mannequin .fst joint list).
+- UE5 mannequin: thumb_01_l..thumb_03_l under hand_l; index/middle/ring/pinky_metacarpal_l under hand_l, with
+  <finger>_01_l..03_l below each (_r likewise), as the UE5 mannequin's bone lists in public tool scripts
+  have them (a Maya "UE5 standard bone list" export set, root .. pinky_03_r; Mixamo -> UE5 retarget tables
+  mapping LeftHandIndex1 to index_metacarpal_l); no tip bones. The metacarpals sit META_FRACTION of the
+  way from the wrist to the knuckle (M3C's choice: the hand model has no metacarpal joints) and follow the
+  hand.
+- Unity: HumanBodyBones' finger slots (docs.unity3d.com ScriptReference/HumanBodyBones: LeftThumbProximal,
+  Intermediate, Distal; LeftIndex.., LeftMiddle.., LeftRing.., LeftLittle.. "1st / 2nd / 3rd phalange"),
+  each chain under LeftHand.
+- Rigify: DEF-palm.01.L..04.L (index, middle, ring, pinky) under DEF-hand.L, DEF-f_index.01.L..03.L under
+  DEF-palm.01.L (f_middle under palm.02, f_ring .03, f_pinky .04), DEF-thumb.01.L..03.L under DEF-palm.01.L,
+  the human metarig's parents (the Rigify bone-group lists in public add-ons name the same DEF- bones;
+  makehuman's makewalk humanik.trg maps HumanIK's LeftHandThumb1 to thumb.01.L, LeftHandIndex1 to
+  f_index.01.L). Palm bones placed as UE5's metacarpals.
+- smpl: SMPL-H's finger joints left_index1 .. right_thumb3 under left_wrist / right_wrist (as the BVH and
+  GLB exports name them).
+In the rest pose the fingers keep the rest hand's shape (the open model's straight, palm-down T-pose hand),
+turned with the wrist. A hand bone's axis points at its middle finger's first bone. Frames where the results
+hold no hand (NaN hand poses) get the rest hand (zero finger rotations), as in the BVH and GLB exports.
+
+Retarget. Every bone's head sits on a joint of the retarget's skeleton (`joint`: SMPL's 24, then with the
+hands 30 finger joints and 10 fingertips, finger_joint) or on a fixed point of a segment (`between`: twist,
+extra spine, end, metacarpal and palm bones; they carry no rotation of their own and follow their parent).
 Bone lengths are therefore the performer's own (the body model's joints at the fitted betas). The target's
 rest pose is the body model's rest with world rotations W_j per joint (limbs straightened: arms along +-x in
 the T pose, 45 degrees below it in the A pose, legs vertical; torso and head as the body model's rest), moved
@@ -67,6 +95,32 @@ A_POSE_DEGREES = 45.0             # arms below horizontal in the A pose
 REACH_MARGIN = 1e-6               # metres: foot locking straightens a leg to its length less this
 _SMPL_PARENTS = (-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21)
 _LEGS = ((1, 4, 7, 10), (2, 5, 8, 11))   # hip, knee, ankle, foot per side (left, right)
+# The retarget's skeleton with hands: SMPL's 24 joints, then 30 finger joints (m3c.body.hands: left hand's
+# 15 in SMPL-H order, then the right's), then 10 fingertips (left, right; SMPL-H finger order), which never
+# rotate.
+SMPLH_FINGERS = ("index", "middle", "pinky", "ring", "thumb")   # m3c.body.hands.FINGERS
+FINGER_JOINTS, TIP_JOINTS_START, NUM_HAND_SKELETON = 24, 54, 64
+META_FRACTION = 0.25   # a metacarpal / palm bone's head: this far from the wrist toward its finger's knuckle
+
+
+def finger_joint(side: int, finger: str, k: int) -> int:
+    """The retarget skeleton's joint of `finger` (SMPL-H name) on side 0 (left) / 1 (right): k 1..3 its
+    joints, 4 its tip."""
+    f = SMPLH_FINGERS.index(finger)
+    return TIP_JOINTS_START + 5 * side + f if k == 4 else FINGER_JOINTS + 15 * side + 3 * f + k - 1
+
+
+def _hand_parents() -> tuple[int, ...]:
+    parents = list(_SMPL_PARENTS)
+    for side in (0, 1):
+        for finger in SMPLH_FINGERS:
+            parents += [20 + side, finger_joint(side, finger, 1), finger_joint(side, finger, 2)]
+    for side in (0, 1):
+        parents += [finger_joint(side, finger, 3) for finger in SMPLH_FINGERS]
+    return tuple(parents)
+
+
+_PARENTS = _hand_parents()   # (64,) the first 24 are SMPL's
 
 
 @dataclass(frozen=True)
@@ -94,8 +148,22 @@ class Rig:
         return np.array([index[b.parent] if b.parent is not None else -1 for b in self.bones])
 
     def mapped(self) -> dict[str, int]:
-        """bone name -> body-model joint, for the bones that sit on (and are driven by) a joint."""
+        """bone name -> joint of the retarget's skeleton (0..23 SMPL's, 24..53 the fingers', 54..63 the
+        fingertips; finger_joint), for the bones that sit on (and are driven by) a joint."""
         return {b.name: b.joint for b in self.bones if b.joint >= 0 and b.between is None}
+
+    @property
+    def finger_bones(self) -> list[str]:
+        return [b.name for b in self.bones if _is_finger(b)]
+
+    def body_only(self) -> Rig:
+        """The rig without its finger bones (for results that hold no hand poses)."""
+        bones = tuple(b for b in self.bones if not _is_finger(b))
+        return Rig(self.name, bones, self.rest_pose, self.bone_axis)
+
+
+def _is_finger(bone: Bone) -> bool:
+    return bone.joint >= FINGER_JOINTS or (bone.between is not None and bone.between[0] >= FINGER_JOINTS)
 
 
 _CENTRAL = (0, 3, 6, 9, 12, 15)   # SMPL joints on the midline; the others come in pairs, left then right
@@ -113,6 +181,31 @@ def _sides(template: list[tuple], left: str, right: str) -> list[Bone]:
     return bones
 
 
+_RIG_FINGERS = ("thumb", "index", "middle", "ring", "pinky")   # the order the rigs list them in
+
+
+def _chains(hand: str, side: int, name, metacarpal=None, tips: bool = False,
+            thumb_parent: str | None = None) -> list[Bone]:
+    """One hand's finger bones: name(finger, k) for k = 1..3 (4: the tip bone, when tips) on finger joints k;
+    metacarpal(finger) (None: none) a bone from the wrist toward that finger's knuckle (META_FRACTION of the
+    way), which the finger's first bone hangs off (not the thumb's); thumb_parent: the thumb's parent bone
+    (default the hand)."""
+    bones = []
+    order = _RIG_FINGERS if thumb_parent is None else _RIG_FINGERS[1:] + _RIG_FINGERS[:1]   # parents first
+    for finger in order:
+        parent = hand
+        meta = metacarpal(finger) if metacarpal is not None else None
+        if meta is not None:
+            bones.append(Bone(meta, hand, 20 + side, (finger_joint(side, finger, 1), META_FRACTION)))
+            parent = meta
+        if finger == "thumb" and thumb_parent is not None:
+            parent = thumb_parent
+        for k in range(1, 5 if tips else 4):
+            bones.append(Bone(name(finger, k), parent, finger_joint(side, finger, k)))
+            parent = name(finger, k)
+    return bones
+
+
 def _mixamo() -> Rig:
     p = "mixamorig:"
     core = [Bone(p + "Hips", None, 0), Bone(p + "Spine", p + "Hips", 3), Bone(p + "Spine1", p + "Spine", 6),
@@ -124,7 +217,11 @@ def _mixamo() -> Rig:
              (p + "{s}UpLeg", p + "Hips", 1, None), (p + "{s}Leg", p + "{s}UpLeg", 4, None),
              (p + "{s}Foot", p + "{s}Leg", 7, None), (p + "{s}ToeBase", p + "{s}Foot", 10, None),
              (p + "{s}Toe_End", p + "{s}ToeBase", 7, (10, 1.6))]
-    return Rig("mixamo", tuple(core + _sides(limbs, "Left", "Right")), "tpose", "y")
+    hands = []
+    for side, label in enumerate(("Left", "Right")):
+        hands += _chains(f"{p}{label}Hand", side, lambda f, k, label=label: f"{p}{label}Hand{f.title()}{k}",
+                         tips=True)
+    return Rig("mixamo", tuple(core + _sides(limbs, "Left", "Right") + hands), "tpose", "y")
 
 
 def _ue5() -> Rig:
@@ -138,7 +235,11 @@ def _ue5() -> Rig:
              ("thigh_{s}", "pelvis", 1, None), ("calf_{s}", "thigh_{s}", 4, None),
              ("foot_{s}", "calf_{s}", 7, None),
              ("ball_{s}", "foot_{s}", 10, None)]
-    return Rig("ue5", tuple(core + _sides(limbs, "l", "r")), "apose", "x")
+    hands = []
+    for side, s in enumerate(("l", "r")):
+        hands += _chains(f"hand_{s}", side, lambda f, k, s=s: f"{f}_0{k}_{s}",
+                         lambda f, s=s: None if f == "thumb" else f"{f}_metacarpal_{s}")
+    return Rig("ue5", tuple(core + _sides(limbs, "l", "r") + hands), "apose", "x")
 
 
 def _unity() -> Rig:
@@ -148,7 +249,12 @@ def _unity() -> Rig:
              ("{s}LowerArm", "{s}UpperArm", 18, None), ("{s}Hand", "{s}LowerArm", 20, None),
              ("{s}UpperLeg", "Hips", 1, None), ("{s}LowerLeg", "{s}UpperLeg", 4, None),
              ("{s}Foot", "{s}LowerLeg", 7, None), ("{s}Toes", "{s}Foot", 10, None)]
-    return Rig("unity", tuple(core + _sides(limbs, "Left", "Right")), "tpose", "y")
+    phalanges = ("Proximal", "Intermediate", "Distal")
+    hands = []
+    for side, label in enumerate(("Left", "Right")):
+        hands += _chains(f"{label}Hand", side, lambda f, k, label=label: (
+            f"{label}{'Little' if f == 'pinky' else f.title()}{phalanges[k - 1]}"))
+    return Rig("unity", tuple(core + _sides(limbs, "Left", "Right") + hands), "tpose", "y")
 
 
 def _rigify() -> Rig:
@@ -167,16 +273,24 @@ def _rigify() -> Rig:
              ("DEF-forearm.{s}", "DEF-upper_arm.{s}.001", 18, None),
              ("DEF-forearm.{s}.001", "DEF-forearm.{s}", 18, (20, 0.5)),
              ("DEF-hand.{s}", "DEF-forearm.{s}.001", 20, None)]
-    return Rig("rigify", tuple(core + _sides(limbs, "L", "R")), "tpose", "y")
+    palms = {"index": "01", "middle": "02", "ring": "03", "pinky": "04"}
+    hands = []
+    for side, s in enumerate(("L", "R")):
+        hands += _chains(f"DEF-hand.{s}", side, lambda f, k, s=s: (
+            f"DEF-thumb.0{k}.{s}" if f == "thumb" else f"DEF-f_{f}.0{k}.{s}"),
+            lambda f, s=s: f"DEF-palm.{palms[f]}.{s}" if f in palms else None,
+            thumb_parent=f"DEF-palm.01.{s}")
+    return Rig("rigify", tuple(core + _sides(limbs, "L", "R") + hands), "tpose", "y")
 
 
 def _smpl() -> Rig:
     from m3c.body.joint_names import SMPL_JOINT_NAMES
 
     names = SMPL_JOINT_NAMES
-    bones = tuple(Bone(names[j], names[p] if p >= 0 else None, j) for j, p in enumerate(_SMPL_PARENTS))
-    return Rig("smpl", bones,
-               "model", "none")
+    bones = [Bone(names[j], names[p] if p >= 0 else None, j) for j, p in enumerate(_SMPL_PARENTS)]
+    for side, label in enumerate(("left", "right")):   # SMPL-H's names, as the BVH and GLB exports have them
+        bones += _chains(f"{label}_wrist", side, lambda f, k, label=label: f"{label}_{f}{k}")
+    return Rig("smpl", tuple(bones), "model", "none")
 
 
 RIGS = {"smpl": _smpl, "mixamo": _mixamo, "ue5": _ue5, "unity": _unity, "rigify": _rigify}
@@ -185,7 +299,10 @@ RIGS = {"smpl": _smpl, "mixamo": _mixamo, "ue5": _ue5, "unity": _unity, "rigify"
 def get_rig(name: str) -> Rig:
     if name not in RIGS:
         raise ValueError(f"unknown rig {name!r}; choose one of {', '.join(RIGS)}")
-    return RIGS[name]()
+    rig = RIGS[name]()
+    if np.any(rig.parents >= np.arange(len(rig.bones))):
+        raise ValueError(f"rig {name}: a bone comes before its parent")
+    return rig
 
 
 # --- rotations ---------------------------------------------------------------------------------------------
@@ -212,8 +329,9 @@ def align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def pose_world_rotations(rest_joints: np.ndarray, pose: str) -> np.ndarray:
-    """(24, 3, 3) world rotations W_j turning the body model's rest into `pose` (tpose, apose, model)."""
-    W = np.tile(np.eye(3), (24, 1, 1))
+    """(J, 3, 3) world rotations W_j turning the body model's rest (J = 24 joints, or 64 with the hands)
+    into `pose` (tpose, apose, model). The fingers keep the rest hand's shape: they turn with their wrist."""
+    W = np.tile(np.eye(3), (len(rest_joints), 1, 1))
     if pose == "model":
         return W
     if pose not in ("tpose", "apose"):
@@ -228,18 +346,20 @@ def pose_world_rotations(rest_joints: np.ndarray, pose: str) -> np.ndarray:
         hip, knee, ankle, _ = _LEGS[side]
         W[hip] = align(J[knee] - J[hip], np.array([0.0, -1.0, 0.0]))
         W[knee] = align(J[ankle] - J[knee], np.array([0.0, -1.0, 0.0]))
+    for j in range(24, len(W)):
+        W[j] = W[_PARENTS[j]]
     return W
 
 
 def forward_kinematics(local: np.ndarray, rest_joints: np.ndarray, root: np.ndarray) -> tuple[np.ndarray,
                                                                                             np.ndarray]:
-    """Body model: (n, 24, 3, 3) local rotations, (24, 3) rest joints, (n, 3) root positions ->
-    (world rotations (n, 24, 3, 3), world joints (n, 24, 3))."""
+    """Body model: (n, J, 3, 3) local rotations, (J, 3) rest joints, (n, 3) root positions ->
+    (world rotations (n, J, 3, 3), world joints (n, J, 3)); J = 24 (SMPL) or 64 (with the hands)."""
     G = np.empty_like(local)
     x = np.empty(local.shape[:2] + (3,))
     G[:, 0], x[:, 0] = local[:, 0], root
-    for j in range(1, 24):
-        p = _SMPL_PARENTS[j]
+    for j in range(1, local.shape[1]):
+        p = _PARENTS[j]
         G[:, j] = G[:, p] @ local[:, j]
         x[:, j] = x[:, p] + G[:, p] @ (rest_joints[j] - rest_joints[p])
     return G, x
@@ -247,14 +367,14 @@ def forward_kinematics(local: np.ndarray, rest_joints: np.ndarray, root: np.ndar
 
 def local_from_world(G: np.ndarray) -> np.ndarray:
     local = G.copy()
-    for j in range(1, 24):
-        local[:, j] = np.swapaxes(G[:, _SMPL_PARENTS[j]], -1, -2) @ G[:, j]
+    for j in range(1, G.shape[1]):
+        local[:, j] = np.swapaxes(G[:, _PARENTS[j]], -1, -2) @ G[:, j]
     return local
 
 
 def smooth_motion(local: np.ndarray, root: np.ndarray, fps: float,
                   level: str) -> tuple[np.ndarray, np.ndarray]:
-    """Savitzky-Golay (order 2, SMOOTHING_SECONDS[level] windows) on quaternions of (n, 24, 3, 3) local
+    """Savitzky-Golay (order 2, SMOOTHING_SECONDS[level] windows) on quaternions of (n, J, 3, 3) local
     rotations (hemisphere-continuous, renormalised) and on the (n, 3) root path. Short tracks get the longest
     odd window they allow (none under 5 frames)."""
     if level not in SMOOTHING_SECONDS:
@@ -378,18 +498,19 @@ def _rest(rig: Rig, rest_joints: np.ndarray, W: np.ndarray, rest_mesh: np.ndarra
             drivers[b], model_points[b] = -1, J[0]
         elif bone.between is None:
             drivers[b], model_points[b] = bone.joint, J[bone.joint]
-            if parents[b] >= 0 and drivers[parents[b]] != _SMPL_PARENTS[bone.joint]:
+            if parents[b] >= 0 and drivers[parents[b]] != _PARENTS[bone.joint]:
                 raise ValueError(f"rig {rig.name}: {bone.name}'s parent is not driven by its joint's parent")
         else:
             other, t = bone.between
             drivers[b] = drivers[parents[b]]
             model_points[b] = J[bone.joint] + t * (J[other] - J[bone.joint])
     # The rest mesh: linear blend skinning of the body model's rest mesh by [W_j | P_j - W_j J_j].
-    P_joint = np.empty((24, 3))
+    P_joint = np.empty((len(J), 3))
     P_joint[0] = J[0]
-    for j in range(1, 24):
-        p = _SMPL_PARENTS[j]
+    for j in range(1, len(J)):
+        p = _PARENTS[j]
         P_joint[j] = P_joint[p] + W[p] @ (J[j] - J[p])
+    skin = np.concatenate([skin, np.zeros((len(skin), len(J) - skin.shape[1]))], axis=1)   # tips: none
     per_joint = np.einsum("jab,vjb->vja", W, rest_mesh[:, None, :] - J[None]) + P_joint[None]
     vertices = np.einsum("vj,vja->va", skin, per_joint)
     heads = np.empty_like(model_points)
@@ -404,15 +525,19 @@ def _rest(rig: Rig, rest_joints: np.ndarray, W: np.ndarray, rest_mesh: np.ndarra
     shift = np.array([P_joint[0, 0], vertices[:, 1].min(), P_joint[0, 2]])
     heads, vertices = heads - shift, vertices - shift
     heads[drivers == -1] = [0.0, 0.0, 0.0]   # a floor root (UE5's root) at the origin
-    # Bone frames: primary axis to the first child's head, a leaf continuing its parent's direction.
+    # Bone frames: primary axis to the first child's head (a hand's: to its middle finger's bone), a leaf
+    # continuing its parent's direction.
+    middle = {finger_joint(side, "middle", 1) for side in (0, 1)}
     frames = np.empty((len(rig.bones), 3, 3))
     for b in range(len(rig.bones)):
-        children = np.flatnonzero(parents == b)
+        children = list(np.flatnonzero(parents == b))
         if drivers[b] == -1:
             frames[b] = np.eye(3)
             continue
+        aim = [c for c in children if rig.bones[c].joint in middle
+               or (rig.bones[c].between is not None and rig.bones[c].between[0] in middle)]
         if len(children):
-            direction = heads[children[0]] - heads[b]
+            direction = heads[(aim or children)[0]] - heads[b]
         else:
             direction = heads[b] - heads[parents[b]]
         bone = rig.bones[b]
@@ -425,10 +550,10 @@ def _rest(rig: Rig, rest_joints: np.ndarray, W: np.ndarray, rest_mesh: np.ndarra
         if bone.joint >= 0 and bone.between is None:
             owner[bone.joint] = b
     weights = np.zeros((len(rest_mesh), len(rig.bones)))
-    for j in range(24):
+    for j in range(skin.shape[1]):
         k = j
         while k not in owner:
-            k = _SMPL_PARENTS[k]
+            k = _PARENTS[k]
         weights[:, owner[k]] += skin[:, j]
     return heads, drivers, frames, vertices, weights
 
@@ -436,14 +561,24 @@ def _rest(rig: Rig, rest_joints: np.ndarray, W: np.ndarray, rest_mesh: np.ndarra
 def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_positions: np.ndarray,
              fps: float, rest_mesh: np.ndarray, skin: np.ndarray, contacts: np.ndarray | None = None,
              root_motion: str = "performer", smoothing: str = "off", foot_lock: bool = True,
-             reference_pose: str = "none", frames: np.ndarray | None = None) -> RigMotion:
+             reference_pose: str = "none", frames: np.ndarray | None = None, fingers=None) -> RigMotion:
     """The motion of one track on `rig`.
 
     rest_joints (24, 3): the body model's rest joints at the track's betas; pose (n, 24, 3) axis-angle (world
     root orientation, then the body's local rotations); root_positions (n, 3): the root joint in the world;
     rest_mesh (V, 3) the body model's rest vertices at the betas, skin (V, 24) its weights; contacts (n, 4)
-    results.npz's contact probabilities (None: no foot locking)."""
+    results.npz's contact probabilities (None: no foot locking).
+
+    fingers: the track's finger skeleton (m3c.export.source.FingerSkeleton: rest (30, 3) finger joints, tips
+    (10, 3), pose (n, 30, 3) local axis-angle, zeros on frames without a hand); skin is then (V, 54), the
+    hand vertices weighted on the finger joints (m3c.export.source.finger_skin). None: the rig without its
+    finger bones."""
     rig = get_rig(rig) if isinstance(rig, str) else rig
+    if fingers is None:
+        rig = rig.body_only()
+    elif skin.shape[1] != TIP_JOINTS_START:
+        raise ValueError(f"with fingers the skinning weights need {TIP_JOINTS_START} columns (24 body, 30 "
+                         f"finger joints), got {skin.shape[1]}")
     if root_motion not in ROOT_MOTIONS:
         raise ValueError(f"unknown root motion {root_motion!r}; choose one of {', '.join(ROOT_MOTIONS)}")
     if reference_pose not in REFERENCE_POSES:
@@ -451,8 +586,13 @@ def retarget(rig: Rig | str, rest_joints: np.ndarray, pose: np.ndarray, root_pos
                          f"{', '.join(REFERENCE_POSES)}")
     n = len(pose)
     frames = np.arange(n) if frames is None else np.asarray(frames)
-    J = rest_joints
-    local = Rotation.from_rotvec(pose.reshape(-1, 3)).as_matrix().reshape(n, 24, 3, 3)
+    J = np.asarray(rest_joints, dtype=np.float64)
+    if fingers is not None:
+        J = np.concatenate([J, np.asarray(fingers.rest, np.float64), np.asarray(fingers.tips, np.float64)])
+        if len(fingers.pose) != n:
+            raise ValueError(f"{len(fingers.pose)} frames of finger poses for {n} frames of body poses")
+        pose = np.concatenate([pose, fingers.pose, np.zeros((n, 10, 3))], axis=1)
+    local = Rotation.from_rotvec(pose.reshape(-1, 3)).as_matrix().reshape(n, len(J), 3, 3)
     root = np.array(root_positions, dtype=np.float64)
     if root_motion == "in-place":
         root[:, [0, 2]] = 0.0

@@ -30,7 +30,8 @@ class TrackMotion:
     pose: np.ndarray            # (n, 24, 3) axis-angle: world root orientation, then body_pose
     transl: np.ndarray          # (n, 3) SMPL translation in the world (metres)
     world_joints: np.ndarray    # (n, 24, 3) results.npz's joints (metres)
-    # (n, 2, 15, 3) left, right SMPL-H finger poses (zeros where none was fitted); None: the results hold none
+    # (n, 2, 15, 3) left, right SMPL-H finger poses (zeros: the rest hand, where none was fitted); None: the
+    # body model has no hands, or the hands node did not run (--no-hands) and the results hold none
     hand_pose: np.ndarray | None = None
     hands: object = None        # m3c.body.hands.HandModel of the body model, with hand_pose
 
@@ -166,7 +167,9 @@ def load_source(folder: str | Path, tracks=None, body_model: str | Path | None =
         if hands is not None and "left_hand_pose" in arrays:
             hand_pose = np.stack([arrays["left_hand_pose"][p, frames], arrays["right_hand_pose"][p, frames]],
                                  axis=1).astype(np.float64)
-            hand_pose = np.nan_to_num(hand_pose) if np.isfinite(hand_pose).any() else None
+            # The rest hand where none was fitted; no fingers at all when the hands node did not run.
+            hands_ran = bool(summary.get("hands", {}).get("enabled"))
+            hand_pose = np.nan_to_num(hand_pose) if hands_ran or np.isfinite(hand_pose).any() else None
         motions.append(TrackMotion(int(arrays["track_ids"][p]), p, frames, betas, rest, pose,
                                    arrays["world_transl"][p, frames].astype(np.float64),
                                    arrays["world_joints"][p, frames].astype(np.float64), hand_pose,
@@ -203,3 +206,17 @@ def finger_skeleton(track: TrackMotion) -> FingerSkeleton | None:
     return FingerSkeleton(tuple(names), np.asarray(parents), joints.reshape(30, 3),
                           track.hand_pose.reshape(len(track.frames), 30, 3), tips.reshape(10, 3),
                           np.asarray(tip_parents))
+
+
+def finger_skin(track: TrackMotion, weights: np.ndarray) -> np.ndarray:
+    """(V, 54) skinning weights with the fingers: the body model's (V, 24) `weights`, each hand vertex's weight
+    on its hand joint (22, 23) moved onto the 15 finger joints (columns 24.., finger_skeleton's order) as the
+    track's hand model weights it."""
+    from m3c.body.hands import HAND_JOINTS, SIDES
+
+    out = np.concatenate([np.asarray(weights, dtype=np.float64), np.zeros((len(weights), 30))], axis=1)
+    for s, side in enumerate(SIDES):
+        ids = track.hands.vertex_ids[side]
+        out[ids, HAND_JOINTS[side]] = 0.0
+        out[ids, 24 + 15 * s:39 + 15 * s] = track.hands.weights[side]
+    return out
