@@ -1,6 +1,8 @@
-"""docs/images/rig_mixamo.png: a result's motion retargeted onto the Mixamo skeleton (`--rig mixamo`), drawn
-with matplotlib: the rig's rest pose (T pose, the performer's bone lengths) with its bone names, and the
-retargeted skeleton at a few frames along its metric world path, planted (foot-locked) feet marked.
+"""docs/images/rig_mixamo.png: a result's motion retargeted onto the Mixamo skeleton (`--rig mixamo`), rendered
+by Blender itself (bpy headless, Cycles on the CPU): the rig's GLB (T reference pose, `standard` smoothing)
+imported into Blender, its T rest pose (the performer's bone lengths) and a few frames of the motion side by
+side, each turned to face the viewer, the skinned mesh translucent over the bones (octahedra: body bones
+orange, finger bones blue), and a close-up of the T pose's left hand and its finger bones.
 
     PYTHONPATH=python python3 tools/render_rig.py OUT_DIR [--rig mixamo] [--png docs/images/rig_mixamo.png]
 """
@@ -8,84 +10,54 @@ retargeted skeleton at a few frames along its metric world path, planted (foot-l
 from __future__ import annotations
 
 import argparse
+import tempfile
 from pathlib import Path
 
-import matplotlib
+import cv2
+import numpy as np
+from m3c.export import export_results, load_source
+from m3c.export.blender import run_blender
+from m3c.io.atomic import atomic_path
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from m3c.export import load_source  # noqa: E402
-from m3c.export.rig_files import track_rig_motion  # noqa: E402
-
-LABELS = ("Hips", "Spine2", "Head", "LeftShoulder", "LeftHand", "LeftUpLeg", "LeftLeg", "LeftFoot")
-
-
-def _bones(ax, points, parents, colour, width=1.6):
-    for b, p in enumerate(parents):
-        if p >= 0:
-            ax.plot(*points[[p, b]].T, color=colour, lw=width, solid_capstyle="round")
+HAND_BONE = {"mixamo": "mixamorig:LeftHand", "ue5": "hand_l", "unity": "LeftHand", "rigify": "DEF-hand.L",
+             "smpl": "left_wrist"}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("folder")
-    parser.add_argument("--rig", default="mixamo")
+    parser.add_argument("--rig", default="mixamo", choices=sorted(HAND_BONE))
     parser.add_argument("--png", default="docs/images/rig_mixamo.png")
-    parser.add_argument("--keys", type=int, default=6, help="frames drawn along the path")
+    parser.add_argument("--keys", type=int, default=4, help="frames of the motion shown beside the rest pose")
+    parser.add_argument("--size", default="900x420", help="the full view's width x height (pixels)")
     args = parser.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
     source = load_source(args.folder)
     track = source.tracks[0]
-    motion = track_rig_motion(source, track, args.rig, smoothing="standard")
-    names = [n.split(":")[-1] for n in motion.names]
-    fig = plt.figure(figsize=(12, 5.2))
-    rest = fig.add_subplot(1, 3, 1, projection="3d")
-    heads = motion.rest_positions[:, [0, 2, 1]]   # matplotlib's z up: (x, z, y) of y-up points
-    _bones(rest, heads, motion.parents, "0.2")
-    rest.scatter(*heads.T, s=6, color="tab:red")
-    for name in LABELS:
-        if name in names:
-            b = names.index(name)
-            rest.text(*heads[b], " " + name, fontsize=6)
-    rest.set_title(f"{args.rig} rest pose (T), the performer's bone lengths", fontsize=9)
-    rest.view_init(elev=0, azim=-90)
-    _square(rest, heads)
-    rest.set_yticks([])   # the depth axis, seen end on
+    n = len(track.frames)
+    # Key 0 is the T reference pose; the motion's keys follow (1 .. n), the shown ones spread over the track.
+    keys = [0] + [1 + int(k) for k in np.linspace(0.1 * (n - 1), 0.9 * (n - 1), args.keys).round()]
+    with tempfile.TemporaryDirectory(prefix="m3c-rig-render-") as tmp:
+        glb, = export_results(args.folder, "glb", Path(tmp) / "rig", tracks=[track.track_id], rig=args.rig,
+                              smoothing="standard", reference_pose="tpose")
+        png = Path(tmp) / "rig.png"
+        run_blender("rig", glb, repr(source.fps), ",".join(map(str, keys)), png, HAND_BONE[args.rig], width,
+                    height)
+        full, hand = cv2.imread(str(png)), cv2.imread(f"{png}.hand.png")
+    image = np.concatenate([full, np.full((height, 6, 3), 255, np.uint8), hand], axis=1)
+    caption = (f"{args.rig} rig in Blender: T rest pose, then {args.keys} of {n} frames "
+               f"(track {track.track_id}); right: the left hand's finger bones")
+    cv2.putText(image, caption, (10, 22), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (40, 40, 40), 1, cv2.LINE_AA)
+    out = Path(args.png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp_png:
+        from PIL import Image
 
-    path = fig.add_subplot(1, 3, (2, 3), projection="3d")
-    world = motion.world_positions[:, :, [0, 2, 1]]
-    keys = np.linspace(0, len(world) - 1, args.keys).round().astype(int)
-    colours = plt.cm.viridis(np.linspace(0.0, 0.9, len(keys)))
-    feet = [names.index("LeftFoot"), names.index("RightFoot")]
-    for k, colour in zip(keys, colours):
-        _bones(path, world[k], motion.parents, colour)
-        for side, b in enumerate(feet):
-            if motion.planted[k, side]:
-                path.scatter(*world[k, b], s=22, color="k", marker="s")
-    path.plot(*world[:, names.index("Hips")].T, color="0.5", lw=0.8, ls="--")
-    path.set_title(f"retargeted motion, {len(keys)} of {len(world)} frames (world metres; squares: locked "
-                   "feet)", fontsize=9)
-    travel = world[-1, names.index("Hips")] - world[0, names.index("Hips")]
-    path.view_init(elev=0, azim=np.degrees(np.arctan2(travel[1], travel[0])) - 90.0)   # side on to the path
-    _square(path, world[keys].reshape(-1, 3))
-    (path.set_xticks if abs(travel[1]) > abs(travel[0]) else path.set_yticks)([])   # the depth axis
-    fig.tight_layout()
-    Path(args.png).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.png, dpi=110)
-    print(args.png)
-
-
-def _square(ax, points):
-    lo, hi = points.min(axis=0), points.max(axis=0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
-    for setter, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
-        setter(c - half, c + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_proj_type("ortho")
-    ax.set_xlabel("x")
-    ax.set_ylabel("z")
-    ax.set_zlabel("y (up)")
+        # A 256-colour palette keeps the picture small (the README's images stay under 300 KB).
+        Image.fromarray(image[:, :, ::-1]).quantize(256, dither=Image.Dither.NONE).save(tmp_png, format="PNG",
+                                                                                          optimize=True)
+    print(out, f"{out.stat().st_size // 1024} KB")
 
 
 if __name__ == "__main__":
