@@ -183,6 +183,44 @@ def test_glb_bones_land_on_the_world_joints(results, tmp_path, rig):
             assert error < 1e-4, (name, error)   # float32 storage: far below the centimetre asked
 
 
+def test_hands_never_seen_give_rest_fingers(tmp_path, monkeypatch):
+    """The hands node ran but saw no hand (the bundled walker): every rig still has its fingers, at rest."""
+    pytest.importorskip("pygltflib", reason="GLB export needs pygltflib (pip install m3c[export])")
+    import export_scene
+
+    seen = export_scene.make_hands
+
+    def unseen(tracks, seed):
+        hands = seen(tracks, seed)
+        for track in hands["tracks"]:
+            for key in ("hand_pose", "wrist_correction", "keypoints"):
+                track[key][:] = np.nan
+        return hands
+    monkeypatch.setattr(export_scene, "make_hands", unseen)
+    blind = export_scene.write_results(tmp_path / "out", default_body_model(), hands=True)
+    source = load_source(blind, tracks=[4])
+    track = source.tracks[0]
+    assert not np.isfinite(source.arrays["left_hand_pose"]).any()
+    np.testing.assert_array_equal(track.hand_pose, 0.0)
+    path, = export_results(blind, "glb", tmp_path / "ue5", tracks=[4], rig="ue5")
+    world = _glb_world(path)[0]
+    assert set(get_rig("ue5").finger_bones) <= set(world)
+    from m3c.body.hands import pose_hands
+    from scipy.spatial.transform import Rotation as R_
+
+    n = len(track.frames)
+    local = R_.from_rotvec(track.pose.reshape(-1, 3)).as_matrix().reshape(n, 24, 3, 3)
+    chain = []
+    for j, p in enumerate(source.parents):
+        chain.append(local[:, j] if p < 0 else chain[p] @ local[:, j])
+    rest = pose_hands(track.hands, track.betas, np.stack([chain[20], chain[21]], 1),
+                      track.world_joints[:, [20, 21]], np.zeros((n, 2, 15, 3)))
+    for name, joint in get_rig("ue5").mapped().items():
+        if joint >= 24:
+            s, k = divmod(joint - 24, 15)
+            assert np.linalg.norm(world[name] - rest.joints[:, s, k], axis=-1).max() < 1e-4, name
+
+
 def test_rigs_without_hand_poses_have_no_finger_bones(tmp_path):
     """Results without hand poses (an SMPL body, --no-hands): the rigs' body bones only, on the world
     joints."""
