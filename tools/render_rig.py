@@ -1,8 +1,9 @@
-"""docs/images/rig_mixamo.png: a result's motion retargeted onto the Mixamo skeleton (`--rig mixamo`), rendered
-by Blender itself (bpy headless, Cycles on the CPU): the rig's GLB (T reference pose, `standard` smoothing)
-imported into Blender, its T rest pose (the performer's bone lengths) and a few frames of the motion side by
-side, each turned to face the viewer, the skinned mesh translucent over the bones (octahedra: body bones
-orange, finger bones blue), and a close-up of the T pose's left hand and its finger bones.
+"""docs/images/rig_mixamo.png: a result's motion retargeted onto the Mixamo skeleton (`--rig mixamo`),
+rendered by Blender itself (bpy headless, Cycles on the CPU): the rig's GLB (T reference pose, `standard`
+smoothing) imported into Blender, its T rest pose (the performer's bone lengths) and a few frames of the
+motion side by side (each turned so that its hips' left-right line lies across the view), the skinned mesh
+translucent over the bones (octahedra: body bones orange, finger bones blue), and a close-up of the T pose's
+left hand and its finger bones.
 
     PYTHONPATH=python python3 tools/render_rig.py OUT_DIR [--rig mixamo] [--png docs/images/rig_mixamo.png]
 """

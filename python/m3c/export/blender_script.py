@@ -4,8 +4,8 @@ numpy<2 and lives in its own environment. Self-contained: it imports nothing fro
     python blender_script.py fbx    GLB FBX FPS W H             the GLB converted by Blender's FBX exporter
     python blender_script.py sample FILE FPS FIRST LAST OUT     imported joints and camera per frame (JSON)
     python blender_script.py render GLB FPS FRAME PNG           a still of the imported GLB (Cycles, CPU)
-    python blender_script.py rig GLB FPS FRAMES PNG HAND W H    a rig's poses side by side, and a close-up
-                                                                of bone HAND (Cycles, CPU; PNG and PNG.hand.png)
+    python blender_script.py rig GLB FPS FRAMES PNG HAND W H    a rig's poses side by side and a close-up
+                                                                of bone HAND (Cycles; PNG, PNG.hand.png)
 
 Blender's importers turn y-up files into its z-up world: Blender (x, y, z) = file (x, -z, y).
 """

@@ -1,11 +1,16 @@
-"""The hands node: each final track's hands, found by MediaPipe Hands around its wrists (m3c.perception.hands)
-and fitted per frame to the final body's wrists (m3c.perception.hand_fit), smoothed over time.
+"""The hands node: each final track's hands, found by MediaPipe Hands around its wrists
+(m3c.perception.hands), fitted per frame to the final body's wrists (m3c.perception.hand_fit), then over
+the track's whole time (m3c.perception.hand_track: every frame's fingers and wrist correction in one solve
+per hand and run of frames, reprojection of the 21 landmarks through the world cameras, temporal
+smoothness, joint limits; the body fixed). Gaps of up to TrackWeights.max_gap frames inside a run are
+interpolated by that solve.
 
 Output hands: enabled, reason (why it is off, or None), seconds, frames (frames with a person), hand_frames
 (hands fitted), tracks (per final track: track_id, first_frame, num_frames, keypoints n x 2 x 21 x 3 (u, v,
 confidence; MediaPipe's order; NaN where no hand), hand_pose n x 2 x 15 x 3 (SMPL-H finger pose, NaN where
 none), wrist_correction n x 2 x 3 (the wrists' refined rotation: world R_wrist @ exp(c), NaN where none)).
-The world optimization does not see the hands: the fit runs on its result.
+The body's world optimization does not see the hands: the hand solve runs on its result and leaves its body
+(body_pose keeps the optimizer's wrists; the wrist correction only serves the finger fit).
 """
 
 from __future__ import annotations
@@ -39,11 +44,16 @@ class HandsNode(Node):
     nonfinite_outputs = ("hands.tracks[].keypoints", "hands.tracks[].hand_pose",
                          "hands.tracks[].wrist_correction")
 
+    # 2: the track-level hand solve (m3c.perception.hand_track) replaces the Gaussian smoothing by default.
+    version = "2"
+
     @dataclass
     class Config:
         enabled: bool = True  # --no-hands: false
         min_detection_confidence: float = 0.4  # MediaPipe's palm detector
-        smoothing_frames: float = 1.5  # Gaussian sigma of the temporal smoothing (frames); 0: none
+        track_fit: bool = True  # the fingers over each track's whole time (m3c.perception.hand_track)
+        # Without track_fit: Gaussian sigma of the per-frame fits' temporal smoothing (frames); 0: none
+        smoothing_frames: float = 1.5
 
     def run(self, ctx, inputs):
         if not self.config.enabled:
@@ -68,6 +78,7 @@ def track_hands(ctx, model, hand, video: dict, camera: dict, result: dict, confi
 
     from m3c.body.hands import SIDES, wrist_frames
     from m3c.perception.hand_fit import NUM_DOFS, SideModel, dofs_to_pose, fit_hand, smooth_dofs
+    from m3c.perception.hand_track import fit_hand_track
     from m3c.perception.hands import MediaPipeHands, detect_hands
 
     start = time.time()
@@ -113,11 +124,15 @@ def track_hands(ctx, model, hand, video: dict, camera: dict, result: dict, confi
     for track, s in zip(tracks, state):
         hand_pose = np.full((s["n"], 2, 15, 3), np.nan)
         correction = np.full((s["n"], 2, 3), np.nan)
+        span = slice(s["first"], s["first"] + s["n"])
         for side in range(2):
-            found = np.isfinite(s["dofs"][:, side, 0])
-            hand_frames += int(found.sum())
             values = s["dofs"][:, side]
-            if config.smoothing_frames > 0:
+            if config.track_fit:
+                values = fit_hand_track(s["sides"][side], s["landmarks"][:, side], s["rotation"][:, side],
+                                        s["position"][:, side], world_from_cam[span], intrinsics, values)
+            found = np.isfinite(values[:, 0])
+            hand_frames += int(found.sum())
+            if not config.track_fit and config.smoothing_frames > 0:
                 values = smooth_dofs(np.nan_to_num(values), found, config.smoothing_frames)
             hand_pose[found, side] = dofs_to_pose(values[found, :NUM_DOFS], s["sides"][side].axes)
             correction[found, side] = values[found, NUM_DOFS:]
