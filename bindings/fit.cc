@@ -10,6 +10,7 @@
 #include "bindings/numpy_util.h"
 #include "body/body_model.h"
 #include "fit/frame_fit.h"
+#include "nn/vposer.h"
 
 namespace m3c::bindings {
 
@@ -20,7 +21,7 @@ using namespace m3c::fit;
 py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor& regressor,
                      const py::handle& keypoints_obj, const py::handle& intrinsics_obj,
                      const py::handle& keypoints3d_obj, const py::handle& restart_obj, const py::handle& times_obj,
-                     const FitOptions& options) {
+                     const FitOptions& options, const nn::VPoser* pose_prior) {
   const py::ssize_t K = regressor.num_keypoints();
   const auto keypoints = AsArray<double>(keypoints_obj, "keypoints");
   if (keypoints.ndim() != 3 || keypoints.shape(1) != K || keypoints.shape(2) != 3) {
@@ -61,7 +62,7 @@ py::dict FitSequence(const body::BodyModel& model, const body::KeypointRegressor
     const double* c = intrinsics.data() + (shared_intrinsics ? 0 : 4 * i);
     o.intrinsics = {c[0], c[1], c[2], c[3]};
   }
-  const BodyFitter fitter(&model, &regressor, options);
+  const BodyFitter fitter(&model, &regressor, options, pose_prior);
   std::vector<FrameFitResult> results;
   {
     py::gil_scoped_release release;
@@ -113,6 +114,7 @@ void BindFit(py::module_& m) {
       .def_readwrite("keypoints3d_weight", &FitOptions::keypoints3d_weight)
       .def_readwrite("keypoints3d_sigma", &FitOptions::keypoints3d_sigma)
       .def_readwrite("pose_prior_weight", &FitOptions::pose_prior_weight)
+      .def_readwrite("vposer_weight", &FitOptions::vposer_weight)
       .def_readwrite("shape_prior_weight", &FitOptions::shape_prior_weight)
       .def_readwrite("temporal_pose_weight", &FitOptions::temporal_pose_weight)
       .def_readwrite("temporal_betas_weight", &FitOptions::temporal_betas_weight)
@@ -130,13 +132,15 @@ void BindFit(py::module_& m) {
       .def_readwrite("right_side", &FitOptions::right_side);
   m.def("fit_body_sequence", &FitSequence, py::arg("model"), py::arg("regressor"), py::arg("keypoints"),
         py::arg("intrinsics"), py::arg("keypoints3d"), py::arg("restart"), py::arg("times"), py::arg("options"),
+        py::arg("pose_prior") = nullptr,
         R"doc(Fits the body to one track's frames in order, each warm-started from the previous one.
 
 keypoints: (N, K, 3) u, v in pixels and confidence (0 = missing); intrinsics: (4,) or (N, 4) fx, fy, cx, cy;
 keypoints3d: None or (N, K, 4) x, y, z in metres (camera axes, any origin) and confidence; restart: None or
 (N,) bool, True where the frame starts cold. Returns a dict: transl (N, 3) camera frame metres, root_orient
 (N, 3), body_pose (N, J-1, 3), betas (N, B), reprojection_error_px (N), keypoint_error_px (N, K),
-num_keypoints, iterations, cost, warm_started (N) and status (list of N strings).)doc");
+num_keypoints, iterations, cost, warm_started (N) and status (list of N strings). pose_prior: None or a VPoser
+(exported weights) whose latent norm options.vposer_weight weighs.)doc");
 }
 
 }  // namespace m3c::bindings

@@ -7,6 +7,7 @@
 #include <Eigen/SVD>
 
 #include "body/kinematics.h"
+#include "motion/vposer_term.h"
 #include "util/check.h"
 
 namespace m3c::fit {
@@ -40,16 +41,21 @@ Eigen::Matrix3d Kabsch(const std::vector<Eigen::Vector3d>& p, const std::vector<
 
 }  // namespace
 
-BodyFitter::BodyFitter(const body::BodyModel* model, const body::KeypointRegressor* regressor, FitOptions options)
-    : model_(model), regressor_(regressor), options_(std::move(options)) {
+BodyFitter::BodyFitter(const body::BodyModel* model, const body::KeypointRegressor* regressor, FitOptions options,
+                       const nn::VPoser* vposer)
+    : model_(model), regressor_(regressor), options_(std::move(options)), vposer_(vposer) {
   M3C_CHECK(model && regressor) << "the fitter needs a body model and a keypoint regressor";
   M3C_CHECK(regressor->num_vertices() == model->num_vertices() && regressor->num_joints() == model->num_joints())
       << "keypoint regressor does not match the body model";
   const FitOptions& o = options_;
   M3C_CHECK(o.robust_sigma_px > 0 && o.keypoints3d_sigma > 0) << "robust scales must be > 0";
   M3C_CHECK(o.keypoints3d_weight >= 0 && o.pose_prior_weight >= 0 && o.shape_prior_weight >= 0 &&
-            o.temporal_pose_weight >= 0 && o.temporal_betas_weight >= 0 && o.temporal_transl_weight >= 0)
+            o.temporal_pose_weight >= 0 && o.temporal_betas_weight >= 0 && o.temporal_transl_weight >= 0 &&
+            o.vposer_weight >= 0)
       << "term weights must be >= 0";
+  M3C_CHECK(!vposer || 3 * vposer->num_joints() <= 3 * (model->num_joints() - 1))
+      << "the pose prior has " << vposer->num_joints() << " body joints, more than the body model's "
+      << model->num_joints() - 1;
   M3C_CHECK(o.min_depth > 0 && o.max_iterations >= 1 && o.min_keypoints >= 2)
       << "min_depth must be > 0, max_iterations >= 1 and min_keypoints >= 2";
   M3C_CHECK(!std::isnan(o.max_limb_from_3d_m))
@@ -216,6 +222,9 @@ void BodyFitter::AddTerms(const FrameObservation& obs, const Masked& m, const Bo
     problem.AddResidualBlock(
         new WeightedPriorCost(Eigen::VectorXd::Zero(P), Eigen::VectorXd::Constant(P, options_.pose_prior_weight)),
         nullptr, b);
+  }
+  if (vposer_ && options_.vposer_weight > 0) {
+    problem.AddResidualBlock(new motion::VPoserLatentCost(vposer_, P, {1.0}, options_.vposer_weight), nullptr, b);
   }
   if (previous && options_.temporal_pose_weight > 0) {
     problem.AddResidualBlock(

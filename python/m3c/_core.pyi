@@ -881,6 +881,12 @@ class BodyFitOptions:
     @torso.setter
     def torso(self, arg0: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex]) -> None:
         ...
+    @property
+    def vposer_weight(self) -> float:
+        ...
+    @vposer_weight.setter
+    def vposer_weight(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
 class Texture:
     """
     A repeating RGB texture with its mip chain (trilinear lookups). texture: (H, W, 3) float, H and W powers of two.
@@ -955,7 +961,7 @@ def default_optimizer_config() -> OptimizerConfig:
     """
     The thesis's staged recipe with SLAHMR's weights (REFERENCE.md B).
     """
-def fit_body_sequence(model: BodyModel, regressor: KeypointRegressor, keypoints: typing.Any, intrinsics: typing.Any, keypoints3d: typing.Any, restart: typing.Any, times: typing.Any, options: BodyFitOptions) -> dict:
+def fit_body_sequence(model: BodyModel, regressor: KeypointRegressor, keypoints: typing.Any, intrinsics: typing.Any, keypoints3d: typing.Any, restart: typing.Any, times: typing.Any, options: BodyFitOptions, pose_prior: VPoser = None) -> dict:
     """
     Fits the body to one track's frames in order, each warm-started from the previous one.
     
@@ -963,7 +969,8 @@ def fit_body_sequence(model: BodyModel, regressor: KeypointRegressor, keypoints:
     keypoints3d: None or (N, K, 4) x, y, z in metres (camera axes, any origin) and confidence; restart: None or
     (N,) bool, True where the frame starts cold. Returns a dict: transl (N, 3) camera frame metres, root_orient
     (N, 3), body_pose (N, J-1, 3), betas (N, B), reprojection_error_px (N), keypoint_error_px (N, K),
-    num_keypoints, iterations, cost, warm_started (N) and status (list of N strings).
+    num_keypoints, iterations, cost, warm_started (N) and status (list of N strings). pose_prior: None or a VPoser
+    (exported weights) whose latent norm options.vposer_weight weighs.
     """
 def fit_plane(points: typing.Any, up: typing.Any, options: PlaneFitOptions) -> tuple:
     """

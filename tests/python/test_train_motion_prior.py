@@ -13,8 +13,13 @@ from m3c.eval.benchmark import shipped_clip_paths
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import save_npz_atomic
 from m3c.models import humor_state as hs
-from m3c.training.motion_prior import (MotionPrior, MotionPriorConfig, clip_states, load_motion_prior,
-                                       one_step_errors, pairs, train_motion_prior)
+from m3c.models.export import export_weights
+from m3c.models.humor import transition_nll
+from m3c.nn import HumorPrior
+from m3c.training.motion_prior import (CHANGE_DIM, MotionPrior, MotionPriorConfig, clip_states,
+                                       constant_velocity_change, load_motion_prior, one_step_errors, pairs,
+                                       planted_sliding, rollout_figures, start_states, state_change,
+                                       train_motion_prior)
 
 
 def _clips():
@@ -41,14 +46,15 @@ def test_states_are_in_the_ground_frame_with_contacts(open_model):
 
 
 def test_train_motion_prior_lowers_the_loss_and_resumes_exactly(open_model, tmp_path, one_torch_thread):
-    config = MotionPriorConfig(steps=40, batch_size=64, hidden=64, history_every=10, checkpoint_minutes=100.0)
+    config = MotionPriorConfig(steps=80, batch_size=64, hidden=64, lr=2e-3, history_every=10,
+                               checkpoint_minutes=100.0)
     data = pairs(_clips()[:1], open_model, config)
     whole = train_motion_prior(data, tmp_path / "whole", config, log=None)
     losses = [h["loss"] for h in whole["history"]]
-    assert len(losses) == 4 and losses[-1] < 0.8 * losses[0]
-    train_motion_prior(data, tmp_path / "split", config, log=None, stop_after=15)
+    assert len(losses) == 8 and losses[-1] < 0.8 * losses[0]
+    train_motion_prior(data, tmp_path / "split", config, log=None, stop_after=35)
     resumed = train_motion_prior(data, tmp_path / "split", config, resume=True, log=None)
-    assert resumed["steps_done"] == 40
+    assert resumed["steps_done"] == 80
     a, b = (load_motion_prior(tmp_path / d / "motion_prior.pt").state_dict() for d in ("whole", "split"))
     assert all(torch.equal(a[k], b[k]) for k in a)
     with pytest.raises(ValueError, match="multiple of 32"):
@@ -77,3 +83,58 @@ def test_train_motion_prior_cli(tmp_path, capsys, one_torch_thread):
     assert "constant velocity" in capsys.readouterr().out
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["held_out_one_step"]["pairs"] == 300 - 3 and metrics["steps"] == 5
+
+
+def test_change_is_what_the_decoder_layout_applies(open_model):
+    x_prev, x_next, _ = pairs(_clips()[1:], open_model, MotionPriorConfig())
+    x_prev, x_next = x_prev[:50].double(), x_next[:50].double()
+    change = state_change(x_prev, x_next)
+    back, _ = hs.apply_decoder_output(x_prev, torch.cat([change, torch.zeros(50, 9, dtype=torch.float64)], -1))
+    np.testing.assert_allclose(back.numpy(), x_next.numpy(), atol=1e-6)
+    # Constant velocity by hand: the joints move on by their velocity for 1/30 s, the body's rotations stay.
+    cv = constant_velocity_change(x_prev)
+    np.testing.assert_allclose(cv[:, hs.OUT_JOINTS].numpy(), x_prev[:, hs.JOINTS_VEL].numpy() / 30.0, atol=1e-12)
+    assert torch.count_nonzero(cv[:, hs.OUT_POSE_BODY]) == 0 and cv.shape == (50, CHANGE_DIM)
+
+
+def test_untrained_decoder_is_constant_velocity_and_the_export_folds_exactly(open_model, tmp_path):
+    x_prev, x_next, _ = pairs(_clips()[1:], open_model, MotionPriorConfig())
+    torch.manual_seed(0)
+    model = MotionPrior(64).double()
+    model.set_normalisation(x_prev.double(), x_next.double())
+    model.eval()
+    errors = one_step_errors(model, x_prev.double(), x_next.double())
+    assert errors["motion_prior_mm"] == pytest.approx(errors["constant_velocity_mm"], rel=1e-9)
+    # The C++ runtime reads the folded encoder and prior: the same transition likelihood as the torch model.
+    export_weights(tmp_path, humor=model, dtype="float64")
+    cpp = HumorPrior(tmp_path / "humor.safetensors")
+    a, b = x_prev[:20].double(), x_next[:20].double()
+    with torch.no_grad():
+        expected = transition_nll(model, a, b).numpy()
+        folded = transition_nll(model.official_layout(), a, b).numpy()
+    np.testing.assert_allclose(folded, expected, rtol=1e-9)
+    np.testing.assert_allclose(cpp.transition_nll(a.numpy(), b.numpy()), expected, rtol=1e-8)
+    with pytest.raises(ValueError, match="without the decoder"):
+        export_weights(tmp_path / "dec", humor=model, include_humor_decoder=True)
+
+
+def test_planted_sliding_by_hand():
+    feet = np.zeros((1, 10, 1, 3))
+    feet[0, :, 0, 0] = np.arange(10) * 0.01          # 1 cm a frame along x
+    planted = np.zeros((1, 10, 1), bool)
+    planted[0, 1:5, 0] = True                          # 4 frames planted: 3 cm
+    planted[0, 7:9, 0] = True                          # 2 frames: too short to count
+    np.testing.assert_allclose(planted_sliding(feet, planted), [0.03])
+
+
+def test_rollouts_of_an_untrained_prior_keep_walking(open_model):
+    clips = _clips()
+    starts = start_states(clips, open_model, MotionPriorConfig(), count=4, seed=1)
+    model = MotionPrior(64)
+    x_prev, x_next, _ = pairs(clips, open_model, MotionPriorConfig())
+    model.set_normalisation(x_prev, x_next)
+    torch.manual_seed(0)
+    figures = rollout_figures(model.eval(), starts, seconds=1.0)
+    # Constant velocity (the untrained decoder) for a second: finite, the feet near the floor they started on.
+    assert figures["finite"] and figures["samples"] == 4
+    assert -10 < figures["lowest_foot_cm_median"] < 20

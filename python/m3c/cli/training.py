@@ -70,9 +70,12 @@ def train_pose_prior_command(args) -> int:
     return 0
 
 
+ROLLOUTS = 64  # samples from the motion prior rolled out from held-out states
+
+
 def train_motion_prior_command(args) -> int:
     from m3c.training.motion_prior import (MotionPriorConfig, load_motion_prior, one_step_errors, pairs,
-                                           train_motion_prior)
+                                           rollout_figures, start_states, train_motion_prior, truth_sliding)
 
     config = MotionPriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, hidden=args.hidden,
                                kl_weight=args.kl_weight, seed=args.seed,
@@ -89,6 +92,9 @@ def train_motion_prior_command(args) -> int:
         held = pairs(held_clips, model, config)
         prior = load_motion_prior(out / "motion_prior.pt")
         report["held_out_one_step"] = one_step_errors(prior, held[0], held[1])
+        starts = start_states(held_clips, model, config, count=ROLLOUTS, seed=config.seed)
+        report["held_out_rollouts"] = rollout_figures(prior, starts, seconds=2.0, seed=config.seed)
+        report["held_out_truth_sliding"] = truth_sliding(held_clips, model, config)
     _write_metrics(out, report)
     print(f"wrote {out}/motion_prior.pt ({summary['steps_done']} steps)")
     if "held_out_one_step" in report:
@@ -96,6 +102,13 @@ def train_motion_prior_command(args) -> int:
         print(f"  held out ({r['pairs']} pairs), next-frame joints: motion prior {r['motion_prior_mm']:.1f} "
               "mm, "
               f"constant velocity {r['constant_velocity_mm']:.1f} mm")
+        r, t = report["held_out_rollouts"], report["held_out_truth_sliding"]
+        slide = lambda v: "-" if v is None else f"{v:.1f}"
+        print(f"  {r['samples']} samples rolled out {r['seconds']:.0f} s: planted feet slide "
+              f"{slide(r['sliding_cm_median'])} cm median per planted phase ({r['planted_phases']} phases; the "
+              f"held-out mocap itself {slide(t['sliding_cm_median'])}), lowest foot "
+              f"{r['lowest_foot_cm_median']:.1f} cm above the floor, on the ground {100 * r['frames_on_ground']:.0f}%"
+              " of frames")
     return 0
 
 

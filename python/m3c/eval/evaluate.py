@@ -40,6 +40,8 @@ class SequenceResult:
     values: dict = field(default_factory=dict)    # metric -> list of per-frame arrays
     notes: list = field(default_factory=list)     # metrics skipped and why
     extra: dict = field(default_factory=dict)     # per-sequence scalars (camera ATE, scale error, ...)
+    joint_errors: list = field(default_factory=list)  # per matched person: (frames, J) PA-aligned errors, mm
+    joint_depths: list = field(default_factory=list)  # and the true joints' camera depths (frames, J), m
 
     def frames(self, metric: str) -> np.ndarray:
         parts = self.values.get(metric, [])
@@ -74,6 +76,8 @@ def evaluate_sequence(gt_tracks: list[EvalTrack], pred_tracks: list[EvalTrack], 
         pred = pred_tracks[match.pred].take(ip)
         add = (lambda key, v: result.values[key].append(np.asarray(v, dtype=np.float64)))
         add("pa_mpjpe", M.pa_mpjpe(pred.joints_cam, gt.joints_cam))
+        result.joint_errors.append(M.pa_joint_errors(pred.joints_cam, gt.joints_cam))
+        result.joint_depths.append(np.asarray(gt.joints_cam, dtype=np.float64)[..., 2])
         add("mpjpe", M.mpjpe(pred.joints_cam, gt.joints_cam, pelvis))
         if pred.vertices_cam is not None and gt.vertices_cam is not None:
             if pred.vertices_cam.shape[1] == gt.vertices_cam.shape[1]:
@@ -111,6 +115,32 @@ def aggregate(results: list[SequenceResult]) -> dict[str, float | None]:
         parts = [r.frames(key) for r in results]
         values = np.concatenate(parts) if parts else np.zeros(0)
         out[key] = float(values.mean()) if len(values) else None
+    return out
+
+
+# SMPL's arms (shoulder, elbow, wrist) on either side: a far arm folded the wrong way shows as elbow and wrist
+# errors much larger than the shoulder's.
+SMPL_ARMS = ((16, 18, 20), (17, 19, 21))
+
+
+def arm_errors(results: list[SequenceResult], arms=SMPL_ARMS) -> dict | None:
+    """PA-aligned per-joint errors (mm) of the shoulders, elbows and wrists over all matched frames of the
+    results, on both sides and on the far side (the arm whose true shoulder is further from the camera), and the
+    ratio of the worse of elbow and wrist to the shoulder. None without frames."""
+    errors = [e for r in results for e in r.joint_errors]
+    depths = [d for r in results for d in r.joint_depths]
+    if not errors or not sum(len(e) for e in errors):
+        return None
+    e, d = np.concatenate(errors), np.concatenate(depths)
+    sides = np.asarray(arms)  # (2, 3)
+    far = (d[:, sides[1, 0]] > d[:, sides[0, 0]]).astype(int)  # 1: the second side's shoulder is further
+    far_e = e[np.arange(len(e))[:, None], sides[far]]  # (frames, 3)
+    both = (e[:, sides[0]] + e[:, sides[1]]) / 2
+    out = {"frames": int(len(e))}
+    for name, values in (("", both), ("far_", far_e)):
+        shoulder, elbow, wrist = (float(v) for v in values.mean(0))
+        out.update({f"{name}shoulder_mm": shoulder, f"{name}elbow_mm": elbow, f"{name}wrist_mm": wrist,
+                    f"{name}ratio": max(elbow, wrist) / shoulder if shoulder > 0 else None})
     return out
 
 

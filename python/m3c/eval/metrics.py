@@ -115,6 +115,13 @@ def pa_mpjpe(pred_joints, gt_joints) -> np.ndarray:
     return _per_point_error_mm(procrustes_align(pred, gt), gt)
 
 
+def pa_joint_errors(pred_joints, gt_joints) -> np.ndarray:
+    """Each joint's error after pa_mpjpe's per-frame alignment, mm (frames, J)."""
+    pred = _points("pred_joints", pred_joints, 3)
+    gt = _points("gt_joints", gt_joints, 3)
+    return np.linalg.norm(procrustes_align(pred, gt) - gt, axis=-1) * M_TO_MM
+
+
 def pve(pred_vertices, gt_vertices, pred_joints, gt_joints, pelvis=(0,)) -> np.ndarray:
     """Mean per-vertex error after aligning each frame's pelvis (from the joints), mm per frame."""
     pv = _points("pred_vertices", pred_vertices, 3)

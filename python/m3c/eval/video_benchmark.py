@@ -36,7 +36,7 @@ from scipy.optimize import linear_sum_assignment
 
 from m3c.body import BodyModel
 from m3c.eval import metrics as M
-from m3c.eval.evaluate import SequenceResult, aggregate, evaluate_sequence
+from m3c.eval.evaluate import SequenceResult, aggregate, arm_errors, evaluate_sequence
 from m3c.eval.matching import common_frames
 from m3c.eval.plausibility import track_plausibility
 from m3c.eval.retarget import RetargetedMotion
@@ -356,6 +356,27 @@ def pipeline_config(config: VideoBenchmarkConfig, video: SyntheticVideo):
     return pipeline.with_overrides(overrides) if overrides else pipeline
 
 
+def source_coverage(scale: dict, lift_scale_error_pct: float | None) -> list[dict]:
+    """Each scale source's value against the truth: the lift's cameras carry the fused value, so the true scale
+    is value / (1 + the lift's scale error); a source covers the truth when its log error is within 2 sigma (a
+    person-size source's sigma with the size's shared PERSON_SIZE_SIGMA). Empty without a measured truth."""
+    from m3c.vo.scale import PERSON_SIZE_SIGMA
+
+    if lift_scale_error_pct is None or not scale.get("value") or lift_scale_error_pct <= -100.0:
+        return []
+    true = float(scale["value"]) / (1.0 + lift_scale_error_pct / 100.0)
+    out = []
+    for o in scale.get("observations") or []:
+        if o.get("value") is None or o.get("sigma") is None:
+            continue
+        sigma = float(np.hypot(o["sigma"], PERSON_SIZE_SIGMA)) if o.get("person_size", True) else float(o["sigma"])
+        error = float(np.log(o["value"] / true))
+        out.append({"source": o["source"], "error_pct": 100.0 * float(np.expm1(error)), "sigma": sigma,
+                    "covered": bool(abs(error) <= 2.0 * sigma),
+                    "set_aside": bool((o.get("detail") or {}).get("set_aside", False))})
+    return out
+
+
 def run_sequence(
     model: BodyModel,
     clips: list[RetargetedMotion],
@@ -391,7 +412,8 @@ def run_sequence(
                    "slow_motion_confident": time_scale.get("confident"),
                    "camera_reported": "static" if camera["static"] else camera["scale_source"],
                    "camera_travel_m": float(np.linalg.norm(centres - centres[0], axis=1).max()),
-                   "scale_sigma": scale.get("sigma"), "scale_confidence": scale.get("confidence")}
+                   "scale_sigma": scale.get("sigma"), "scale_confidence": scale.get("confidence"),
+                   "scale_sources": source_coverage(scale, score.methods["Lift"].camera.get("scale_error_pct"))}
     if log:
         opt = score.methods["Global Opt"]
         log(
@@ -440,6 +462,7 @@ class VideoBenchmarkReport:
             )
         speeds = [abs(v) for s in seqs for v in s.methods[method].speed_error_pct]
         out["abs_speed_error_pct"] = float(np.mean(speeds)) if speeds else None
+        out["arms"] = arm_errors([s.methods[method].body for s in seqs])
         return out
 
     def row(self, seq: SequenceScore, method: str) -> dict:
@@ -454,6 +477,7 @@ class VideoBenchmarkReport:
         row.update(score.camera)
         row["speed_error_pct"] = float(np.mean(score.speed_error_pct)) if score.speed_error_pct else None
         row["matched"] = len(score.body.matching.matches)
+        row["arms"] = arm_errors([score.body])
         return row
 
     def table(self) -> str:
@@ -536,6 +560,14 @@ class VideoBenchmarkReport:
                 f"{o['id_switches']} ({_fmt(o['id_switches_per_1000'], 2)} per 1000 person-frames over "
                 f"{frames})."
             )
+            arms = o["arms"]
+            if arms is not None:
+                lines.append(
+                    f"arms (Global Opt, PA-aligned per joint): shoulders {arms['shoulder_mm']:.1f}, elbows "
+                    f"{arms['elbow_mm']:.1f}, wrists {arms['wrist_mm']:.1f} mm (worse / shoulder "
+                    f"{_fmt(arms['ratio'], 2)}); the far arm {arms['far_shoulder_mm']:.1f}, "
+                    f"{arms['far_elbow_mm']:.1f}, {arms['far_wrist_mm']:.1f} mm ({_fmt(arms['far_ratio'], 2)})."
+                )
             if o["contact_precision"] is not None or o["contact_recall"] is not None:
                 lines.append(
                     f"planted feet (each matched person's feet per frame against the true contacts): precision "
@@ -555,6 +587,12 @@ class VideoBenchmarkReport:
                 lines.append(f"  {s.name}: slow x{w['slow_motion_true']:g} / {found}; camera travel "
                              f"{w['camera_travel_m']:.2f} m, reported {w['camera_reported']}; scale covered "
                              f"{covered}")
+        coverage = self.scale_coverage()
+        if coverage:
+            lines.append("camera scale, each source against the truth (2-sigma interval covers it / sequences "
+                         "measured; median |error|): " + "; ".join(
+                             f"{name} {c['covered']}/{c['sequences']} ({_fmt(c['median_abs_error_pct'])} %)"
+                             for name, c in coverage.items()))
         failed = [s for s in self.sequences if s.error]
         if failed:
             lines.append(f"failed: {', '.join(s.name for s in failed)}")
@@ -563,6 +601,29 @@ class VideoBenchmarkReport:
             "time: " + ", ".join(f"{k} {v:.0f} s" for k, v in stage.items()) + f"; total {self.seconds:.0f} s"
         )
         return "\n".join(lines)
+
+    def scale_coverage(self) -> dict:
+        """Per scale source, and 'fused' (the lift's camera scale), over the sequences where the truth was measured:
+        how many the source measured and how often its 2-sigma interval held the truth."""
+        out: dict[str, dict] = {}
+
+        def add(name: str, covered: bool, error_pct: float) -> None:
+            c = out.setdefault(name, {"sequences": 0, "covered": 0, "errors": []})
+            c["sequences"] += 1
+            c["covered"] += int(covered)
+            c["errors"].append(abs(error_pct))
+
+        for s in self.scored():
+            if not s.world:
+                continue
+            for o in s.world.get("scale_sources") or []:
+                add(o["source"], o["covered"], o["error_pct"])
+            error, sigma = s.methods["Lift"].camera.get("scale_error_pct"), s.world.get("scale_sigma")
+            if error is not None and sigma is not None and error > -100.0:
+                add("fused", abs(np.log1p(error / 100.0)) <= 2 * sigma, error)
+        for c in out.values():
+            c["median_abs_error_pct"] = float(np.median(c.pop("errors")))
+        return out
 
     def stage_seconds(self) -> dict:
         out = {"render": sum(s.render_seconds for s in self.sequences)}
@@ -595,6 +656,7 @@ class VideoBenchmarkReport:
             "seconds": self.seconds,
             "stage_seconds": self.stage_seconds(),
             "overall": {m: self.overall(m) for m in METHODS} if self.scored() else {},
+            "scale_coverage": self.scale_coverage(),
             "sequences": [sequence(s) for s in self.sequences],
         }
 

@@ -64,14 +64,19 @@ def _numpy(state: dict, dtype: np.dtype) -> dict:
     return {k: v.detach().cpu().numpy().astype(dtype) for k, v in state.items()}
 
 
-def humor_entry(include_decoder: bool = False) -> dict:
-    """The manifest entry of an exported HuMoR model (architecture and dimensions)."""
+def humor_entry(include_decoder: bool = False, model: humor_module.HumorModel | None = None) -> dict:
+    """The manifest entry of an exported HuMoR model (architecture and dimensions; the layer widths are the
+    model's, HuMoR's own when none is given)."""
+    layers = lambda net, official: list(net.sizes) if model is not None else list(official)
     networks = {
-        "encoder": {"prefix": "encoder.net", "layers": list(humor_module.ENCODER_LAYERS), "skip_dim": 0},
-        "prior": {"prefix": "prior_net.net", "layers": list(humor_module.PRIOR_LAYERS), "skip_dim": 0},
+        "encoder": {"prefix": "encoder.net", "layers": layers(getattr(model, "encoder", None),
+                                                              humor_module.ENCODER_LAYERS), "skip_dim": 0},
+        "prior": {"prefix": "prior_net.net", "layers": layers(getattr(model, "prior_net", None),
+                                                             humor_module.PRIOR_LAYERS), "skip_dim": 0},
     }
     if include_decoder:
-        networks["decoder"] = {"prefix": "decoder.net", "layers": list(humor_module.DECODER_LAYERS),
+        networks["decoder"] = {"prefix": "decoder.net", "layers": layers(getattr(model, "decoder", None),
+                                                                          humor_module.DECODER_LAYERS),
                                "skip_dim": hs.LATENT_DIM}
     return {
         "architecture": "humor",
@@ -154,9 +159,14 @@ def export_weights(out_dir: str | os.PathLike, humor=None, vposer=None, vposer_v
 
     if humor is not None:
         model = humor if isinstance(humor, humor_module.HumorModel) else humor_module.load_humor(humor)
+        if hasattr(model, "official_layout"):  # M3C's own prior: its input normalisation folded in
+            if include_humor_decoder:
+                raise ValueError("M3C's motion prior's decoder adds constant velocity to its output, which "
+                                 "HuMoR's layout cannot hold; export it without the decoder")
+            model = model.official_layout()
         prefixes = ("encoder.", "prior_net.") + (("decoder.",) if include_humor_decoder else ())
         tensors = {k: v for k, v in model.state_dict().items() if k.startswith(prefixes)}
-        entry = dict(humor_entry(include_humor_decoder),
+        entry = dict(humor_entry(include_humor_decoder, model),
                      source=_source(None if isinstance(humor, torch.nn.Module) else humor))
         manifest["models"]["humor"] = _write_model(out_dir, "humor", tensors, entry, np_dtype)
 

@@ -15,7 +15,7 @@ from m3c.motion.windows import check_windows, optimize_in_windows
 from m3c.pipeline import Node, PipelineError, register_node
 from m3c.pipeline.finite import index_ranges
 
-SHIPPED = "shipped"  # optimize.pose_prior naming M3C's own pose prior (m3c.models.weights)
+SHIPPED = "shipped"  # optimize.pose_prior / motion_prior naming M3C's own prior (m3c.models.weights)
 
 
 def optimizer_config(overrides: dict) -> OptimizerConfig:
@@ -117,7 +117,7 @@ class OptimizeNode(Node):
         # Exported weights (python -m m3c.models.export --out DIR): humor.safetensors adds HuMoR's motion prior,
         # vposer.safetensors VPoser's pose prior (with latent pose variables). None: $M3C_MODELS/export/<file>
         # when it is there, else the stages run without the term (and report it unavailable). "shipped": M3C's own
-        # pose prior (m3c.models.weights, non-commercial); "none": never.
+        # prior (m3c.models.weights, non-commercial); "none": never.
         motion_prior: str | None = None
         pose_prior: str | None = None
         # Long videos are optimised in windows of this many frames overlapping by window_overlap, blended
@@ -134,12 +134,12 @@ class OptimizeNode(Node):
         if value == "none":
             return None
         if value == SHIPPED:
-            if setting != "pose_prior":
-                raise PipelineError(f"optimize.{setting}: M3C ships no {setting.replace('_', ' ')} yet; give exported "
-                                    f"weights (python -m m3c.models.export --out DIR writes DIR/{file_name})")
-            from m3c.models.weights import shipped_vposer_runtime
+            from m3c.models.weights import shipped_humor_runtime, shipped_vposer_runtime
 
-            return shipped_vposer_runtime()
+            try:
+                return shipped_vposer_runtime() if setting == "pose_prior" else shipped_humor_runtime()
+            except FileNotFoundError as err:
+                raise PipelineError(f"optimize.{setting}: {err}") from None
         if value is not None:
             path = Path(value).expanduser()
             if not path.is_file():

@@ -77,7 +77,8 @@ class PerceptionNode(Node):
     #     (merge.max_piece_colour)
     # 18: a warm body fit with a knee, ankle, elbow or wrist over 0.25 m from the 3D is solved again from the pose
     #     of the 3D alone (cpp/fit max_limb_from_3d_m: a walker seen from behind kept a knee bent backwards)
-    version = "18"
+    # 19: the fit's learned pose prior (cpp/fit vposer_weight, SMPLify-style; the body estimator's pose_prior option)
+    version = "19"
 
     def _network_checkpoints(self, ctx) -> dict:
         """task -> (estimator name, checkpoint path in the models folder or None)."""
@@ -116,6 +117,16 @@ class PerceptionNode(Node):
             path = options.get("checkpoint")
             if path and Path(path).is_file():
                 digests[task] = file_digest(path)
+        body = self._perception_config().estimators["body"]
+        if body.name == "fit":  # the learned pose prior the fit uses: its weights' digest
+            from m3c.perception.body import DEFAULT_POSE_PRIOR, pose_prior_file
+
+            try:
+                prior = pose_prior_file(body.options.get("pose_prior", DEFAULT_POSE_PRIOR))
+            except (ValueError, FileNotFoundError):
+                prior = None  # check() reports it
+            if prior is not None:
+                digests["pose_prior"] = file_digest(prior)
         if digests:
             config["checkpoint_digests"] = digests
         return config
@@ -161,6 +172,13 @@ class PerceptionNode(Node):
                 except CheckpointNotFoundError as err:
                     raise ComponentUnavailable(self.name, f"{source.model}'s checkpoint (the {task} estimator)",
                                                str(err)) from None
+        if config.estimators["body"].name == "fit":
+            from m3c.perception.body import DEFAULT_POSE_PRIOR, pose_prior_file
+
+            try:
+                pose_prior_file(config.estimators["body"].options.get("pose_prior", DEFAULT_POSE_PRIOR))
+            except (ValueError, FileNotFoundError) as err:
+                raise InputError(f"node {self.name!r}: the body fit's {err}") from None
         users = sorted(task for task, spec in config.estimators.items() if spec.name == NAME)
         if users and not mediapipe_available():
             raise ComponentUnavailable(self.name, f"MediaPipe (the {', '.join(users)} estimator)",

@@ -169,6 +169,8 @@ def build_results(model, video: dict, camera: dict, cameras: dict, scale: dict, 
         "hands": hands_summary(hands, T),
         "optimization": {"optimized": bool(result["optimized"]), "stopped_early": bool(result["stopped_early"]),
                          "stages": result["stages"], "windows": result.get("windows", [])},
+        # which learned priors shaped the bodies, and the licence their weights carry
+        "priors": priors_summary(backends, result["stages"]),
         "backends": backends,
         "tracks": summary_tracks,
         "arrays": {name: {"shape": shape, "dtype": dtype, "description": text}
@@ -201,6 +203,30 @@ def hands_summary(hands: dict | None, num_frames: int) -> dict:
             "hands_fitted": int(hands["hand_frames"])}
 
 
+SHIPPED_PRIOR_LICENCE = ("non-commercial (CC BY-NC 4.0): M3C's own priors are trained on the Bandai Namco Research "
+                         "Motiondatasets (m3c/models/weights/MODEL_CARD.md)")
+
+
+def priors_summary(backends: dict, stages: list) -> dict:
+    """The per-frame fit's pose prior (the perception node's body estimator), the optimizer's pose_prior and
+    motion_prior stages (ran, skipped and why, reverted), and the licence when one of M3C's shipped priors ran."""
+    from m3c.perception.body import DEFAULT_POSE_PRIOR, BodyFitConfig
+
+    estimators = (backends.get("perception") or {}).get("estimators") or {}
+    body = estimators.get("body", "fit")
+    name, options = (body, {}) if isinstance(body, str) else (body.get("name"), body.get("options") or {})
+    fit = None
+    if name == "fit":
+        setting = options.get("pose_prior", DEFAULT_POSE_PRIOR)
+        fit = {"pose_prior": setting, "vposer_weight": float(options.get("vposer_weight",
+                                                                            BodyFitConfig().vposer_weight))}
+    stage = {s["name"]: {"status": s["status"], "message": s.get("message", "")} for s in stages
+             if s.get("name") in ("pose_prior", "motion_prior")}
+    shipped = (fit is not None and fit["pose_prior"] == "shipped" and fit["vposer_weight"] > 0) or any(
+        "shipped" in str((backends.get("optimize") or {}).get(k, "")) for k in ("pose_prior", "motion_prior"))
+    return {"body_fit": fit, "stages": stage, "licence": SHIPPED_PRIOR_LICENCE if shipped else None}
+
+
 @register_node
 class ResultsNode(Node):
     # 2: results.json camera.scale_estimate, the optimizer stages' world check and scale; 3: camera.focal_estimate;
@@ -210,8 +236,8 @@ class ResultsNode(Node):
     # frames_in_container, truncated; 11: the tracks' legs (plausibility lead_changes, longest_lead_s, knee_flex_deg,
     # knee_bent_fraction, surge_ratio); 12: a step rate whose step is 0.4-0.6 leg lengths timed as a walk, not
     # confidently (m3c.motion.time_scale); 13: camera.rotation_only; 14: hands (left/right_hand_pose,
-    # hand_keypoints_2d, world_hand_keypoints on the optimizer's wrists, results.json hands)
-    version = "14"
+    # hand_keypoints_2d, world_hand_keypoints on the optimizer's wrists, results.json hands); 15: priors
+    version = "15"
     type_name = "results"
     level = "output"
     inputs = ("video", "camera", "cameras", "scale", "ground", "world", "result", "lean", "hands")
@@ -224,7 +250,7 @@ class ResultsNode(Node):
         backends = {}
         for name, node in ctx.upstream_nodes().items():
             entry = {"type": node["type"]}
-            for key in ("backend", "method", "static", "enabled", "estimators"):
+            for key in ("backend", "method", "static", "enabled", "estimators", "pose_prior", "motion_prior"):
                 if key in node["config"]:
                     entry[key] = node["config"][key]
             backends[name] = entry

@@ -8,6 +8,7 @@ camera's, transl is the body model's translation, so joints_in_cam = model.joint
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from pathlib import Path
 
 import numpy as np
 
@@ -68,6 +69,7 @@ class BodyFitConfig:
     keypoints3d_weight: float = _FIT.keypoints3d_weight
     keypoints3d_sigma: float = _FIT.keypoints3d_sigma
     pose_prior_weight: float = _FIT.pose_prior_weight
+    vposer_weight: float = _FIT.vposer_weight
     shape_prior_weight: float = _FIT.shape_prior_weight
     temporal_pose_weight: float = _FIT.temporal_pose_weight
     temporal_betas_weight: float = _FIT.temporal_betas_weight
@@ -113,7 +115,7 @@ class BodyFits:
 
 
 def fit_bodies(model: BodyModel, keypoints, intrinsics, keypoints3d=None, restart=None,
-               config: BodyFitConfig | None = None, regressor=None, times=None) -> BodyFits:
+               config: BodyFitConfig | None = None, regressor=None, times=None, pose_prior=None) -> BodyFits:
     """Fits the body to one track's frames in order (frame i warm-started from the last good fit unless
     restart[i], its translation predicted at constant velocity over `times`).
 
@@ -121,6 +123,7 @@ def fit_bodies(model: BodyModel, keypoints, intrinsics, keypoints3d=None, restar
     intrinsics: (4,) or (n, 4) fx, fy, cx, cy; keypoints3d: None or (n, K, 4) x, y, z metres (camera axes, any
     origin) and confidence; restart: None or (n,) bool; times: None (consecutive frames) or (n,) increasing frame
     numbers or seconds. regressor: the body's keypoints the rows correspond to (default keypoint_regressor(K)).
+    pose_prior: None or a learned pose prior (m3c.nn.VPoser) weighted by config.vposer_weight.
     """
     config = config or BodyFitConfig()
     keypoints = np.asarray(keypoints, dtype=np.float64)
@@ -131,21 +134,55 @@ def fit_bodies(model: BodyModel, keypoints, intrinsics, keypoints3d=None, restar
                                   np.asarray(intrinsics, dtype=np.float64),
                                   None if keypoints3d is None else np.asarray(keypoints3d, dtype=np.float64),
                                   None if restart is None else np.asarray(restart, dtype=bool),
-                                  None if times is None else np.asarray(times, dtype=np.float64), config.to_core())
+                                  None if times is None else np.asarray(times, dtype=np.float64), config.to_core(),
+                                  None if pose_prior is None else pose_prior._core)
     return BodyFits(out["transl"], out["root_orient"], out["body_pose"], out["betas"], out["reprojection_error_px"],
                     out["keypoint_error_px"], out["num_keypoints"], out["warm_started"], list(out["status"]))
 
 
+# The fit's learned pose prior by default. Off: on the default video set (seed 0) M3C's shipped prior at
+# vposer_weight 2 lowered PA-MPJPE on 6 of 7 sequences but moved the camera scale the people give on the follow
+# and tracking cameras (W-MPJPE100 295 -> 453 and 383 mm); see docs/notes/learned-models.md.
+DEFAULT_POSE_PRIOR = "none"
+
+
 @register("body", NAME)
 class FitBodyEstimator(BodyEstimator):
-    """The per-frame fit with a body model file (default: the shipped open model) and BodyFitConfig options."""
+    """The per-frame fit with a body model file (default: the shipped open model) and BodyFitConfig options.
+    pose_prior: the learned pose prior in the fit (SMPLify-style): "shipped" (M3C's own, m3c.models.weights;
+    non-commercial), "none", or an exported vposer.safetensors (python -m m3c.models.export)."""
 
-    def __init__(self, model_path: str | None = None, **options):
+    def __init__(self, model_path: str | None = None, pose_prior: str = DEFAULT_POSE_PRIOR, **options):
         self.model = BodyModel.from_file(model_path, smpl_layout=True) if model_path else default_body_model()
         self.config = BodyFitConfig(**options)
+        self.pose_prior = load_pose_prior(pose_prior)
 
     def fit_track(self, keypoints, keypoints3d, intrinsics, restart=None, times=None) -> BodyFits:
-        return fit_bodies(self.model, keypoints, intrinsics, keypoints3d, restart, self.config, None, times)
+        return fit_bodies(self.model, keypoints, intrinsics, keypoints3d, restart, self.config, None, times,
+                          self.pose_prior)
+
+
+def pose_prior_file(setting: str | None) -> Path | None:
+    """The exported weights a pose_prior setting names: "shipped" -> M3C's own, exported once into the cache;
+    "none" / None -> None; else the path, which must exist."""
+    if setting in (None, "none"):
+        return None
+    if setting == "shipped":
+        from m3c.models.weights import shipped_vposer_runtime
+
+        return shipped_vposer_runtime()
+    path = Path(setting).expanduser()
+    if not path.is_file():
+        raise ValueError(f"pose_prior: {path} does not exist; give 'shipped', 'none' or an exported "
+                         "vposer.safetensors (python -m m3c.models.export --vposer ... --out DIR)")
+    return path
+
+
+def load_pose_prior(setting: str | None):
+    from m3c.nn import VPoser
+
+    path = pose_prior_file(setting)
+    return None if path is None else VPoser(path)
 
 
 def rough_location(keypoints: np.ndarray, keypoints3d: np.ndarray | None, intrinsics,

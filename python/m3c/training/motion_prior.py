@@ -5,14 +5,17 @@ a motion-capture corpus of `m3c data mocap`.
 Each training sample is a pair of consecutive states (x_t, x_t+1) of a training clip, in HuMoR's ground frame
 (z up: the corpus's y-up world turned by ground_from_plane) and in the canonical frame of x_t, with contact
 labels for HuMoR's 9 contact joints (a joint within contact_height of the floor and slower than
-contact_speed). The loss is HuMoR's: |x_dec - x_t+1|^2 (mean over the state) + contact_weight * BCE(contacts)
-+ kl_weight * KL(q(z | x_t, x_t+1) || p(z | x_t)). AdamW, cosine decay, seeded epoch permutations; `--resume`
-continues a run exactly. The weights are saved as {'model': state dict} (HuMoR's checkpoint layout) with the
-widths beside them.
+contact_speed). The loss is HuMoR's with the change normalised (see MotionPrior): |r_dec - r|^2, r the change
+from x_t to x_t+1 less constant velocity's, divided by its training spread (mean over the 207 change
+dimensions) + contact_weight * BCE(contacts) + kl_weight * KL(q(z | x_t, x_t+1) || p(z | x_t)), the KL weight
+rising from 0 over the first kl_warmup of the steps. AdamW, cosine decay, seeded epoch permutations; `--resume`
+continues a run exactly. The weights are saved as {'model': state dict (with the normalisation buffers)} with
+the widths beside them.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -24,6 +27,7 @@ import torch.nn.functional as F
 from m3c.io.atomic import atomic_path
 from m3c.models import humor as humor_module
 from m3c.models import humor_state as hs
+from m3c.models.rotations import matrix_to_axis_angle
 from m3c.training.common import ResumableRun, epoch_batches, save_checkpoint, seed_everything
 
 
@@ -35,6 +39,7 @@ class MotionPriorConfig:
     weight_decay: float = 1e-5
     hidden: int = 256                 # HuMoR's is 1024 (decoder 1024, 1024, 512)
     kl_weight: float = 1e-3
+    kl_warmup: float = 0.2            # share of the steps over which the KL weight rises from 0
     contact_weight: float = 0.1
     contact_height: float = 0.1       # m above the floor
     contact_speed: float = 0.3        # m/s
@@ -43,9 +48,50 @@ class MotionPriorConfig:
     history_every: int = 100
 
 
+CHANGE_DIM = hs.OUT_CONTACTS.start  # the decoder's 207 change outputs before its 9 contact logits
+INPUT_STD_FLOOR = 1e-2    # states: metres, m/s, rotation-matrix entries
+OUTPUT_SCALE_FLOOR = 1e-4  # changes per frame
+FOOT_JOINTS = (7, 8, 10, 11)  # SMPL ankles and toes
+FOOT_CONTACTS = (3, 4, 5, 6)  # their places among HuMoR's 9 contact outputs
+
+
+def _rotations(x: torch.Tensor, part: slice) -> torch.Tensor:
+    return x[..., part].reshape(*x.shape[:-1], -1, 3, 3)
+
+
+def state_change(x_prev: torch.Tensor, x_next: torch.Tensor) -> torch.Tensor:
+    """The change from x_prev to x_next (B, 339 each) in the decoder's layout (B, 207): additive parts as
+    differences, rotations as the axis-angle of R_next R_prev^T (applied on the left, as
+    apply_decoder_output does), so apply_decoder_output(x_prev, change) gives x_next back."""
+    left = lambda part: matrix_to_axis_angle(_rotations(x_next, part) @ _rotations(x_prev, part).transpose(-1, -2))
+    d = x_next - x_prev
+    return torch.cat([d[:, hs.TRANS], d[:, hs.TRANS_VEL], left(hs.ROOT_ORIENT).flatten(1), d[:, hs.ROOT_ORIENT_VEL],
+                      left(hs.POSE_BODY).flatten(1), d[:, hs.JOINTS], d[:, hs.JOINTS_VEL]], dim=-1)
+
+
+def constant_velocity_change(x_prev: torch.Tensor) -> torch.Tensor:
+    """The change constant velocity predicts (B, 207): the translation, the root's rotation and the joints
+    move on at their velocities for one frame at HuMoR's 30 fps (the angular velocity is the world-frame
+    one, applied on the left); the velocities and the body's joint rotations stay."""
+    h = 1.0 / hs.HUMOR_FPS
+    zeros = torch.zeros_like
+    return torch.cat([x_prev[:, hs.TRANS_VEL] * h, zeros(x_prev[:, hs.TRANS_VEL]), x_prev[:, hs.ROOT_ORIENT_VEL] * h,
+                      zeros(x_prev[:, hs.ROOT_ORIENT_VEL]), zeros(x_prev[:, hs.POSE_BODY.start:hs.POSE_BODY.start + 63]),
+                      x_prev[:, hs.JOINTS_VEL] * h, zeros(x_prev[:, hs.JOINTS_VEL])], dim=-1)
+
+
 class MotionPrior(humor_module.HumorModel):
     """HumorModel with widths `hidden` (encoder and prior: four hidden layers; decoder: hidden, hidden,
-    hidden / 2); hidden = 1024 is HuMoR's own."""
+    hidden / 2); hidden = 1024 is HuMoR's own.
+
+    Two changes from the official networks, because a plain regression of 339 raw numbers was 5x worse than
+    constant velocity at one step (14.6 against 2.6 mm): every network sees its states normalised by the
+    training set's mean and spread (input_mean, input_std), and the decoder predicts the change's departure
+    from constant velocity in units of its training spread (output_scale), so an uninformed decoder already
+    moves the body at constant velocity. The normalisation folds exactly into the first Linear of the encoder
+    and the prior (`official_layout`), so the exported encoder and prior are HuMoR's networks and run in M3C's
+    C++ motion term unchanged; the decoder's constant-velocity path does not fold and stays in torch.
+    """
 
     def __init__(self, hidden: int = 256):
         torch.nn.Module.__init__(self)
@@ -58,6 +104,64 @@ class MotionPrior(humor_module.HumorModel):
         self.prior_net = humor_module.GroupNormMLP((hs.STATE_DIM, hidden, hidden, hidden, hidden, latent2))
         self.decoder = humor_module.GroupNormMLP((hs.STATE_DIM + hs.LATENT_DIM, hidden, hidden, hidden // 2,
                                                   hs.DECODER_OUTPUT_DIM), skip_dim=hs.LATENT_DIM)
+        last = self.decoder.net[-1]  # zero: an untrained decoder is constant velocity exactly, contacts at 1/2
+        torch.nn.init.zeros_(last.weight)
+        torch.nn.init.zeros_(last.bias)
+        self.register_buffer("input_mean", torch.zeros(hs.STATE_DIM))
+        self.register_buffer("input_std", torch.ones(hs.STATE_DIM))
+        self.register_buffer("output_scale", torch.ones(CHANGE_DIM))
+
+    def normalise(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.input_mean) / self.input_std
+
+    def posterior(self, x_prev, x_next):
+        out = self.encoder(torch.cat([self.normalise(x_prev), self.normalise(x_next)], dim=-1))
+        return out[:, :hs.LATENT_DIM], out[:, hs.LATENT_DIM:]
+
+    def prior(self, x_prev):
+        out = self.prior_net(self.normalise(x_prev))
+        return out[:, :hs.LATENT_DIM], out[:, hs.LATENT_DIM:]
+
+    def residual(self, x_prev: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """The decoder network's raw output (B, 216): the change's departure from constant velocity in units
+        of output_scale, then the contact logits."""
+        return self.decoder(torch.cat([self.normalise(x_prev), z], dim=-1))
+
+    def decoder_output(self, x_prev: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """The change in HuMoR's decoder layout (B, 216) (m3c.models.humor_state.apply_decoder_output)."""
+        raw = self.residual(x_prev, z)
+        change = raw[:, :CHANGE_DIM] * self.output_scale + constant_velocity_change(x_prev)
+        return torch.cat([change, raw[:, CHANGE_DIM:]], dim=-1)
+
+    def decode(self, x_prev, z):
+        return hs.apply_decoder_output(x_prev, self.decoder_output(x_prev, z))
+
+    def set_normalisation(self, x_prev: torch.Tensor, x_next: torch.Tensor) -> None:
+        """The training pairs' statistics: the states' mean and spread, and the spread of the changes'
+        departure from constant velocity (floors keep dimensions the canonical frame zeroes finite)."""
+        with torch.no_grad():
+            self.input_mean.copy_(x_prev.mean(0))
+            self.input_std.copy_(x_prev.std(0).clamp_min(INPUT_STD_FLOOR))
+            departure = state_change(x_prev, x_next) - constant_velocity_change(x_prev)
+            self.output_scale.copy_(departure.std(0).clamp_min(OUTPUT_SCALE_FLOOR))
+
+    def official_layout(self) -> humor_module.HumorModel:
+        """The encoder and prior as plain HuMoR networks (the normalisation folded into their first Linear):
+        same posterior and prior outputs, widths as this model's. The decoder is left out (its
+        constant-velocity path is not in HuMoR's layout)."""
+        out = humor_module.HumorModel.__new__(humor_module.HumorModel)
+        torch.nn.Module.__init__(out)
+        out.encoder = copy.deepcopy(self.encoder)
+        out.prior_net = copy.deepcopy(self.prior_net)
+        std, mean = self.input_std.double(), self.input_mean.double()
+        for net, reps in ((out.encoder, 2), (out.prior_net, 1)):
+            first = net.net[0]
+            s, m = std.repeat(reps), mean.repeat(reps)
+            W = first.weight.double()
+            with torch.no_grad():
+                first.bias.copy_((first.bias.double() - W @ (m / s)).to(first.bias.dtype))
+                first.weight.copy_((W / s).to(first.weight.dtype))
+        return out.eval()
 
 
 def clip_states(clip: dict, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.Tensor]:
@@ -95,16 +199,20 @@ def pairs(clips, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.
     return torch.cat(prev), torch.cat(nxt), torch.cat(cont)
 
 
-def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfig) -> dict:
+def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfig, step: int) -> dict:
     q_mean, q_logvar = model.posterior(x_prev, x_next)
     p_mean, p_logvar = model.prior(x_prev)
     z = q_mean + torch.exp(0.5 * q_logvar) * torch.randn_like(q_mean)
-    x_dec, logits = model.decode(x_prev, z)
-    rec = ((x_dec - x_next) ** 2).mean()
-    bce = F.binary_cross_entropy_with_logits(logits, contacts)
+    raw = model.residual(x_prev, z)
+    # The change in units of its training spread: every dimension of the state counts alike, metres or not.
+    target = (state_change(x_prev, x_next) - constant_velocity_change(x_prev)) / model.output_scale
+    rec = ((raw[:, :CHANGE_DIM] - target) ** 2).mean()
+    bce = F.binary_cross_entropy_with_logits(raw[:, CHANGE_DIM:], contacts)
     kl = 0.5 * (p_logvar - q_logvar + (torch.exp(q_logvar) + (q_mean - p_mean) ** 2) * torch.exp(-p_logvar)
                 - 1.0).sum(-1).mean()
-    total = rec + config.contact_weight * bce + config.kl_weight * kl
+    # KL annealing (as HuMoR trains): the latent learns to carry the transition before the prior pulls it in.
+    warm = min(1.0, step / max(1.0, config.kl_warmup * config.steps))
+    total = rec + config.contact_weight * bce + warm * config.kl_weight * kl
     return {"loss": total, "rec": rec, "contact": bce, "kl": kl}
 
 
@@ -120,6 +228,7 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
         raise ValueError(f"{n} training pairs, fewer than one batch ({config.batch_size})")
     seed_everything(config.seed)
     model = MotionPrior(config.hidden)
+    model.set_normalisation(x_prev, x_next)
     run = ResumableRun(model, config, out_dir, resume, log)
     dataset = torch.utils.data.TensorDataset(x_prev, x_next, contacts)
     n_batches = n // config.batch_size
@@ -131,7 +240,7 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
         loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
                                              generator=torch.Generator().manual_seed(epoch))
         for a, b, c in loader:
-            losses = _loss(model, a, b, c, config)
+            losses = _loss(model, a, b, c, config, run.step)
             run.optimise(losses["loss"])
             stop = run.record({k: losses[k].item() for k in ("loss", "rec", "contact", "kl")},
                               f"loss {losses['loss'].item():.4f} (rec {losses['rec'].item():.5f}, "
@@ -164,3 +273,90 @@ def one_step_errors(model: MotionPrior, x_prev: torch.Tensor, x_next: torch.Tens
     const = (x_prev[:, hs.JOINTS] + x_prev[:, hs.JOINTS_VEL] / hs.HUMOR_FPS).reshape(-1, 22, 3)
     return {"pairs": len(x_prev), "motion_prior_mm": float((prior_joints - true).norm(dim=-1).mean() * 1000),
             "constant_velocity_mm": float((const - true).norm(dim=-1).mean() * 1000)}
+
+
+def rollout(model: MotionPrior, start: torch.Tensor, steps: int, seed: int = 0) -> tuple[torch.Tensor,
+                                                                                          torch.Tensor]:
+    """Samples from the prior: from ground-frame states start (B, 339), `steps` transitions, each latent drawn
+    from the conditional prior of the state it leaves (seeded). Returns (states (B, steps + 1, 339) in the
+    ground frame, contact probabilities (B, steps, 9) of the states after the first)."""
+    g = torch.Generator().manual_seed(seed)
+    states, probs = [start], []
+    x = start
+    with torch.no_grad():
+        for _ in range(steps):
+            frame = hs.canonical_frame(x)
+            xc = hs.to_canonical(x, frame)
+            mean, logvar = model.prior(xc)
+            z = mean + torch.exp(0.5 * logvar) * torch.randn(mean.shape, generator=g, dtype=mean.dtype)
+            nxt, logits = model.decode(xc, z)
+            x = hs.from_canonical(nxt, frame)
+            states.append(x)
+            probs.append(torch.sigmoid(logits))
+    return torch.stack(states, 1), torch.stack(probs, 1)
+
+
+def planted_sliding(feet: np.ndarray, planted: np.ndarray, min_frames: int = 3) -> np.ndarray:
+    """The horizontal distance (m) each foot joint moves over each planted phase (a run of at least
+    min_frames planted frames), from its first frame to its last. feet (..., T, F, 3) ground frame (z up),
+    planted (..., T, F) bool. -> (phases,)"""
+    feet = feet.reshape(-1, *feet.shape[-3:])
+    planted = planted.reshape(-1, *planted.shape[-2:])
+    out = []
+    for b in range(len(feet)):
+        for f in range(feet.shape[2]):
+            run = np.flatnonzero(np.diff(np.concatenate([[0], planted[b, :, f].astype(int), [0]])))
+            for s, e in zip(run[::2], run[1::2]):
+                if e - s >= min_frames:
+                    out.append(np.linalg.norm(feet[b, e - 1, f, :2] - feet[b, s, f, :2]))
+    return np.asarray(out)
+
+
+def rollout_figures(model: MotionPrior, starts: torch.Tensor, seconds: float = 2.0, seed: int = 0) -> dict:
+    """Rolled-out samples from held-out starting states: do they stay on the ground, and do the feet the prior
+    calls planted (contact probability > 0.5) stay put? Sliding in cm per planted phase; floor: the lowest foot
+    joint's height per frame (cm)."""
+    steps = int(round(seconds * hs.HUMOR_FPS))
+    states, probs = rollout(model, starts, steps, seed)
+    joints = states[:, 1:, hs.JOINTS].reshape(len(starts), steps, hs.NUM_STATE_JOINTS, 3).numpy()
+    feet = joints[:, :, list(FOOT_JOINTS)]
+    planted = probs[:, :, list(FOOT_CONTACTS)].numpy() > 0.5
+    slide = planted_sliding(feet, planted) * 100
+    lowest = feet[..., 2].min(-1) * 100
+    finite = bool(np.isfinite(joints).all())
+    return {"samples": len(starts), "seconds": seconds, "finite": finite,
+            "planted_phases": int(len(slide)),
+            "sliding_cm_median": float(np.median(slide)) if len(slide) else None,
+            "sliding_cm_mean": float(slide.mean()) if len(slide) else None,
+            "sliding_cm_p90": float(np.percentile(slide, 90)) if len(slide) else None,
+            "lowest_foot_cm_median": float(np.median(lowest)),
+            "frames_on_ground": float(np.mean((lowest > -5) & (lowest < 10))),
+            "pelvis_height_m_end": float(np.median(joints[:, -1, 0, 2]))}
+
+
+def truth_sliding(clips, model, config: MotionPriorConfig) -> dict:
+    """The same sliding figure on the held-out clips themselves, their planted feet from the corpus's
+    contact labels (the floor the prior is measured against: mocap retargeted is not slide-free either)."""
+    slides = []
+    for clip in clips:
+        if len(clip["pose"]) < 4:
+            continue
+        states, contacts = clip_states(clip, model, config)
+        feet = states[:, hs.JOINTS].reshape(-1, hs.NUM_STATE_JOINTS, 3)[:, list(FOOT_JOINTS)].numpy()
+        slides.append(planted_sliding(feet, contacts[:, list(FOOT_CONTACTS)].numpy() > 0.5))
+    slide = np.concatenate(slides) * 100 if slides else np.zeros(0)
+    return {"planted_phases": int(len(slide)), "sliding_cm_median": float(np.median(slide)) if len(slide) else None,
+            "sliding_cm_mean": float(slide.mean()) if len(slide) else None}
+
+
+def start_states(clips, model, config: MotionPriorConfig, count: int, seed: int = 0) -> torch.Tensor:
+    """count ground-frame states drawn (seeded) from the clips, for rollouts."""
+    rng = np.random.default_rng(seed)
+    pool = [clip_states(c, model, config)[0] for c in clips if len(c["pose"]) >= 4]
+    if not pool:
+        raise ValueError("no clip of 4 frames or more to start rollouts from")
+    picks = []
+    for _ in range(count):
+        states = pool[rng.integers(len(pool))]
+        picks.append(states[rng.integers(len(states))])
+    return torch.stack(picks)
