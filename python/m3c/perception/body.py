@@ -141,8 +141,9 @@ def fit_bodies(model: BodyModel, keypoints, intrinsics, keypoints3d=None, restar
 
 
 # The fit's learned pose prior by default. Off: on the default video set (seed 0) M3C's shipped prior at
-# vposer_weight 2 lowered PA-MPJPE on 6 of 7 sequences but moved the camera scale the people give on the follow
-# and tracking cameras (W-MPJPE100 295 -> 453 and 383 mm); see docs/notes/learned-models.md.
+# vposer_weight 2 lowered PA-MPJPE on 5 of 7 sequences (83.1 -> 77.4 mm overall) but moved the camera scale the
+# people give on the follow and tracking cameras (W-MPJPE100 295 -> 453 and 383 mm; 209 -> 240 overall); see
+# docs/notes/learned-models.md.
 DEFAULT_POSE_PRIOR = "none"
 
 
