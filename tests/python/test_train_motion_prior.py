@@ -138,3 +138,30 @@ def test_rollouts_of_an_untrained_prior_keep_walking(open_model):
     # Constant velocity (the untrained decoder) for a second: finite, the feet near the floor they started on.
     assert figures["finite"] and figures["samples"] == 4
     assert -10 < figures["lowest_foot_cm_median"] < 20
+
+
+def test_rollout_windows_and_loss(open_model, tmp_path, one_torch_thread):
+    from m3c.training.motion_prior import _loss, _rollout_loss, train_motion_prior_rollouts, windows
+
+    clips = _clips()[:1]
+    config = MotionPriorConfig(rollout_steps=4, hidden=64, batch_size=16, steps=6, history_every=3,
+                               checkpoint_minutes=100.0)
+    states, contacts = windows(clips, open_model, config)
+    full, labels = clip_states(clips[0], open_model, config)
+    # Windows of 5 consecutive states, stride 4, with the contacts of states 1..4.
+    assert states.shape[1:] == (5, hs.STATE_DIM) and len(states) == (len(full) - 4 + 3) // 4
+    torch.testing.assert_close(states[2], full[8:13])
+    torch.testing.assert_close(contacts[2], labels[9:13])
+    # One transition from the truth is the pair loss exactly (same latent noise).
+    model = MotionPrior(64)
+    model.set_normalisation(*pairs(clips, open_model, config)[:2])
+    one = MotionPriorConfig(**{**config.__dict__, "rollout_steps": 1})
+    a, b = hs.canonicalize_pair(states[:8, 0], states[:8, 1])
+    torch.manual_seed(3)
+    expected = _loss(model, a, b, contacts[:8, 0], one, step=10 ** 6)
+    torch.manual_seed(3)
+    got = _rollout_loss(model, states[:8, :2], contacts[:8, :1], one, step=10 ** 6)
+    for key in ("loss", "rec", "contact", "kl"):
+        torch.testing.assert_close(got[key], expected[key])
+    summary = train_motion_prior_rollouts((states, contacts), tmp_path / "roll", config, log=None)
+    assert summary["steps_done"] == 6 and load_motion_prior(tmp_path / "roll" / "motion_prior.pt").hidden == 64

@@ -269,6 +269,11 @@ def build_parser() -> argparse.ArgumentParser:
     mp.add_argument("--seed", type=int, default=0)
     mp.add_argument("--threads", type=int, default=1, help="torch threads (default 1: deterministic)")
     mp.add_argument("--checkpoint-minutes", type=float, default=3.0, help="checkpoint period (default 3)")
+    mp.add_argument("--rollout-steps", type=int, default=1,
+                    help="transitions per training window, rolled out on the prior's own predictions (default 1: "
+                         "consecutive pairs)")
+    mp.add_argument("--init", help="with --rollout-steps > 1: start from another run's motion_prior.pt or "
+                                   "checkpoint.pt")
     mp.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     mp.add_argument("--body-model", help="body model file (default: the shipped open model)")
     mp.add_argument("--quiet", action="store_true", help="no progress lines on stderr")

@@ -75,19 +75,35 @@ ROLLOUTS = 64  # samples from the motion prior rolled out from held-out states
 
 def train_motion_prior_command(args) -> int:
     from m3c.training.motion_prior import (MotionPriorConfig, load_motion_prior, one_step_errors, pairs,
-                                           rollout_figures, start_states, train_motion_prior, truth_sliding)
+                                           rollout_figures, start_states, train_motion_prior,
+                                           train_motion_prior_rollouts, truth_sliding, windows)
 
     config = MotionPriorConfig(steps=args.steps, batch_size=args.batch_size, lr=args.lr, hidden=args.hidden,
                                kl_weight=args.kl_weight, seed=args.seed,
-                               checkpoint_minutes=args.checkpoint_minutes)
+                               checkpoint_minutes=args.checkpoint_minutes, rollout_steps=args.rollout_steps,
+                               # fine-tuning a trained prior: its KL weight in full from the start
+                               kl_warmup=0.0 if args.init else MotionPriorConfig.kl_warmup)
+    if config.rollout_steps < 1:
+        raise ValueError(f"--rollout-steps must be at least 1, got {config.rollout_steps}")
     out, model, log, train_clips, held_clips = _prepare(args, config)
-    data = pairs(train_clips, model, config)
-    if log:
-        log(f"motion prior: {len(train_clips)} training clips, {len(data[0])} state pairs; "
-            f"{len(held_clips)} held-out clips")
-    summary = train_motion_prior(data, out, config, resume=args.resume, log=log)
-    report = {"corpus": str(args.corpus), "train_clips": len(train_clips), "train_pairs": len(data[0]),
-              "held_out_clips": len(held_clips), "steps": summary["steps_done"]}
+    if config.rollout_steps == 1:
+        if args.init:
+            raise ValueError("--init goes with --rollout-steps > 1 (fine-tuning a prior on its own rollouts)")
+        data = pairs(train_clips, model, config)
+        transitions = len(data[0])
+        if log:
+            log(f"motion prior: {len(train_clips)} training clips, {transitions} state pairs; "
+                f"{len(held_clips)} held-out clips")
+        summary = train_motion_prior(data, out, config, resume=args.resume, log=log)
+    else:
+        data = windows(train_clips, model, config)
+        transitions = len(data[0]) * config.rollout_steps
+        if log:
+            log(f"motion prior: {len(train_clips)} training clips, {len(data[0])} windows of "
+                f"{config.rollout_steps} transitions; {len(held_clips)} held-out clips")
+        summary = train_motion_prior_rollouts(data, out, config, init=args.init, resume=args.resume, log=log)
+    report = {"corpus": str(args.corpus), "train_clips": len(train_clips), "train_pairs": transitions,
+              "held_out_clips": len(held_clips), "steps": summary["steps_done"], "init": args.init}
     if held_clips:
         held = pairs(held_clips, model, config)
         prior = load_motion_prior(out / "motion_prior.pt")

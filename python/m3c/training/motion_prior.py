@@ -46,6 +46,10 @@ class MotionPriorConfig:
     seed: int = 0
     checkpoint_minutes: float = 3.0
     history_every: int = 100
+    # 1: pairs of consecutive states (teacher forced). K > 1: windows of K transitions rolled out on the prior's
+    # own predictions, each step's target the true next state (HuMoR's scheduled sampling, at its end): the prior
+    # learns to pull its own drift back instead of compounding it.
+    rollout_steps: int = 1
 
 
 CHANGE_DIM = hs.OUT_CONTACTS.start  # the decoder's 207 change outputs before its 9 contact logits
@@ -76,7 +80,8 @@ def constant_velocity_change(x_prev: torch.Tensor) -> torch.Tensor:
     h = 1.0 / hs.HUMOR_FPS
     zeros = torch.zeros_like
     return torch.cat([x_prev[:, hs.TRANS_VEL] * h, zeros(x_prev[:, hs.TRANS_VEL]), x_prev[:, hs.ROOT_ORIENT_VEL] * h,
-                      zeros(x_prev[:, hs.ROOT_ORIENT_VEL]), zeros(x_prev[:, hs.POSE_BODY.start:hs.POSE_BODY.start + 63]),
+                      zeros(x_prev[:, hs.ROOT_ORIENT_VEL]),
+                      zeros(x_prev[:, hs.POSE_BODY.start:hs.POSE_BODY.start + 3 * hs.NUM_BODY_JOINTS]),
                       x_prev[:, hs.JOINTS_VEL] * h, zeros(x_prev[:, hs.JOINTS_VEL])], dim=-1)
 
 
@@ -250,6 +255,96 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
     model.eval()
     save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
     summary = {"config": asdict(config), "steps_done": run.step, "train_pairs": n, "history": run.history}
+    with atomic_path(out_dir / "train.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    return summary
+
+
+def windows(clips, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """Consecutive ground-frame states of the clips cut into windows of rollout_steps + 1 (stride
+    rollout_steps): (states (N, K + 1, 339), contacts of states 1..K (N, K, 9))."""
+    k = config.rollout_steps
+    states, conts = [], []
+    for clip in clips:
+        if len(clip["pose"]) < k + 3:
+            continue
+        x, c = clip_states(clip, model, config)
+        starts = range(0, len(x) - k, k)
+        states += [x[i:i + k + 1] for i in starts]
+        conts += [c[i + 1:i + k + 1] for i in starts]
+    if not states:
+        raise ValueError(f"no clip of {k + 3} frames or more to train the motion prior's rollouts on")
+    return torch.stack(states), torch.stack(conts)
+
+
+def _rollout_loss(model: MotionPrior, states, contacts, config: MotionPriorConfig, step: int) -> dict:
+    """The pair loss averaged over a window's transitions, each from the state the prior itself predicted (the
+    first from the truth) to the true next state, gradients through the rollout."""
+    x = states[:, 0]
+    total = {"rec": 0.0, "contact": 0.0, "kl": 0.0}
+    k = states.shape[1] - 1
+    for i in range(k):
+        frame = hs.canonical_frame(x)
+        xc, target_c = hs.to_canonical(x, frame), hs.to_canonical(states[:, i + 1], frame)
+        q_mean, q_logvar = model.posterior(xc, target_c)
+        p_mean, p_logvar = model.prior(xc)
+        z = q_mean + torch.exp(0.5 * q_logvar) * torch.randn_like(q_mean)
+        raw = model.residual(xc, z)
+        target = (state_change(xc, target_c) - constant_velocity_change(xc)) / model.output_scale
+        total["rec"] = total["rec"] + ((raw[:, :CHANGE_DIM] - target) ** 2).mean() / k
+        total["contact"] = total["contact"] + F.binary_cross_entropy_with_logits(raw[:, CHANGE_DIM:],
+                                                                                  contacts[:, i]) / k
+        total["kl"] = total["kl"] + 0.5 * (p_logvar - q_logvar + (torch.exp(q_logvar) + (q_mean - p_mean) ** 2)
+                                           * torch.exp(-p_logvar) - 1.0).sum(-1).mean() / k
+        change = raw[:, :CHANGE_DIM] * model.output_scale + constant_velocity_change(xc)
+        nxt, _ = hs.apply_decoder_output(xc, torch.cat([change, raw[:, CHANGE_DIM:]], dim=-1))
+        x = hs.from_canonical(nxt, frame)
+    warm = min(1.0, step / max(1.0, config.kl_warmup * config.steps))
+    loss = total["rec"] + config.contact_weight * total["contact"] + warm * config.kl_weight * total["kl"]
+    return {"loss": loss, **total}
+
+
+def train_motion_prior_rollouts(data: tuple, out_dir: str | Path, config: MotionPriorConfig,
+                                init: str | Path | None = None, resume: bool = False, log=print,
+                                stop_after: int | None = None) -> dict:
+    """Trains on windows (m3c.training.motion_prior.windows) rolled out config.rollout_steps transitions, from
+    init's weights (a motion_prior.pt or checkpoint.pt: its normalisation kept) or from scratch (normalisation
+    from the windows' pairs). Same files as train_motion_prior."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    states, contacts = data
+    n = len(states)
+    if n < config.batch_size:
+        raise ValueError(f"{n} training windows, fewer than one batch ({config.batch_size})")
+    seed_everything(config.seed)
+    model = MotionPrior(config.hidden)
+    if init is not None:
+        model.load_state_dict(torch.load(init, map_location="cpu", weights_only=True)["model"])
+    else:
+        a, b = hs.canonicalize_pair(states[:, :-1].reshape(-1, hs.STATE_DIM), states[:, 1:].reshape(-1, hs.STATE_DIM))
+        model.set_normalisation(a, b)
+    run = ResumableRun(model, config, out_dir, resume, log)
+    dataset = torch.utils.data.TensorDataset(states, contacts)
+    n_batches = n // config.batch_size
+    model.train()
+    stop = False
+    while run.step < config.steps and not stop:
+        epoch, offset = divmod(run.step, n_batches)
+        batches = epoch_batches(n, config.batch_size, config.seed, epoch)[offset:]
+        loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
+                                             generator=torch.Generator().manual_seed(epoch))
+        for x, c in loader:
+            losses = _rollout_loss(model, x, c, config, run.step)
+            run.optimise(losses["loss"])
+            values = {k: float(losses[k].detach()) for k in ("loss", "rec", "contact", "kl")}
+            stop = run.record(values, f"loss {values['loss']:.4f} (rec {values['rec']:.5f}, contact "
+                                      f"{values['contact']:.3f}, kl {values['kl']:.1f})", stop_after)
+            if stop:
+                break
+    model.eval()
+    save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
+    summary = {"config": asdict(config), "steps_done": run.step, "train_windows": n,
+               "init": str(init) if init else None, "history": run.history}
     with atomic_path(out_dir / "train.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=1) + "\n")
     return summary

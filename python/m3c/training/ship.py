@@ -200,7 +200,8 @@ def motion_model_card(card: dict) -> str:
                      f"{r['lowest_foot_cm_median']:.1f} | {100 * r['frames_on_ground']:.0f}% |")
     slide = held["held_out_rollouts"]["sliding_cm_median"]
     if slide is not None and slide > 2.0:
-        lines += ["", f"**Limit:** trained one step at a time, its own 2 s rollouts drift: planted feet slide {slide:.0f} "
+        lines += ["", "**Limit:** its own 2 s rollouts drift: planted feet slide "
+                  f"{slide:.0f} "
                   "cm per planted phase (the mocap itself about 1 cm; the aim is under 2 cm) and the feet leave the "
                   "floor. One-step prediction, which the optimizer's transition term rests on, beats constant "
                   "velocity."]
