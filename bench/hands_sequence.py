@@ -14,13 +14,12 @@ frame^2, the truth's own for reference), and the seconds of each solve.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace
 
 import numpy as np
-from hands_synthetic import FINGER_JOINT_ROWS, procrustes
+from hands_synthetic import FINGER_JOINT_ROWS, procrustes, report
 from m3c.body import BodyModel, open_body_model_data
 from m3c.body.hands import load_hand_model
 from m3c.perception.hand_fit import LOWER, NUM_DOFS, UPPER, SideModel, _rodrigues, fit_hand, smooth_dofs
@@ -117,10 +116,7 @@ def main(argv=None) -> int:
         "finger_jitter_mm_per_frame2": {k: 1000 * float(np.mean(v)) for k, v in jitter.items() if v},
         "seconds_per_frame": {k: v / max(total, 1) for k, v in seconds.items()},
     }
-    print(json.dumps(figures, indent=1))
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(figures, fh, indent=1)
+    report(figures, args.json)
     return 0
 
 

@@ -86,11 +86,19 @@ def main(argv=None) -> int:
         "detect_s_per_frame": float(np.mean(detect_s)),
         "fit_s_per_hand": float(np.mean(fit_s)) if fit_s else None,
     }
-    print(json.dumps(figures, indent=1))
-    if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(figures, fh, indent=1)
+    report(figures, args.json)
     return 0
+
+
+def report(figures: dict, path: str | None) -> None:
+    """The figures on stdout and, written whole or not at all, in path (the benchmarks' --json)."""
+    from m3c.io.atomic import atomic_path
+
+    text = json.dumps(figures, indent=1)
+    print(text)
+    if path:
+        with atomic_path(path) as tmp:
+            tmp.write_text(text + "\n")
 
 
 if __name__ == "__main__":

@@ -27,3 +27,16 @@ def test_no_shipped_prior_no_licence():
     hmr = priors_summary({"perception": {"estimators": {"body": "hmr2"}},
                           "optimize": {"motion_prior": "shipped"}}, STAGES)
     assert hmr["body_fit"] is None and hmr["licence"] == SHIPPED_PRIOR_LICENCE
+
+
+def test_a_missing_fit_pose_prior_is_refused_before_any_node_runs(tmp_path, capsys):
+    from pathlib import Path
+
+    from m3c.cli import main
+
+    clip = Path(__file__).resolve().parents[2] / "examples" / "pexels_walking_moving_camera.mp4"
+    out = tmp_path / "out"
+    setting = 'perception.estimators={"body": {"name": "fit", "options": {"pose_prior": "/nope.safetensors"}}}'
+    code = main(["run", str(clip), "--out", str(out), "--set", setting])
+    assert code != 0 and not out.exists()
+    assert "the body fit's pose_prior: /nope.safetensors does not exist" in capsys.readouterr().err

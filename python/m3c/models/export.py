@@ -67,16 +67,15 @@ def _numpy(state: dict, dtype: np.dtype) -> dict:
 def humor_entry(include_decoder: bool = False, model: humor_module.HumorModel | None = None) -> dict:
     """The manifest entry of an exported HuMoR model (architecture and dimensions; the layer widths are the
     model's, HuMoR's own when none is given)."""
-    layers = lambda net, official: list(net.sizes) if model is not None else list(official)
+    def layers(net: str, official) -> list:
+        return list(getattr(model, net).sizes if model is not None else official)
+
     networks = {
-        "encoder": {"prefix": "encoder.net", "layers": layers(getattr(model, "encoder", None),
-                                                              humor_module.ENCODER_LAYERS), "skip_dim": 0},
-        "prior": {"prefix": "prior_net.net", "layers": layers(getattr(model, "prior_net", None),
-                                                             humor_module.PRIOR_LAYERS), "skip_dim": 0},
+        "encoder": {"prefix": "encoder.net", "layers": layers("encoder", humor_module.ENCODER_LAYERS), "skip_dim": 0},
+        "prior": {"prefix": "prior_net.net", "layers": layers("prior_net", humor_module.PRIOR_LAYERS), "skip_dim": 0},
     }
     if include_decoder:
-        networks["decoder"] = {"prefix": "decoder.net", "layers": layers(getattr(model, "decoder", None),
-                                                                          humor_module.DECODER_LAYERS),
+        networks["decoder"] = {"prefix": "decoder.net", "layers": layers("decoder", humor_module.DECODER_LAYERS),
                                "skip_dim": hs.LATENT_DIM}
     return {
         "architecture": "humor",

@@ -117,19 +117,24 @@ class PerceptionNode(Node):
             path = options.get("checkpoint")
             if path and Path(path).is_file():
                 digests[task] = file_digest(path)
-        body = self._perception_config().estimators["body"]
-        if body.name == "fit":  # the learned pose prior the fit uses: its weights' digest
-            from m3c.perception.body import DEFAULT_POSE_PRIOR, pose_prior_file
-
-            try:
-                prior = pose_prior_file(body.options.get("pose_prior", DEFAULT_POSE_PRIOR))
-            except (ValueError, FileNotFoundError):
-                prior = None  # check() reports it
-            if prior is not None:
-                digests["pose_prior"] = file_digest(prior)
+        try:  # the learned pose prior the fit uses: its weights' digest
+            prior = self._fit_pose_prior(self._perception_config())
+        except (ValueError, FileNotFoundError):
+            prior = None  # check() reports it
+        if prior is not None:
+            digests["pose_prior"] = file_digest(prior)
         if digests:
             config["checkpoint_digests"] = digests
         return config
+
+    @staticmethod
+    def _fit_pose_prior(config):
+        """The weights of the learned pose prior the `fit` body estimator of a PerceptionConfig uses (None: none,
+        or another body estimator); ValueError / FileNotFoundError when its setting names none that exists."""
+        from m3c.perception.body import DEFAULT_POSE_PRIOR, pose_prior_file
+
+        body = config.estimators["body"]
+        return pose_prior_file(body.options.get("pose_prior", DEFAULT_POSE_PRIOR)) if body.name == "fit" else None
 
     @dataclass
     class Config:
@@ -172,13 +177,10 @@ class PerceptionNode(Node):
                 except CheckpointNotFoundError as err:
                     raise ComponentUnavailable(self.name, f"{source.model}'s checkpoint (the {task} estimator)",
                                                str(err)) from None
-        if config.estimators["body"].name == "fit":
-            from m3c.perception.body import DEFAULT_POSE_PRIOR, pose_prior_file
-
-            try:
-                pose_prior_file(config.estimators["body"].options.get("pose_prior", DEFAULT_POSE_PRIOR))
-            except (ValueError, FileNotFoundError) as err:
-                raise InputError(f"node {self.name!r}: the body fit's {err}") from None
+        try:
+            self._fit_pose_prior(config)
+        except (ValueError, FileNotFoundError) as err:
+            raise InputError(f"node {self.name!r}: the body fit's {err}") from None
         users = sorted(task for task, spec in config.estimators.items() if spec.name == NAME)
         if users and not mediapipe_available():
             raise ComponentUnavailable(self.name, f"MediaPipe (the {', '.join(users)} estimator)",

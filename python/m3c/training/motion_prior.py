@@ -204,7 +204,9 @@ def pairs(clips, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.
     return torch.cat(prev), torch.cat(nxt), torch.cat(cont)
 
 
-def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfig, step: int) -> dict:
+def _transition_terms(model: MotionPrior, x_prev, x_next, contacts) -> tuple[dict, torch.Tensor]:
+    """One transition's loss terms (canonical x_prev -> x_next, contact labels of x_next) and the decoder's raw
+    output."""
     q_mean, q_logvar = model.posterior(x_prev, x_next)
     p_mean, p_logvar = model.prior(x_prev)
     z = q_mean + torch.exp(0.5 * q_logvar) * torch.randn_like(q_mean)
@@ -215,10 +217,49 @@ def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfi
     bce = F.binary_cross_entropy_with_logits(raw[:, CHANGE_DIM:], contacts)
     kl = 0.5 * (p_logvar - q_logvar + (torch.exp(q_logvar) + (q_mean - p_mean) ** 2) * torch.exp(-p_logvar)
                 - 1.0).sum(-1).mean()
+    return {"rec": rec, "contact": bce, "kl": kl}, raw
+
+
+def _weighted(terms: dict, config: MotionPriorConfig, step: int) -> dict:
     # KL annealing (as HuMoR trains): the latent learns to carry the transition before the prior pulls it in.
     warm = min(1.0, step / max(1.0, config.kl_warmup * config.steps))
-    total = rec + config.contact_weight * bce + warm * config.kl_weight * kl
-    return {"loss": total, "rec": rec, "contact": bce, "kl": kl}
+    total = terms["rec"] + config.contact_weight * terms["contact"] + warm * config.kl_weight * terms["kl"]
+    return {"loss": total, **terms}
+
+
+def _loss(model: MotionPrior, x_prev, x_next, contacts, config: MotionPriorConfig, step: int) -> dict:
+    return _weighted(_transition_terms(model, x_prev, x_next, contacts)[0], config, step)
+
+
+def _train(model: MotionPrior, dataset, loss, out_dir: Path, config: MotionPriorConfig, resume: bool, log,
+           stop_after: int | None, summary: dict) -> dict:
+    """The training loop both trainers share: seeded epoch batches of dataset, loss(model, *batch, step),
+    ResumableRun's steps, checkpoints and history; then motion_prior.pt and train.json (summary's entries
+    with the config, steps and history)."""
+    run = ResumableRun(model, config, out_dir, resume, log)
+    n = len(dataset)
+    n_batches = n // config.batch_size
+    model.train()
+    stop = False
+    while run.step < config.steps and not stop:
+        epoch, offset = divmod(run.step, n_batches)
+        batches = epoch_batches(n, config.batch_size, config.seed, epoch)[offset:]
+        loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
+                                             generator=torch.Generator().manual_seed(epoch))
+        for batch in loader:
+            losses = loss(model, *batch, config, run.step)
+            run.optimise(losses["loss"])
+            values = {k: float(losses[k].detach()) for k in ("loss", "rec", "contact", "kl")}
+            stop = run.record(values, f"loss {values['loss']:.4f} (rec {values['rec']:.5f}, contact "
+                                      f"{values['contact']:.3f}, kl {values['kl']:.1f})", stop_after)
+            if stop:
+                break
+    model.eval()
+    save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
+    summary = {"config": asdict(config), "steps_done": run.step, **summary, "history": run.history}
+    with atomic_path(out_dir / "train.json") as tmp:
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    return summary
 
 
 def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConfig, resume: bool = False,
@@ -234,30 +275,8 @@ def train_motion_prior(data: tuple, out_dir: str | Path, config: MotionPriorConf
     seed_everything(config.seed)
     model = MotionPrior(config.hidden)
     model.set_normalisation(x_prev, x_next)
-    run = ResumableRun(model, config, out_dir, resume, log)
-    dataset = torch.utils.data.TensorDataset(x_prev, x_next, contacts)
-    n_batches = n // config.batch_size
-    model.train()
-    stop = False
-    while run.step < config.steps and not stop:
-        epoch, offset = divmod(run.step, n_batches)
-        batches = epoch_batches(n, config.batch_size, config.seed, epoch)[offset:]
-        loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
-                                             generator=torch.Generator().manual_seed(epoch))
-        for a, b, c in loader:
-            losses = _loss(model, a, b, c, config, run.step)
-            run.optimise(losses["loss"])
-            stop = run.record({k: losses[k].item() for k in ("loss", "rec", "contact", "kl")},
-                              f"loss {losses['loss'].item():.4f} (rec {losses['rec'].item():.5f}, "
-                              f"contact {losses['contact'].item():.3f}, kl {losses['kl'].item():.1f})", stop_after)
-            if stop:
-                break
-    model.eval()
-    save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
-    summary = {"config": asdict(config), "steps_done": run.step, "train_pairs": n, "history": run.history}
-    with atomic_path(out_dir / "train.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
-    return summary
+    return _train(model, torch.utils.data.TensorDataset(x_prev, x_next, contacts), _loss, out_dir, config, resume,
+                  log, stop_after, {"train_pairs": n})
 
 
 def windows(clips, model, config: MotionPriorConfig) -> tuple[torch.Tensor, torch.Tensor]:
@@ -281,27 +300,17 @@ def _rollout_loss(model: MotionPrior, states, contacts, config: MotionPriorConfi
     """The pair loss averaged over a window's transitions, each from the state the prior itself predicted (the
     first from the truth) to the true next state, gradients through the rollout."""
     x = states[:, 0]
-    total = {"rec": 0.0, "contact": 0.0, "kl": 0.0}
     k = states.shape[1] - 1
+    total = {"rec": 0.0, "contact": 0.0, "kl": 0.0}
     for i in range(k):
         frame = hs.canonical_frame(x)
-        xc, target_c = hs.to_canonical(x, frame), hs.to_canonical(states[:, i + 1], frame)
-        q_mean, q_logvar = model.posterior(xc, target_c)
-        p_mean, p_logvar = model.prior(xc)
-        z = q_mean + torch.exp(0.5 * q_logvar) * torch.randn_like(q_mean)
-        raw = model.residual(xc, z)
-        target = (state_change(xc, target_c) - constant_velocity_change(xc)) / model.output_scale
-        total["rec"] = total["rec"] + ((raw[:, :CHANGE_DIM] - target) ** 2).mean() / k
-        total["contact"] = total["contact"] + F.binary_cross_entropy_with_logits(raw[:, CHANGE_DIM:],
-                                                                                  contacts[:, i]) / k
-        total["kl"] = total["kl"] + 0.5 * (p_logvar - q_logvar + (torch.exp(q_logvar) + (q_mean - p_mean) ** 2)
-                                           * torch.exp(-p_logvar) - 1.0).sum(-1).mean() / k
+        xc = hs.to_canonical(x, frame)
+        terms, raw = _transition_terms(model, xc, hs.to_canonical(states[:, i + 1], frame), contacts[:, i])
+        total = {key: total[key] + terms[key] / k for key in total}
         change = raw[:, :CHANGE_DIM] * model.output_scale + constant_velocity_change(xc)
         nxt, _ = hs.apply_decoder_output(xc, torch.cat([change, raw[:, CHANGE_DIM:]], dim=-1))
         x = hs.from_canonical(nxt, frame)
-    warm = min(1.0, step / max(1.0, config.kl_warmup * config.steps))
-    loss = total["rec"] + config.contact_weight * total["contact"] + warm * config.kl_weight * total["kl"]
-    return {"loss": loss, **total}
+    return _weighted(total, config, step)
 
 
 def train_motion_prior_rollouts(data: tuple, out_dir: str | Path, config: MotionPriorConfig,
@@ -321,33 +330,10 @@ def train_motion_prior_rollouts(data: tuple, out_dir: str | Path, config: Motion
     if init is not None:
         model.load_state_dict(torch.load(init, map_location="cpu", weights_only=True)["model"])
     else:
-        a, b = hs.canonicalize_pair(states[:, :-1].reshape(-1, hs.STATE_DIM), states[:, 1:].reshape(-1, hs.STATE_DIM))
-        model.set_normalisation(a, b)
-    run = ResumableRun(model, config, out_dir, resume, log)
-    dataset = torch.utils.data.TensorDataset(states, contacts)
-    n_batches = n // config.batch_size
-    model.train()
-    stop = False
-    while run.step < config.steps and not stop:
-        epoch, offset = divmod(run.step, n_batches)
-        batches = epoch_batches(n, config.batch_size, config.seed, epoch)[offset:]
-        loader = torch.utils.data.DataLoader(dataset, batch_sampler=batches.tolist(),
-                                             generator=torch.Generator().manual_seed(epoch))
-        for x, c in loader:
-            losses = _rollout_loss(model, x, c, config, run.step)
-            run.optimise(losses["loss"])
-            values = {k: float(losses[k].detach()) for k in ("loss", "rec", "contact", "kl")}
-            stop = run.record(values, f"loss {values['loss']:.4f} (rec {values['rec']:.5f}, contact "
-                                      f"{values['contact']:.3f}, kl {values['kl']:.1f})", stop_after)
-            if stop:
-                break
-    model.eval()
-    save_checkpoint(out_dir / "motion_prior.pt", model=model.state_dict(), hidden=config.hidden)
-    summary = {"config": asdict(config), "steps_done": run.step, "train_windows": n,
-               "init": str(init) if init else None, "history": run.history}
-    with atomic_path(out_dir / "train.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
-    return summary
+        model.set_normalisation(*hs.canonicalize_pair(states[:, :-1].reshape(-1, hs.STATE_DIM),
+                                                      states[:, 1:].reshape(-1, hs.STATE_DIM)))
+    return _train(model, torch.utils.data.TensorDataset(states, contacts), _rollout_loss, out_dir, config, resume,
+                  log, stop_after, {"train_windows": n, "init": str(init) if init else None})
 
 
 def load_motion_prior(path: str | Path) -> MotionPrior:
