@@ -144,3 +144,45 @@ def test_bad_input_is_a_clear_error():
             np.ones((1, 3), np.float32),
             np.array([0, 0, -1.0]),
         )
+
+
+def test_a_glossy_floor_mirrors_what_stands_on_it():
+    """A red box 0.4-0.8 m above a grey floor: with gloss g the floor pixels where the box's mirror image
+    (y -> -y) projects take g of the box's colour, the rest of the floor and the box itself are unchanged."""
+    from m3c.camera import project, to_camera
+    from m3c.synth.render import Renderer, TexturedMesh
+    from m3c.synth.world import box_mesh
+
+    grey = np.full((8, 8, 3), 0.5, np.float32)
+    red = np.zeros((8, 8, 3), np.float32)
+    red[..., 0] = 1.0
+    floor = TexturedMesh(np.array([[-20, 0, -5], [20, 0, -5], [-20, 0, 40], [20, 0, 40]], np.float64),
+                         np.array([[0, 2, 1], [1, 2, 3]], np.int32), np.zeros((4, 2)), 0, False, ground=True)
+    box = box_mesh(np.array([0.0, 4.0]), np.array([0.6, 0.4, 0.6]), 0.0, 1)
+    box.vertices = box.vertices + np.array([0.0, 0.4, 0.0])  # floating 0.4 m above the floor
+    # Camera 1.5 m up at z = 0 looking along +z, tilted 20 degrees down (OpenCV axes: y down).
+    tilt = np.radians(20.0)
+    c, s = np.cos(tilt), np.sin(tilt)
+    R = np.array([[-1.0, 0, 0], [0, -c, -s], [0, -s, c]]).T  # columns: the camera's x, y, z in the world
+    world_from_cam = np.eye(4)
+    world_from_cam[:3, :3], world_from_cam[:3, 3] = R, [0.0, 1.5, 0.0]
+    K = np.array([150.0, 150.0, 79.5, 59.5])
+    renderer = Renderer([grey, red], 160, 120, supersample=1, ambient=1.0)
+    matte = renderer.render(world_from_cam, K, [box, floor], [])
+    glossy = renderer.render(world_from_cam, K, [box, floor], [], gloss=0.3)
+
+    def pixel(point):
+        u, v = project(to_camera(np.asarray(point, np.float64)[None], world_from_cam), K)[0]
+        return int(round(v)), int(round(u))
+
+    box_px, mirror_px = pixel([0.0, 0.6, 4.0]), pixel([0.0, -0.6, 4.0])
+    np.testing.assert_array_equal(glossy.image[box_px], matte.image[box_px])  # the box: not a floor pixel
+    assert matte.ids[mirror_px] == -1 and np.isfinite(matte.depth[mirror_px])
+    # Its mirror image on the floor: 0.7 grey + 0.3 red (BGR order), to a rounding level.
+    expected = 0.7 * matte.image[mirror_px].astype(float) + 0.3 * np.array([0.0, 0.0, 255.0])
+    np.testing.assert_allclose(glossy.image[mirror_px].astype(float), expected, atol=2.0)
+    # Far from the mirror image the floor is as it was (the sky is not mirrored onto it).
+    far = pixel([1.5, 0.0, 6.0])
+    np.testing.assert_array_equal(glossy.image[far], matte.image[far])
+    changed = np.any(glossy.image != matte.image, axis=-1)
+    assert changed.sum() < 0.2 * changed.size and changed[mirror_px]

@@ -147,6 +147,13 @@ def test_scores_see_errors(model, follow_video):
     assert held["scale_error_pct"] == -100.0
     assert held["ate_mm"] == pytest.approx(1000 * np.sqrt(((centres - centres.mean(0)) ** 2).sum(-1).mean()))
     assert held["ate_mm"] > 100.0
+    # A near-still camera whose hand shakes over a long path but never gets 0.5 m from its start has no scale to
+    # be wrong about: held fixed, it is not scored -100 %.
+    still = np.repeat(truth["world_from_cam"][:1], 150, axis=0)
+    still[:, :3, 3] += 0.1 * np.random.default_rng(1).uniform(-1, 1, (150, 3))
+    assert np.linalg.norm(np.diff(still[:, :3, 3], axis=0), axis=1).sum() > 5 * vb.MIN_CAMERA_PATH
+    assert vb.camera_travel(still) < vb.MIN_CAMERA_PATH
+    assert "scale_error_pct" not in vb.camera_scores(np.repeat(still[:1], 150, axis=0), still)
     half = truth["transl"].copy()
     half[..., [0, 2]] = half[:, :1, [0, 2]] + 0.5 * (half[..., [0, 2]] - half[:, :1, [0, 2]])
     arrays["world_transl"] = half

@@ -10,6 +10,7 @@ import pytest
 from m3c.eval import video_benchmark as vb
 from m3c.synth import SequenceSpec, make_video, setup_sequence
 from m3c.synth.cameras import STILL_MAX_TRAVEL_M
+from m3c.synth.people import CROWD_DISTANCE, CROWD_MIN_SPEED
 from m3c.synth.sequence import DEGRADE, degrade_frame, slowed
 
 
@@ -32,7 +33,7 @@ def test_the_hard_suite_mixes_every_difficulty():
     assert len(specs) == len(vb.HARD_SUITE) >= 8
     assert {s.camera for s in specs} >= {"still", "follow", "tracking", "handheld", "static", "pan", "orbit"}
     assert {s.slow_motion for s in specs} == {1.0, 2.0, 4.0}
-    assert {s.floor for s in specs} == {"textured", "plain"} and any(s.degrade for s in specs)
+    assert {s.floor for s in specs} == {"textured", "plain", "glossy"} and any(s.degrade for s in specs)
     assert all(s.num_frames == (120 if s.slow_motion == 4 else 60) for s in specs)
     assert len({s.name for s in specs}) == len(specs) and "slow4" in specs[3].name
     # The default suite's specs, and so its folders, are unchanged: no new field joins their key.
@@ -40,14 +41,20 @@ def test_the_hard_suite_mixes_every_difficulty():
     assert [s.camera for s in default] == ["static", "pan", "follow", "tracking", "orbit", "handheld", "high"]
     for spec in default:
         key = spec.key()
-        assert set(key) == set(asdict(spec)) - {"slow_motion", "floor", "degrade"}
+        assert set(key) == set(asdict(spec)) - {"slow_motion", "floor", "degrade", "crowd"}
         assert spec.name == f"seq{spec.index:02d}_{spec.camera}_{spec.num_people}p"
     with pytest.raises(ValueError, match="suite"):
         vb.VideoBenchmarkConfig(suite="harder").validate()
     with pytest.raises(ValueError, match="slow_motion"):
         SequenceSpec(0, "still", 1, slow_motion=0.5).validate()
     with pytest.raises(ValueError, match="floor"):
-        SequenceSpec(0, "still", 1, floor="glossy").validate()
+        SequenceSpec(0, "still", 1, floor="marble").validate()
+    with pytest.raises(ValueError, match="crowd"):
+        SequenceSpec(0, "still", 1, crowd=-1).validate()
+    # Crowds of 10-30 walkers, one behind a near-still camera.
+    crowds = [s for s in specs if s.crowd]
+    assert len(crowds) >= 3 and all(10 <= s.crowd <= 30 for s in crowds)
+    assert any(s.camera == "still" for s in crowds) and all("crowd" in s.name for s in crowds)
 
 
 def test_slowed_clip_shows_the_motion_at_a_fraction_of_its_speed(clips):
@@ -114,3 +121,42 @@ def test_degraded_frames_blur_and_add_noise():
     assert out[:, 40:].std() == pytest.approx(DEGRADE["noise_levels"], rel=0.15)
     edge = out[:, 30:34].mean(axis=0).mean(axis=1)
     assert 20 < edge[1] < 180 and 20 < edge[2] < 180  # the step is smeared over the pixels beside it
+
+
+def test_a_crowd_walks_through_the_view_without_touching_the_scene(model, clips, tmp_path):
+    """Unscored walkers: in the mid-sequence camera's view at 3-25 m, walking, 0.5 m from the scored people,
+    some in front of them; the scored people and the camera are those of the same sequence without a crowd."""
+    spec = SequenceSpec(9, "still", 2, num_frames=40, width=320, height=180, crowd=15)
+    setup = setup_sequence(model, clips, spec)
+    plain = setup_sequence(model, clips, SequenceSpec(9, "still", 2, num_frames=40, width=320, height=180))
+    np.testing.assert_array_equal(plain.world_from_cam, setup.world_from_cam)
+    np.testing.assert_array_equal(plain.joints, setup.joints)
+    assert 12 <= len(setup.crowd) <= 15
+    mid = setup.world_from_cam[20]
+    hfov = np.radians(setup.camera_info["hfov_deg"])
+    scored = setup.joints[:, :, 0]
+    nearest = np.linalg.norm((scored - mid[:3, 3])[..., [0, 2]], axis=-1).min()
+    distances = []
+    for walker in setup.crowd:
+        pelvis = model.joints(walker.pose(), walker.betas, walker.transl)[:, 0]
+        centre = pelvis[[0, -1]].mean(axis=0)
+        cam = (centre - mid[:3, 3]) @ mid[:3, :3]
+        distances.append(np.hypot(cam[0], cam[2]))
+        assert cam[2] > 0 and abs(np.arctan2(cam[0], cam[2])) <= 0.45 * hfov + 1e-9
+        speed = np.linalg.norm(pelvis[-1, [0, 2]] - pelvis[0, [0, 2]]) * spec.fps / (spec.num_frames - 1)
+        assert speed >= 0.9 * CROWD_MIN_SPEED
+        assert np.linalg.norm((pelvis - scored)[..., [0, 2]], axis=-1).min() >= 0.5
+        lowest = model.forward(walker.pose(), walker.betas, walker.transl).vertices[:, :, 1].min(axis=1)
+        assert np.abs(lowest).max() < 0.1  # walking on the ground, no jumps
+    distances = np.array(distances)
+    assert CROWD_DISTANCE[0] - 0.5 <= distances.min() and distances.max() <= CROWD_DISTANCE[1] + 0.5
+    assert (distances < nearest).any() and (distances > nearest + 3).any()
+    # Rendered: the walkers draw with their own ids after the people's; the truth keeps their joints apart.
+    video = make_video(model, clips, spec, tmp_path)
+    truth = video.truth()
+    assert truth["crowd_joints"].shape == (len(setup.crowd), 40, 24, 3)
+    assert truth["keypoints_2d"].shape[0] == 2 and len(video.meta()["crowd"]) == len(setup.crowd)
+    ids = set(np.unique(setup.frame(20).ids)) - {-1}
+    assert ids - {0, 1} and max(ids) < 2 + len(setup.crowd)
+    again = setup_sequence(model, clips, spec)
+    np.testing.assert_array_equal(again.crowd[0].transl, setup.crowd[0].transl)

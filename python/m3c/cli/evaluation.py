@@ -86,7 +86,7 @@ def eval_video_benchmark(args) -> int:
                                   supersample=args.supersample, clip_paths=tuple(clips),
                                   pipeline_config=args.config, overrides=tuple(args.set or ()),
                                   known_intrinsics=args.known_intrinsics, render_only=args.render_only,
-                                  suite=args.suite)
+                                  suite=args.suite, only=tuple(args.only))
     if args.config and not Path(args.config).is_file():
         raise FileNotFoundError(f"pipeline config not found: {args.config}")
     report = run_video_benchmark(model, config, args.out, log, show_progress=not args.quiet)

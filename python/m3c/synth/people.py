@@ -197,6 +197,83 @@ def _apart(model: BodyModel, people: list[Person], distance: float) -> bool:
     return True
 
 
+# A background crowd (m3c.synth.sequence's `crowd`): walkers, not scored, at CROWD_DISTANCE metres from the
+# camera inside its view, crossing it at an angle; CROWD_NEAR of them between the camera and the scored people.
+CROWD_DISTANCE = (3.0, 25.0)
+CROWD_NEAR = 0.2
+CROWD_MIN_SPEED = 0.5  # m/s: the crowd's segments travel at least this fast (walkers, not bystanders)
+CROWD_MAX_LIFT = 0.08  # m: and never lift both feet higher (a walk, not jumps)
+
+
+def place_crowd(model: BodyModel, clips: list[RetargetedMotion], count: int, n: int, fps: float, rng,
+                world_from_cam: np.ndarray, hfov: float, avoid: list[Person], tries: int = 50) -> list[Person]:
+    """`count` walkers of n frames, each the fastest-travelling segments' random pick, placed so that the middle
+    of its walk lies in the mid-sequence camera's view at a random distance within CROWD_DISTANCE (CROWD_NEAR
+    of them nearer than the closest scored person) and its path crosses the view at 30-90 degrees to the line
+    of sight; 0.5 m from everyone at every frame (a walker that cannot be placed in `tries` draws is left out)."""
+    segments = []  # (clip, start) of every usable segment that walks: travels, a foot always on the ground
+    for clip in clips:
+        if clip.num_frames < n:
+            continue
+        moves = _displacement(clip, n)
+        lowest = model.forward(clip.pose(), clip.betas, clip.transl).vertices[:, :, 1].min(axis=1)
+        airborne = np.concatenate([[0], np.cumsum(lowest - np.quantile(lowest, 0.1) > CROWD_MAX_LIFT)])
+        grounded = airborne[n:] - airborne[:-n] == 0
+        starts = np.flatnonzero((moves >= CROWD_MIN_SPEED * n / fps) & grounded)
+        segments += [(clip, int(s)) for s in starts[:: max(1, len(starts) // 20)]]
+    if not segments:
+        raise ValueError(f"no motion clip walks {CROWD_MIN_SPEED} m/s over {n} frames with a foot on the ground: a "
+                         "crowd needs walking clips (--clips / --mocap)")
+    mid = world_from_cam[len(world_from_cam) // 2]
+    centre = mid[[0, 2], 3]
+    forward = mid[[0, 2], 2] / max(np.linalg.norm(mid[[0, 2], 2]), 1e-9)
+    scored = [model.joints(p.pose(), p.betas, p.transl)[:, 0, [0, 2]] for p in avoid]
+    nearest = min((float(np.linalg.norm(j - centre, axis=-1).min()) for j in scored), default=CROWD_DISTANCE[1])
+    paths: list[np.ndarray] = list(scored)
+    crowd = []
+    for k in range(count):
+        for _ in range(tries):
+            clip, start = segments[rng.integers(len(segments))]
+            near = rng.uniform() < CROWD_NEAR
+            low, high = (CROWD_DISTANCE[0], max(CROWD_DISTANCE[0] + 0.5, nearest - 1.0)) if near else CROWD_DISTANCE
+            distance = float(np.sqrt(rng.uniform(low ** 2, high ** 2)))  # uniform over the view's area
+            bearing = rng.uniform(-0.45, 0.45) * hfov
+            c, s = np.cos(bearing), np.sin(bearing)
+            ray = np.array([c * forward[0] - s * forward[1], s * forward[0] + c * forward[1]])
+            spot = centre + distance * ray
+            cross = rng.choice([-1.0, 1.0]) * rng.uniform(np.pi / 6, np.pi / 2)
+            c, s = np.cos(cross), np.sin(cross)
+            heading = np.array([c * ray[0] - s * ray[1], s * ray[0] + c * ray[1]])
+            person = _walker(model, clip, start, n, rng, spot, heading)
+            pelvis = model.joints(person.pose(), person.betas, person.transl)[:, 0, [0, 2]]
+            if all(np.min(np.linalg.norm(pelvis - other, axis=-1)) >= 0.5 for other in paths):
+                crowd.append(person)
+                paths.append(pelvis)
+                break
+    return crowd
+
+
+def _walker(model, clip: RetargetedMotion, start: int, n: int, rng, spot: np.ndarray,
+            heading: np.ndarray) -> Person:
+    """A crowd walker: the segment turned so that it travels along `heading` (xz) with the middle of its path
+    at `spot`, standing on y = 0."""
+    seg = slice(start, start + n)
+    betas = clip.betas + 0.5 * rng.normal(size=clip.betas.shape)
+    root, transl, body = clip.root_orient[seg].copy(), clip.transl[seg].copy(), clip.body_pose[seg].copy()
+    j0 = rest_root_joint(model, betas)
+    pelvis = transl + j0
+    move = pelvis[-1, [0, 2]] - pelvis[0, [0, 2]]
+    yaw = np.arctan2(heading[0], heading[1]) - np.arctan2(move[0], move[1])
+    turn = Rotation.from_rotvec(yaw * UP).as_matrix()
+    T = np.eye(4)
+    T[:3, :3] = turn
+    T[[0, 2], 3] = spot - (turn @ pelvis[[0, -1]].mean(axis=0))[[0, 2]]
+    root, transl = transform_smpl(T, root, transl, j0)
+    lowest = model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
+    transl[:, 1] -= np.quantile(lowest, 0.1)
+    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
+
+
 def true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
     """Contact labels (n, 4) of the CONTACT_JOINTS: near the ground and moving less than `speed` m per
     frame."""

@@ -8,7 +8,7 @@ Ground truth (truth.npz, world frame y up, ground y = 0, metres; P people, T fra
   joints (P, T, 24, 3) world, keypoints_2d (P, T, 17, 2) projected COCO-17 keypoints, keypoints_in_image
   (P, T, 17), contacts (P, T, 4) planted ankles/feet (CONTACT_JOINTS), visible_pixels (P, T) pixels of the person
   in the frame, silhouette_pixels (P, T) pixels the person covers when drawn alone (occlusion = 1 - visible /
-  silhouette).
+  silhouette); crowd_joints (C, T, 24, 3) the unscored background walkers' world joints (C = 0 without a crowd).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from m3c.camera import project, to_camera
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import atomic_path, save_npz_atomic
 from m3c.synth.cameras import CAMERA_KINDS, EXTRA_CAMERA_KINDS, camera_path
-from m3c.synth.people import Person, face_colours, place_people, true_contacts, vertex_parts
+from m3c.synth.people import Person, face_colours, place_crowd, place_people, true_contacts, vertex_parts
 from m3c.synth.render import RenderedFrame, Renderer
 from m3c.synth.world import FLOORS, StaticScene, make_scene
 
@@ -49,11 +49,13 @@ class SequenceSpec:
     slow_motion: float = 1.0  # the mocap played this many times slower (the video's fps unchanged)
     floor: str = "textured"  # m3c.synth.world.FLOORS
     degrade: bool = False  # phone optics: DEGRADE's blur, sensor noise and low-bitrate H.264
+    crowd: int = 0  # unscored walkers behind and in front of the scored people (m3c.synth.people.place_crowd)
 
     @property
     def name(self) -> str:
         extra = "".join([f"_slow{self.slow_motion:g}" if self.slow_motion != 1.0 else "",
-                         "_plain" if self.floor == "plain" else "", "_degraded" if self.degrade else ""])
+                         f"_{self.floor}" if self.floor != "textured" else "", "_degraded" if self.degrade else "",
+                         f"_crowd{self.crowd}" if self.crowd else ""])
         return f"seq{self.index:02d}_{self.camera}_{self.num_people}p{extra}"
 
     def key(self) -> dict:
@@ -79,13 +81,16 @@ class SequenceSpec:
         if not (np.isfinite(self.slow_motion) and 1.0 <= self.slow_motion <= 16.0):
             raise ValueError(f"slow_motion must be within 1-16 (times slower than real time), got "
                              f"{self.slow_motion}")
+        if not 0 <= self.crowd <= MAX_CROWD:
+            raise ValueError(f"crowd must be 0-{MAX_CROWD} walkers, got {self.crowd}")
         if self.floor not in FLOORS:
             raise ValueError(f"floor must be one of {', '.join(FLOORS)}, got {self.floor!r}")
         if self.camera not in CAMERA_KINDS + EXTRA_CAMERA_KINDS:
             raise ValueError(f"unknown camera kind {self.camera!r}")
 
 
-EXTRA_DEFAULTS = {"slow_motion": 1.0, "floor": "textured", "degrade": False}
+EXTRA_DEFAULTS = {"slow_motion": 1.0, "floor": "textured", "degrade": False, "crowd": 0}
+MAX_CROWD = 40
 # Phone optics of a degraded sequence: Gaussian blur (pixels), sensor noise (8-bit levels, per pixel and channel)
 # and the H.264 constant rate factor (the default set's 16 is near lossless; 30 is a phone's streaming quality).
 DEGRADE = {"blur_px": 1.0, "noise_levels": 4.0, "crf": 30}
@@ -218,19 +223,22 @@ class SequenceSetup:
     spec: SequenceSpec
     people: list[Person]
     joints: np.ndarray  # (P, n, 24, 3) world
+    crowd: list[Person]  # unscored walkers, drawn after the people (their ids P, P + 1, ...)
     world_from_cam: np.ndarray  # (n, 4, 4)
     intrinsics: np.ndarray  # (4,)
     camera_info: dict
     scene: StaticScene
-    albedo: list[np.ndarray]  # (F, 3) per person
+    albedo: list[np.ndarray]  # (F, 3) per person, then per crowd walker
     renderer: Renderer
 
     def bodies(self, a: int, b: int) -> list[np.ndarray]:
-        """Each person's world vertices (b - a, V, 3) over frames a..b-1."""
-        return [self.model.forward(p.pose()[a:b], p.betas, p.transl[a:b]).vertices for p in self.people]
+        """Each person's, then each crowd walker's, world vertices (b - a, V, 3) over frames a..b-1."""
+        return [self.model.forward(p.pose()[a:b], p.betas, p.transl[a:b]).vertices
+                for p in self.people + self.crowd]
 
     def frame(self, i: int, vertices: list[np.ndarray] | None = None, full: bool = True) -> RenderedFrame:
-        """Frame i (vertices: each person's (V, 3) at frame i, else posed here); full=False: people only."""
+        """Frame i (vertices: each person's and crowd walker's (V, 3) at frame i, else posed here); full=False:
+        people only."""
         faces = np.asarray(self.model.faces, dtype=np.int32)
         vertices = vertices if vertices is not None else [v[0] for v in self.bodies(i, i + 1)]
         return self.renderer.render(
@@ -239,6 +247,7 @@ class SequenceSetup:
             self.scene.meshes,
             [(v, faces, a) for v, a in zip(vertices, self.albedo)],
             full,
+            self.scene.gloss,
         )
 
 
@@ -252,15 +261,24 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
     world_from_cam, intrinsics, camera_info = camera_path(
         spec.camera, joints, spec.fps, (spec.width, spec.height), rng
     )
+    crowd = []
+    if spec.crowd:  # its own generator: the other draws stay as without a crowd
+        crowd_rng = np.random.default_rng([spec.seed, spec.index, 2])
+        crowd = place_crowd(model, [slowed(c, spec.slow_motion) for c in clips], spec.crowd, n, spec.fps,
+                            crowd_rng, world_from_cam, np.radians(camera_info["hfov_deg"]), people)
     cam_xz = world_from_cam[:, :3, 3][:, [0, 2]]
     pelvis_xz = joints[:, :, 0][..., [0, 2]]
     sight = [(cam_xz[i], pelvis_xz[p, i]) for i in range(0, n, max(1, n // 12)) for p in range(P)]
-    scene = make_scene(rng, pelvis_xz.reshape(-1, 2), cam_xz, sight, floor=spec.floor)
+    walkers = [model.joints(p.pose(), p.betas, p.transl)[:, 0, [0, 2]] for p in crowd]
+    scene = make_scene(rng, np.concatenate([pelvis_xz.reshape(-1, 2), *walkers]), cam_xz, sight,
+                       floor=spec.floor)
     parts = vertex_parts(model)
     albedo = [face_colours(model, parts, p.look, rng) for p in people]
+    if crowd:
+        albedo += [face_colours(model, parts, p.look, crowd_rng) for p in crowd]
     renderer = Renderer(scene.textures, spec.width, spec.height, spec.supersample)
     return SequenceSetup(
-        model, spec, people, joints, world_from_cam, intrinsics, camera_info, scene, albedo, renderer
+        model, spec, people, joints, crowd, world_from_cam, intrinsics, camera_info, scene, albedo, renderer
     )
 
 
@@ -324,6 +342,8 @@ def render_video(
         "betas": np.stack([p.betas for p in people]),
         "joints": setup.joints,
         "contacts": np.stack([true_contacts(model, p.pose(), p.betas, p.transl) for p in people]),
+        "crowd_joints": np.stack([model.joints(p.pose(), p.betas, p.transl) for p in setup.crowd]).astype(np.float32)
+        if setup.crowd else np.zeros((0, n, 24, 3), np.float32),
         **truth,
     }
     save_npz_atomic(folder / "truth.npz", **arrays)
@@ -341,6 +361,7 @@ def render_video(
             }
             for p in people
         ],
+        "crowd": [{"clip": p.clip, "start_frame": int(p.start)} for p in setup.crowd],
         "objects": [
             {
                 "kind": o["kind"],

@@ -28,6 +28,7 @@ class StaticScene:
     textures: list[np.ndarray]  # (S, S, 3) float32 RGB in [0, 1]
     bounds: np.ndarray  # (2, 2) ground extent [[x_min, z_min], [x_max, z_max]]
     objects: list[dict]  # what was placed (kind, centre, size, yaw), for the record
+    gloss: float = 0.0  # the floor's reflectance (GLOSS on a glossy floor)
 
 
 # Textures ---------------------------------------------------------------------------------------------------
@@ -63,7 +64,8 @@ def _plain_texture(rng, size: int) -> np.ndarray:
     return _tint(base, 0.01, _noise(rng, size, sigmas=(48.0, 24.0), weights=(1.0, 0.5))).astype(np.float32)
 
 
-FLOORS = ("textured", "plain")
+FLOORS = ("textured", "plain", "glossy")
+GLOSS = 0.3  # reflectance of a glossy floor: the plain one, polished (m3c.synth.render.Renderer.render)
 
 
 def _brick_texture(rng, size: int) -> np.ndarray:
@@ -183,11 +185,12 @@ def make_scene(
 ) -> StaticScene:
     """people_xz (N, 2) and camera_xz (M, 2): ground positions to keep clear; sight_lines: (camera, target) xz
     segments no object may block. The ground covers everything within `margin` metres, closed by a backdrop.
-    floor: "textured" (mixed pebbly tiles) or "plain" (_plain_texture, one for every tile)."""
+    floor: "textured" (mixed pebbly tiles), "plain" (_plain_texture, one for every tile) or "glossy" (the plain
+    one mirroring the scene with reflectance GLOSS)."""
     if floor not in FLOORS:
         raise ValueError(f"floor must be one of {', '.join(FLOORS)}, got {floor!r}")
     textures = [_ground_texture(rng, TEXTURE_SIZE) for _ in range(4)]
-    if floor == "plain":
+    if floor in ("plain", "glossy"):
         textures = [_plain_texture(rng, TEXTURE_SIZE)] * 4
     first_object = len(textures)
     textures += [_patch_texture(rng, TEXTURE_SIZE) for _ in range(3)] + [_brick_texture(rng, TEXTURE_SIZE)]
@@ -206,6 +209,8 @@ def make_scene(
                 _quad([x, 0.0, z], [0, 0, GROUND_TILE], [GROUND_TILE, 0, 0], GROUND_TEXEL, k, True)
             )
     ground = [_merge(q) for q in tiles.values() if q]
+    for mesh in ground:
+        mesh.ground = True
 
     # Objects: boxes, pillars and walls, within 8 m of the action, clear of paths and sight lines.
     centre = people_xz.mean(axis=0)
@@ -250,4 +255,4 @@ def make_scene(
         ([x0, 0, z1], [0, 0, z0 - z1]),
     ):
         meshes.append(_quad(corner, up, edge, BACKDROP_TEXEL, backdrop, False))
-    return StaticScene(meshes, textures, np.stack([lo, hi]), objects)
+    return StaticScene(meshes, textures, np.stack([lo, hi]), objects, GLOSS if floor == "glossy" else 0.0)
