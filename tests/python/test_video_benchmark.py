@@ -162,6 +162,14 @@ def test_scores_see_errors(model, follow_video):
     assert opt.body.mean("w_mpjpe") > 10.0
     moving = [v for v in opt.speed_error_pct]
     assert moving and all(-60 < v < -40 for v in moving)
+    # Legs that walk while the body moves at half speed: the planted foot slides back at about half the person's
+    # speed (each person's slower foot faster than in the truth; the walker's by over 0.3 m/s).
+    _, perfect = vb.score_results(model, truth, _results_from_truth(truth), "truth")
+    still_feet = perfect["Global Opt"].slow_foot_mps
+    assert still_feet and max(still_feet) < 0.15  # the bar for a crowd's scored walkers
+    assert len(opt.slow_foot_mps) == len(still_feet) == len(moving)
+    assert all(half > own + 0.04 for half, own in zip(opt.slow_foot_mps, still_feet)), opt.slow_foot_mps
+    assert max(opt.slow_foot_mps) > 0.3
     # Dropping a track's detections lowers the recall; swapping the ids half-way is an identity switch.
     arrays = _results_from_truth(truth)
     arrays["visible"][0, :20] = False

@@ -152,6 +152,9 @@ class MethodScore:
         default_factory=dict
     )  # ate_mm, scale_error_pct, ground_height_error_m, tilt_error_deg
     speed_error_pct: list = field(default_factory=list)  # per matched moving person
+    # Per matched moving person: the median speed of its slower foot (m/s; a walker's planted foot, ~0 when the
+    # feet do not slide; m3c.eval.plausibility's slow_foot_speed_mps)
+    slow_foot_mps: list = field(default_factory=list)
 
 
 @dataclass
@@ -339,16 +342,18 @@ def score_method(
     body = evaluate_sequence(gt, pred, fps, pelvis=PELVIS, name=name)
     cams = arrays["lift_world_from_cam" if method == "Lift" else "world_from_cam"].astype(np.float64)
     camera = camera_scores(cams, truth["world_from_cam"][arrays["frame_ids"]])
-    speeds = []
+    speeds, slow_feet = [], []
     for match in body.matching.matches:
         ig, ip = common_frames(gt[match.gt].frames, pred[match.pred].frames)
         if len(ig) < fps:  # under a second: no meaningful speed
             continue
         true_speed = track_plausibility(gt[match.gt].joints_world[ig], fps)["mean_speed_mps"]
         if true_speed >= MIN_PERSON_SPEED:
-            pred_speed = track_plausibility(pred[match.pred].joints_world[ip], fps)["mean_speed_mps"]
-            speeds.append(100.0 * (pred_speed / true_speed - 1.0))
-    return MethodScore(body, camera, speeds)
+            figures = track_plausibility(pred[match.pred].joints_world[ip], fps)
+            speeds.append(100.0 * (figures["mean_speed_mps"] / true_speed - 1.0))
+            if figures.get("slow_foot_speed_mps") is not None:
+                slow_feet.append(float(figures["slow_foot_speed_mps"]))
+    return MethodScore(body, camera, speeds, slow_feet)
 
 
 def score_results(model: BodyModel, truth: dict, arrays: dict, name: str) -> tuple[dict, dict]:
@@ -495,6 +500,7 @@ class VideoBenchmarkReport:
         row["id_switches"] = det["id_switches"]
         row.update(score.camera)
         row["speed_error_pct"] = float(np.mean(score.speed_error_pct)) if score.speed_error_pct else None
+        row["slow_foot_mps"] = float(np.median(score.slow_foot_mps)) if score.slow_foot_mps else None
         row["matched"] = len(score.body.matching.matches)
         row["arms"] = arm_errors([score.body])
         return row
@@ -603,9 +609,11 @@ class VideoBenchmarkReport:
                 covered = "-" if error is None or w["scale_sigma"] is None else \
                     ("yes" if abs(np.log1p(error / 100.0)) <= 2 * w["scale_sigma"] else "no")
                 found = "-" if found is None else f"x{found:.2f}" + ("*" if w["slow_motion_confident"] else "")
+                feet = s.methods["Global Opt"].slow_foot_mps
                 lines.append(f"  {s.name}: slow x{w['slow_motion_true']:g} / {found}; camera travel "
                              f"{w['camera_travel_m']:.2f} m, reported {w['camera_reported']}; scale covered "
-                             f"{covered}")
+                             f"{covered}; walkers' slower foot "
+                             + (", ".join(f"{v:.2f}" for v in feet) + " m/s" if feet else "-"))
         coverage = self.scale_coverage()
         if coverage:
             lines.append("camera scale, each source against the truth (2-sigma interval covers it / sequences "
