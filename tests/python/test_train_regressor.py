@@ -164,7 +164,6 @@ def test_training_lowers_the_loss_and_resumes_exactly(formulation, tiny_corpus, 
 
 
 def test_evaluation_scores_the_truth_perfectly(tiny_corpus, open_model):
-    from m3c.models.rotations import matrix_to_rotation_6d_rows
     from m3c.training.common import JointKinematics
 
     config = RegressorConfig(frames=12, width=16)
