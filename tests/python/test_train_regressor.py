@@ -1,7 +1,8 @@
 """`m3c train regressor`: the virtual cameras project as m3c.camera and a plain pinhole do, the detector-error
 sampler reproduces the measured model, a few-step run on a tiny corpus (the two shipped CMU clips) lowers its
 loss and a resumed run ends where the uninterrupted one does, and the network keeps WHAM's checkpoint
-layout."""
+layout. The residual root orientation holds the previous one under a zero change, and parallel scheduled
+sampling becomes the autoregressive network when every frame is fed the network's own outputs."""
 
 import json
 
@@ -15,11 +16,14 @@ from m3c.eval.benchmark import shipped_clip_paths
 from m3c.eval.retarget import RetargetedMotion
 from m3c.io.atomic import save_npz_atomic
 from m3c.mocap.corpus import foot_contacts, load_corpus
+from m3c.models import wham
+from m3c.models.rotations import matrix_to_rotation_6d_rows, rotation_6d_to_matrix_rows
 from m3c.models.wham import WhamLifter
 from m3c.training.detector_errors import load_detector_errors
 from m3c.training.regressor import (RegressorConfig, WorldRegressor, evaluate, evaluation_batch,
-                                    load_regressor, make_batch, mean_training_targets, prepare_clips,
-                                    procrustes_mpjpe, train_regressor)
+                                    load_regressor, make_batch, mean_training_targets, own_previous,
+                                    prepare_clips, procrustes_mpjpe, run_network, run_teacher_forced,
+                                    save_regressor, train_regressor)
 from m3c.training.virtual_camera import (MOTIONS, DetectorErrors, VirtualCameraConfig, ar1, project_keypoints,
                                          sample_camera)
 
@@ -137,10 +141,12 @@ def test_regressor_keeps_whams_layout():
     assert any(k.startswith("motion_decoder.") for k in small)
 
 
-def test_training_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, open_model, one_torch_thread):
+@pytest.mark.parametrize("formulation", [dict(root="absolute"), dict(root="residual", sampling_passes=2)])
+def test_training_lowers_the_loss_and_resumes_exactly(formulation, tiny_corpus, tmp_path, open_model,
+                                                      one_torch_thread):
     clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 12)
     config = RegressorConfig(steps=40, batch_size=8, frames=12, width=24, lr=3e-3, history_every=8,
-                             checkpoint_minutes=100.0)
+                             checkpoint_minutes=100.0, **formulation)
     whole = train_regressor(clips, tmp_path / "whole", open_model, config, log=None)
     losses = [h["loss"] for h in whole["history"]]
     assert len(losses) == 5 and losses[-1] < 0.6 * losses[0]
@@ -151,13 +157,13 @@ def test_training_lowers_the_loss_and_resumes_exactly(tiny_corpus, tmp_path, ope
     a = load_regressor(tmp_path / "whole" / "regressor.pt")
     b = load_regressor(tmp_path / "split" / "regressor.pt")
     assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    assert a.root == b.root == config.root
     with pytest.raises(ValueError, match="other settings"):
-        other = RegressorConfig(steps=41, batch_size=8, frames=12, width=24)
+        other = RegressorConfig(steps=41, batch_size=8, frames=12, width=24, **formulation)
         train_regressor(clips, tmp_path / "split", open_model, other, resume=True, log=None)
 
 
 def test_evaluation_scores_the_truth_perfectly(tiny_corpus, open_model):
-    from m3c.models.rotations import matrix_to_rotation_6d_rows
     from m3c.training.common import JointKinematics
 
     config = RegressorConfig(frames=12, width=16)
@@ -200,22 +206,88 @@ def test_train_regressor_command(tiny_corpus, tmp_path, open_model, one_torch_th
 
 
 
-def test_teacher_forcing_with_its_own_outputs_is_the_autoregressive_network(tiny_corpus, open_model):
-    config = RegressorConfig(frames=10, width=16)
-    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10)
-    batch = make_batch(np.random.default_rng(2), clips, config, DetectorErrors(), size=3)
+def _batch(tiny_corpus, open_model, frames=10, size=3):
+    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, frames)
+    return make_batch(np.random.default_rng(2), clips, RegressorConfig(frames=frames), DetectorErrors(), size)
+
+
+def _untrained(root):
+    """A small network whose orientation head is not zero (a fresh residual one's is): its reading shows."""
     torch.manual_seed(0)
-    net = WorldRegressor(16).eval()
+    net = WorldRegressor(16, root).eval()
+    torch.nn.init.normal_(net.trajectory_decoder.regressor.declayer1.weight, std=0.05)
+    return net
+
+
+@pytest.mark.parametrize("root", ["absolute", "residual"])
+def test_teacher_forcing_with_its_own_outputs_is_the_autoregressive_network(root, tiny_corpus, open_model):
+    batch = _batch(tiny_corpus, open_model)
+    net = _untrained(root)
     with torch.no_grad():
-        out = net(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
-                  batch["init_pose"])
-        b, f = batch["x"].shape[:2]
-        kp = out["keypoints_3d"].reshape(b, f, -1)
-        previous = {"keypoints_3d": torch.cat([batch["init_kp"][..., :51], kp], 1)[:, :-1],
-                    "root_6d": out["root_6d"][:, :-1],
-                    "pose": torch.cat([batch["init_pose"].reshape(b, 1, -1), out["pose"].reshape(b, f, -1)],
-                                      1)[:, :-1]}
+        out = run_network(net, batch)
         forced = net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"],
-                                    batch["angvel"], batch["init_pose"], previous)
+                                    batch["angvel"], batch["init_pose"], own_previous(batch, out))
     for key in ("keypoints_3d", "root_6d", "velocity", "pose", "betas", "contact"):
         torch.testing.assert_close(forced[key], out[key], rtol=1e-5, atol=1e-5)
+
+
+def test_residual_root_holds_the_previous_orientation_under_a_zero_change(tiny_corpus, open_model, rng):
+    from scipy.spatial.transform import Rotation
+
+    previous = torch.as_tensor(Rotation.random(5, random_state=3).as_matrix())
+    change = torch.as_tensor(Rotation.from_rotvec(0.2 * rng.normal(size=(5, 3))).as_matrix())
+    p6 = matrix_to_rotation_6d_rows(previous)
+    torch.testing.assert_close(wham.compose_root(p6, torch.zeros_like(p6)), p6, rtol=0, atol=1e-12)
+    identity = torch.tensor(wham.IDENTITY_6D, dtype=p6.dtype)
+    delta = matrix_to_rotation_6d_rows(change) - identity
+    composed = rotation_6d_to_matrix_rows(wham.compose_root(p6, delta))
+    torch.testing.assert_close(composed, previous @ change, rtol=0, atol=1e-12)     # on the right
+    # An untrained residual network holds the initial orientation over the window; an absolute one does not.
+    batch = _batch(tiny_corpus, open_model)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        held = run_network(WorldRegressor(16, "residual").eval(), batch)["root_6d"]
+        free = run_network(WorldRegressor(16, "absolute").eval(), batch)["root_6d"]
+    init = batch["init_root"].expand_as(held)
+    torch.testing.assert_close(held, init, rtol=0, atol=1e-6)
+    assert (free[:, 1:] - init[:, 1:]).abs().max() > 0.1
+    assert not wham.TrajectoryDecoder().residual and not WhamLifter().trajectory_decoder.residual
+
+
+def test_scheduled_sampling_on_every_frame_is_the_autoregressive_network(tiny_corpus, open_model):
+    batch = _batch(tiny_corpus, open_model)
+    f = batch["x"].shape[1]
+    net = _untrained("residual")
+    with torch.no_grad():
+        out = run_network(net, batch)
+        # With prob 1, pass k is exact on the first k + 1 frames: f - 1 passes make the whole window so.
+        exact = run_teacher_forced(net, batch, 0.0, passes=f - 1, prob=1.0)
+        short = run_teacher_forced(net, batch, 0.0, passes=f - 3, prob=1.0)
+        none = run_teacher_forced(net, batch, 0.0, passes=f - 1, prob=0.0)
+        forced = run_teacher_forced(net, batch, 0.0)
+    for key in ("keypoints_3d", "root_6d", "velocity", "pose", "contact"):
+        torch.testing.assert_close(exact[key], out[key], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(none[key], forced[key], rtol=0, atol=0)
+    # Fewer passes: exact on the first f - 2 frames only (the residual root carries an error on unshrunk; an
+    # untrained pose decoder barely reads its previous pose).
+    root, true_root = short["root_6d"][:, 1:], out["root_6d"][:, 1:]
+    torch.testing.assert_close(root[:, :f - 2], true_root[:, :f - 2], rtol=1e-5, atol=1e-5)
+    assert (root[:, -1] - true_root[:, -1]).abs().max() > 1e-3
+
+
+def test_regressor_files_carry_their_root_formulation(tiny_corpus, tmp_path, open_model, one_torch_thread):
+    net = _untrained("absolute")
+    save_regressor(net, tmp_path / "absolute.pt")
+    assert load_regressor(tmp_path / "absolute.pt").root == "absolute"
+    # A file from before the flag was trained absolute.
+    state = torch.load(tmp_path / "absolute.pt", weights_only=False)
+    del state["formulation"]
+    torch.save(state, tmp_path / "old.pt")
+    old = load_regressor(tmp_path / "old.pt")
+    assert old.root == "absolute" and not old.trajectory_decoder.residual
+    clips = prepare_clips(load_corpus(tiny_corpus, "train"), open_model, 10)
+    config = RegressorConfig(steps=1, batch_size=2, frames=10, width=16, root="residual")
+    with pytest.raises(ValueError, match="reads its root orientation as 'absolute'"):
+        train_regressor(clips, tmp_path / "run", open_model, config, log=None, init=tmp_path / "old.pt")
+    with pytest.raises(ValueError, match="unknown root formulation"):
+        WorldRegressor(16, "camera")

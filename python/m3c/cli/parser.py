@@ -297,7 +297,17 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--teacher-noise", type=float, default=0.05,
                     help="noise on the teacher-forced previous-frame rotations (6D; a fifth of it, in "
                          "metres, on the 3D keypoints; default 0.05)")
-    rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt)")
+    rg.add_argument("--root", choices=("residual", "absolute"), default="residual",
+                    help="the trajectory decoder's orientation: a change from the previous frame's (default) "
+                         "or, as WHAM reads it, the world orientation itself")
+    rg.add_argument("--sampling-passes", type=int, default=0,
+                    help="parallel scheduled sampling: passes feeding the decoders their own previous outputs "
+                         "before each step (default 0: teacher forcing only)")
+    rg.add_argument("--sampling-prob", type=float, default=0.5,
+                    help="with --sampling-passes: the share of frames fed the network's own values, reached "
+                         "by a linear ramp over the first half of the steps (default 0.5)")
+    rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt, the "
+                                   "same --width and --root)")
     rg.add_argument("--eval-windows", type=int, default=256,
                     help="held-out windows for the figures (fixed seed; default 256)")
     rg.add_argument("--seed", type=int, default=0)

@@ -109,7 +109,19 @@ class MotionEncoder(nn.Module):
         return keypoints.reshape(b, f, self.num_keypoints, 3), context
 
 
+def compose_root(previous_6d, change_6d):
+    """The residual root orientation: previous R[t-1] times the change read from change_6d + 6D(I), on the
+    right (the change in the previous root's own frame, which the camera-frame inputs determine; the world
+    heading does not enter). A zero change_6d holds R[t-1]. (..., 6) -> (..., 6)."""
+    change = rotation_6d_to_matrix_rows(change_6d + change_6d.new_tensor(IDENTITY_6D))
+    return matrix_to_rotation_6d_rows(rotation_6d_to_matrix_rows(previous_6d) @ change)
+
+
 class TrajectoryDecoder(nn.Module):
+    # True only in M3C's own regressor (m3c.training.regressor, flagged in its checkpoint): the orientation
+    # head's 6D is a change from the previous orientation (compose_root). WHAM's own: the orientation itself.
+    residual = False
+
     def __init__(self, d_context: int = CONTEXT_DIM, num_layers: int = NUM_LAYERS):
         super().__init__()
         self.regressor = Regressor(d_context, d_context, [3, 6], 12, num_layers)
@@ -121,6 +133,8 @@ class TrajectoryDecoder(nn.Module):
         for i in range(context.shape[1]):
             (velocity, root), _, state = self.regressor(context[:, i:i + 1], [roots[-1], cam_angvel[:, i:i + 1]],
                                                         state)
+            if self.residual:
+                root = compose_root(roots[-1], root)
             roots.append(root)
             velocities.append(velocity)
         return torch.cat(roots, dim=1), torch.cat(velocities, dim=1)
@@ -290,5 +304,5 @@ def load_wham(path: str | os.PathLike | None = None, dtype: torch.dtype = torch.
     return model.eval()
 
 
-__all__ = ["WhamLifter", "MotionEncoder", "TrajectoryDecoder", "Integrator", "MotionDecoder", "TrajectoryRefiner",
-           "rollout_global_motion", "camera_angular_velocity", "keypoint_inputs", "load_wham"]
+__all__ = ["WhamLifter", "MotionEncoder", "TrajectoryDecoder", "compose_root", "Integrator", "MotionDecoder",
+           "TrajectoryRefiner", "rollout_global_motion", "camera_angular_velocity", "keypoint_inputs", "load_wham"]

@@ -14,6 +14,19 @@ contacts. Loss:
     + |fps (v - v*)|^2 + betas_weight |b - b*|^2 + contact_weight BCE(c, c*)
 (means over frames and joints; J the 24 joints of the camera-frame pose at zero betas, metres). AdamW, cosine
 decay; each batch is drawn from a generator seeded by (seed, step), so `--resume` continues a run exactly.
+
+Root orientation (config.root, saved in regressor.pt as `formulation`): "absolute" is WHAM's reading of the
+trajectory decoder's 6D, the world orientation itself; "residual" (the default) reads it as a change from the
+previous frame's orientation, R[t] = R[t-1] C[t] (m3c.models.wham.compose_root), the head zero at
+initialisation so that an untrained network holds the initial orientation. C[t] is the body's turn in its own
+frame, which the camera-frame keypoints and the camera's rotation determine; the absolute orientation is not
+determined by them (the world heading enters only through the initial state), so fed back it compounds.
+
+Exposure bias (sampling_passes K > 0, parallel scheduled sampling): before the step's teacher-forced pass, K
+passes without gradients each feed the decoders the previous pass's own outputs as their previous-frame
+values (each frame with probability p, else the noisy truth; p ramps linearly from 0 to sampling_prob over
+the first half of the steps). With p = 1 the K-th pass is the autoregressive network on the first K + 1
+frames, so the decoders see their own errors compounded over up to K frames, at K forward passes a step.
 """
 
 from __future__ import annotations
@@ -35,6 +48,7 @@ from m3c.training.common import JointKinematics, ResumableRun, save_checkpoint, 
 from m3c.training.virtual_camera import DetectorErrors, VirtualCameraConfig, project_keypoints, sample_camera
 
 FLIP = np.diag([1.0, -1.0, -1.0])  # M3C's y-up world -> WHAM's y-down one (m3c.motion.wham_lift.FLIP)
+ROOT_FORMULATIONS = ("residual", "absolute")
 
 
 @dataclass
@@ -52,6 +66,9 @@ class RegressorConfig:
     init_pose_noise: float = 0.15     # rad, per joint, on the initial camera-frame pose
     init_kp_noise: float = 0.02       # m, on the initial 3D keypoints
     teacher_noise: float = 0.05       # teacher-forced previous 6D values (a fifth of it, in m, on keypoints)
+    root: str = "residual"            # ROOT_FORMULATIONS: how the trajectory decoder's 6D is read
+    sampling_passes: int = 0          # passes of parallel scheduled sampling before each step (0: off)
+    sampling_prob: float = 0.5        # their final share of frames fed the network's own previous values
     seed: int = 0
     checkpoint_minutes: float = 3.0
     history_every: int = 50
@@ -61,16 +78,24 @@ class RegressorConfig:
 class WorldRegressor(wham.WhamLifter):
     """WhamLifter's motion encoder, trajectory decoder and motion decoder at width `width` (context width +
     51), under WHAM's module names: its state dict is a subset of an official checkpoint's layout (width 512
-    would load one's modules)."""
+    would load one's modules). root: how the trajectory decoder's orientation head is read (the module
+    docstring); "residual" starts with the head at zero, i.e. holding the initial orientation."""
 
-    def __init__(self, width: int = 128):
+    def __init__(self, width: int = 128, root: str = "residual"):
         torch.nn.Module.__init__(self)
-        self.width = width
+        if root not in ROOT_FORMULATIONS:
+            raise ValueError(f"unknown root formulation {root!r}; choose from {ROOT_FORMULATIONS}")
+        self.width, self.root = width, root
         context = width + 3 * wham.NUM_KEYPOINTS
         self.mask_embedding = torch.nn.Parameter(torch.zeros(1, 1, wham.NUM_KEYPOINTS, 2))
         self.motion_encoder = wham.MotionEncoder(d_embed=width)
         self.trajectory_decoder = wham.TrajectoryDecoder(d_context=context)
         self.motion_decoder = wham.MotionDecoder(d_context=context)
+        if root == "residual":
+            self.trajectory_decoder.residual = True     # an instance flag: WHAM's class keeps its reading
+            head = self.trajectory_decoder.regressor.declayer1
+            torch.nn.init.zeros_(head.weight)
+            torch.nn.init.zeros_(head.bias)
 
     def forward(self, x, mask, init_kp, init_root, cam_angvel, init_pose) -> dict:
         """lift()'s outputs (see WhamLifter.lift) and the motion decoder's: pose (B, F, 24, 6), betas (B, F,
@@ -88,6 +113,8 @@ class WorldRegressor(wham.WhamLifter):
         (keypoints,), h, _ = encoder.regressor(h, [previous["keypoints_3d"]], encoder.neural_init(init_kp))
         context = torch.cat([h, keypoints], dim=-1)
         (velocity, root), _, _ = self.trajectory_decoder.regressor(context, [previous["root_6d"], cam_angvel])
+        if self.root == "residual":
+            root = wham.compose_root(previous["root_6d"], root)
         decoder = self.motion_decoder
         b = context.shape[0]
         state = decoder.neural_init(init_pose[:, :, list(wham.MAIN_JOINTS)].reshape(b, 1, -1))
@@ -182,9 +209,22 @@ def run_network(net: WorldRegressor, batch: dict) -> dict:
                batch["init_pose"])
 
 
-def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float) -> dict:
+def own_previous(batch: dict, out: dict) -> dict:
+    """teacher_forced()'s `previous` from the network's own outputs: each frame gets the output of the frame
+    before it (the first frame: the batch's initial state)."""
+    b, f = batch["x"].shape[:2]
+    kp, pose = out["keypoints_3d"].reshape(b, f, -1), out["pose"].reshape(b, f, -1)
+    return {"keypoints_3d": torch.cat([batch["init_kp"][..., :3 * wham.NUM_KEYPOINTS], kp[:, :-1]], 1),
+            "root_6d": out["root_6d"][:, :-1],
+            "pose": torch.cat([batch["init_pose"].reshape(b, 1, -1), pose[:, :-1]], 1)}
+
+
+def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float, passes: int = 0,
+                       prob: float = 0.0) -> dict:
     """The network fed the true previous-frame values, perturbed by Gaussian noise: `noise` on the 6D
-    rotations, noise / 5 metres on the 3D keypoints (the first frame's: the initial state the batch gives)."""
+    rotations, noise / 5 metres on the 3D keypoints (the first frame's: the initial state the batch gives).
+    passes > 0: parallel scheduled sampling (the module docstring), each frame fed the previous pass's own
+    outputs with probability prob; the sampling passes carry no gradient."""
     b, f = batch["x"].shape[:2]
 
     def shifted(first, rest, scale):
@@ -196,8 +236,23 @@ def run_teacher_forced(net: WorldRegressor, batch: dict, noise: float) -> dict:
                 "root_6d": shifted(batch["init_root"], matrix_to_rotation_6d_rows(batch["root"]), noise),
                 "pose": shifted(batch["init_pose"].reshape(b, 1, -1),
                                 matrix_to_rotation_6d_rows(batch["pose"]).reshape(b, f, -1), noise)}
-    return net.teacher_forced(batch["x"], batch["mask"], batch["init_kp"], batch["init_root"],
-                              batch["angvel"], batch["init_pose"], previous)
+    inputs = (batch["x"], batch["mask"], batch["init_kp"], batch["init_root"], batch["angvel"],
+              batch["init_pose"])
+    if passes > 0:
+        # One draw per frame for all three decoders; the first frame's previous is the initial state anyway.
+        own = (torch.rand(b, f, 1) < prob).float()
+        truth, mixed = previous, previous
+        for _ in range(passes):
+            with torch.no_grad():
+                sampled = own_previous(batch, net.teacher_forced(*inputs, mixed))
+            mixed = {k: own * sampled[k] + (1 - own) * truth[k] for k in truth}
+        previous = mixed
+    return net.teacher_forced(*inputs, previous)
+
+
+def sampling_prob(config: RegressorConfig, step: int) -> float:
+    """The scheduled share of own previous values at `step`: 0 -> config.sampling_prob over half the run."""
+    return config.sampling_prob * min(1.0, step / max(config.steps / 2, 1.0))
 
 
 class RegressorLoss(torch.nn.Module):
@@ -248,18 +303,25 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
     out_dir.mkdir(parents=True, exist_ok=True)
     seed_everything(config.seed)
     errors = errors or DetectorErrors()
-    net = WorldRegressor(config.width)
+    net = WorldRegressor(config.width, config.root)
     if init is not None and not resume:
         from m3c.io.safe_pickle import load_torch_checkpoint
 
-        net.load_state_dict(load_torch_checkpoint(Path(init))["model"])
+        state = load_torch_checkpoint(Path(init))
+        formulation = _formulation(state)
+        if formulation != config.root:
+            raise ValueError(f"--init: {init} reads its root orientation as {formulation!r}, this run as "
+                             f"{config.root!r} (the orientation head would mean something else)")
+        net.load_state_dict(state["model"])
     loss_fn = RegressorLoss(JointKinematics.from_model(body_model), config)
     run = ResumableRun(net, config, out_dir, resume, log)
     start = time.perf_counter()
     net.train()
     while run.step < config.steps:
         batch = make_batch(batch_rng(config.seed, run.step), clips, config, errors)
-        terms = loss_fn(run_teacher_forced(net, batch, config.teacher_noise), batch)
+        out = run_teacher_forced(net, batch, config.teacher_noise, config.sampling_passes,
+                                 sampling_prob(config, run.step))
+        terms = loss_fn(out, batch)
         run.optimise(terms["loss"])
         values = {k: terms[k].item() for k in ("loss", "kp3d", "pose", "joints", "root", "velocity",
                                                "contact")}
@@ -282,15 +344,23 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
 
 
 def save_regressor(net: WorldRegressor, path: str | Path) -> None:
-    """{'model': state dict (WHAM's module names), 'width': width}."""
-    save_checkpoint(path, model={k: v.detach().clone() for k, v in net.state_dict().items()}, width=net.width)
+    """{'model': state dict (WHAM's module names), 'width': width, 'formulation': the root's reading}."""
+    save_checkpoint(path, model={k: v.detach().clone() for k, v in net.state_dict().items()}, width=net.width,
+                    formulation=net.root)
+
+
+def _formulation(state: dict) -> str:
+    """The root formulation of a regressor.pt or a training checkpoint.pt; files from before the flag were
+    trained absolute."""
+    return state.get("formulation") or state.get("config", {}).get("root") or "absolute"
 
 
 def load_regressor(path: str | Path) -> WorldRegressor:
     from m3c.io.safe_pickle import load_torch_checkpoint
 
     state = load_torch_checkpoint(Path(path))
-    net = WorldRegressor(int(state["width"]))
+    width = int(state["width"]) if "width" in state else int(state["config"]["width"])
+    net = WorldRegressor(width, _formulation(state))
     net.load_state_dict(state["model"])
     return net.eval()
 
