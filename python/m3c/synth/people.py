@@ -172,20 +172,24 @@ def _place(
         yaw = -np.arctan2(move[0], move[1])  # rotate the travel direction onto +z
     else:
         yaw = rng.uniform(0, 2 * np.pi)
-    turn = Rotation.from_rotvec(yaw * UP).as_matrix()
-    mid = pelvis[[0, -1]].mean(axis=0)
     # Spread people around the origin; the travelling person passes through it.
     spot = np.zeros(2) if (heading_z or count == 1) else rng.uniform(-1.8, 1.8, size=2)
+    root, transl = _turned_onto(model, root, transl, body, betas, j0, yaw, spot)
+    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
+
+
+def _turned_onto(model, root, transl, body, betas, j0, yaw: float, spot: np.ndarray):
+    """(root, transl) of a segment turned by yaw about the vertical, the middle of its pelvis path moved onto spot
+    (xz), standing on y = 0 (its new shape changes leg length: the lowest point over the clip, robustly)."""
+    turn = Rotation.from_rotvec(yaw * UP).as_matrix()
+    mid = (transl + j0)[[0, -1]].mean(axis=0)
     T = np.eye(4)
     T[:3, :3] = turn
     T[[0, 2], 3] = spot - (turn @ mid)[[0, 2]]
     root, transl = transform_smpl(T, root, transl, j0)
-    # The new shape changes leg length: stand on y = 0 again (the lowest point over the clip, robustly).
-    lowest = (
-        model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
-    )
+    lowest = model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
     transl[:, 1] -= np.quantile(lowest, 0.1)
-    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
+    return root, transl
 
 
 def _apart(model: BodyModel, people: list[Person], distance: float) -> bool:
@@ -264,13 +268,7 @@ def _walker(model, clip: RetargetedMotion, start: int, n: int, rng, spot: np.nda
     pelvis = transl + j0
     move = pelvis[-1, [0, 2]] - pelvis[0, [0, 2]]
     yaw = np.arctan2(heading[0], heading[1]) - np.arctan2(move[0], move[1])
-    turn = Rotation.from_rotvec(yaw * UP).as_matrix()
-    T = np.eye(4)
-    T[:3, :3] = turn
-    T[[0, 2], 3] = spot - (turn @ pelvis[[0, -1]].mean(axis=0))[[0, 2]]
-    root, transl = transform_smpl(T, root, transl, j0)
-    lowest = model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
-    transl[:, 1] -= np.quantile(lowest, 0.1)
+    root, transl = _turned_onto(model, root, transl, body, betas, j0, yaw, spot)
     return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
 
 
