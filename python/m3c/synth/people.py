@@ -162,34 +162,36 @@ def place_people(
 def _place(
     model, clip: RetargetedMotion, start: int, n: int, rng, k: int, count: int, heading_z: bool
 ) -> Person:
+    def aim(move):
+        if heading_z and np.linalg.norm(move) > 0.3:
+            yaw = -np.arctan2(move[0], move[1])  # rotate the travel direction onto +z
+        else:
+            yaw = rng.uniform(0, 2 * np.pi)
+        # Spread people around the origin; the travelling person passes through it.
+        return yaw, np.zeros(2) if (heading_z or count == 1) else rng.uniform(-1.8, 1.8, size=2)
+
+    return _segment_person(model, clip, start, n, rng, aim)
+
+
+def _segment_person(model, clip: RetargetedMotion, start: int, n: int, rng, aim) -> Person:
+    """The clip's n frames from `start` as a person of a new shape (the clip's betas, perturbed), turned by a yaw
+    about the vertical and the middle of its pelvis path moved onto a spot (xz): aim(move) -> (yaw, spot), move
+    the segment's horizontal pelvis travel; then standing on y = 0 (the new shape changes leg length: the lowest
+    point over the segment, robustly)."""
     seg = slice(start, start + n)
     betas = clip.betas + 0.5 * rng.normal(size=clip.betas.shape)
     root, transl, body = clip.root_orient[seg].copy(), clip.transl[seg].copy(), clip.body_pose[seg].copy()
     j0 = rest_root_joint(model, betas)
     pelvis = transl + j0
-    move = pelvis[-1, [0, 2]] - pelvis[0, [0, 2]]
-    if heading_z and np.linalg.norm(move) > 0.3:
-        yaw = -np.arctan2(move[0], move[1])  # rotate the travel direction onto +z
-    else:
-        yaw = rng.uniform(0, 2 * np.pi)
-    # Spread people around the origin; the travelling person passes through it.
-    spot = np.zeros(2) if (heading_z or count == 1) else rng.uniform(-1.8, 1.8, size=2)
-    root, transl = _turned_onto(model, root, transl, body, betas, j0, yaw, spot)
-    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
-
-
-def _turned_onto(model, root, transl, body, betas, j0, yaw: float, spot: np.ndarray):
-    """(root, transl) of a segment turned by yaw about the vertical, the middle of its pelvis path moved onto spot
-    (xz), standing on y = 0 (its new shape changes leg length: the lowest point over the clip, robustly)."""
+    yaw, spot = aim(pelvis[-1, [0, 2]] - pelvis[0, [0, 2]])
     turn = Rotation.from_rotvec(yaw * UP).as_matrix()
-    mid = (transl + j0)[[0, -1]].mean(axis=0)
     T = np.eye(4)
     T[:3, :3] = turn
-    T[[0, 2], 3] = spot - (turn @ mid)[[0, 2]]
+    T[[0, 2], 3] = spot - (turn @ pelvis[[0, -1]].mean(axis=0))[[0, 2]]
     root, transl = transform_smpl(T, root, transl, j0)
     lowest = model.forward(np.concatenate([root[:, None], body], 1), betas, transl).vertices[:, :, 1].min(axis=1)
     transl[:, 1] -= np.quantile(lowest, 0.1)
-    return root, transl
+    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
 
 
 def _apart(model: BodyModel, people: list[Person], distance: float) -> bool:
@@ -242,13 +244,13 @@ def place_crowd(model: BodyModel, clips: list[RetargetedMotion], count: int, n: 
             low, high = (CROWD_DISTANCE[0], max(CROWD_DISTANCE[0] + 0.5, nearest - 1.0)) if near else CROWD_DISTANCE
             distance = float(np.sqrt(rng.uniform(low ** 2, high ** 2)))  # uniform over the view's area
             bearing = rng.uniform(-0.45, 0.45) * hfov
-            c, s = np.cos(bearing), np.sin(bearing)
-            ray = np.array([c * forward[0] - s * forward[1], s * forward[0] + c * forward[1]])
+            ray = _turned(forward, bearing)
             spot = centre + distance * ray
-            cross = rng.choice([-1.0, 1.0]) * rng.uniform(np.pi / 6, np.pi / 2)
-            c, s = np.cos(cross), np.sin(cross)
-            heading = np.array([c * ray[0] - s * ray[1], s * ray[0] + c * ray[1]])
-            person = _walker(model, clip, start, n, rng, spot, heading)
+            heading = _turned(ray, rng.choice([-1.0, 1.0]) * rng.uniform(np.pi / 6, np.pi / 2))
+            yaw = np.arctan2(heading[0], heading[1])
+            # The segment turned so that it travels along heading, the middle of its path at spot.
+            person = _segment_person(model, clip, start, n, rng,
+                                     lambda move: (yaw - np.arctan2(move[0], move[1]), spot))
             pelvis = model.joints(person.pose(), person.betas, person.transl)[:, 0, [0, 2]]
             if all(np.min(np.linalg.norm(pelvis - other, axis=-1)) >= 0.5 for other in paths):
                 crowd.append(person)
@@ -257,19 +259,10 @@ def place_crowd(model: BodyModel, clips: list[RetargetedMotion], count: int, n: 
     return crowd
 
 
-def _walker(model, clip: RetargetedMotion, start: int, n: int, rng, spot: np.ndarray,
-            heading: np.ndarray) -> Person:
-    """A crowd walker: the segment turned so that it travels along `heading` (xz) with the middle of its path
-    at `spot`, standing on y = 0."""
-    seg = slice(start, start + n)
-    betas = clip.betas + 0.5 * rng.normal(size=clip.betas.shape)
-    root, transl, body = clip.root_orient[seg].copy(), clip.transl[seg].copy(), clip.body_pose[seg].copy()
-    j0 = rest_root_joint(model, betas)
-    pelvis = transl + j0
-    move = pelvis[-1, [0, 2]] - pelvis[0, [0, 2]]
-    yaw = np.arctan2(heading[0], heading[1]) - np.arctan2(move[0], move[1])
-    root, transl = _turned_onto(model, root, transl, body, betas, j0, yaw, spot)
-    return Person(clip.info.get("name", "clip"), start, root, body, transl, betas, PersonLook.random(rng))
+def _turned(v: np.ndarray, angle: float) -> np.ndarray:
+    """An xz direction turned by angle (radians) in the ground plane."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
 def true_contacts(model, pose, betas, transl, height=0.1, speed=0.01) -> np.ndarray:
