@@ -224,6 +224,7 @@ class SequenceSetup:
     people: list[Person]
     joints: np.ndarray  # (P, n, 24, 3) world
     crowd: list[Person]  # unscored walkers, drawn after the people (their ids P, P + 1, ...)
+    crowd_joints: np.ndarray  # (C, n, 24, 3) world
     world_from_cam: np.ndarray  # (n, 4, 4)
     intrinsics: np.ndarray  # (4,)
     camera_info: dict
@@ -269,8 +270,10 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
     cam_xz = world_from_cam[:, :3, 3][:, [0, 2]]
     pelvis_xz = joints[:, :, 0][..., [0, 2]]
     sight = [(cam_xz[i], pelvis_xz[p, i]) for i in range(0, n, max(1, n // 12)) for p in range(P)]
-    walkers = [model.joints(p.pose(), p.betas, p.transl)[:, 0, [0, 2]] for p in crowd]
-    scene = make_scene(rng, np.concatenate([pelvis_xz.reshape(-1, 2), *walkers]), cam_xz, sight,
+    crowd_joints = np.stack([model.joints(p.pose(), p.betas, p.transl) for p in crowd]) if crowd \
+        else np.zeros((0, n, 24, 3))
+    walkers_xz = crowd_joints[:, :, 0, [0, 2]].reshape(-1, 2)  # kept clear of objects, as the people are
+    scene = make_scene(rng, np.concatenate([pelvis_xz.reshape(-1, 2), walkers_xz]), cam_xz, sight,
                        floor=spec.floor)
     parts = vertex_parts(model)
     albedo = [face_colours(model, parts, p.look, rng) for p in people]
@@ -278,7 +281,8 @@ def setup_sequence(model: BodyModel, clips: list[RetargetedMotion], spec: Sequen
         albedo += [face_colours(model, parts, p.look, crowd_rng) for p in crowd]
     renderer = Renderer(scene.textures, spec.width, spec.height, spec.supersample)
     return SequenceSetup(
-        model, spec, people, joints, crowd, world_from_cam, intrinsics, camera_info, scene, albedo, renderer
+        model, spec, people, joints, crowd, crowd_joints, world_from_cam, intrinsics, camera_info, scene,
+        albedo, renderer
     )
 
 
@@ -342,8 +346,7 @@ def render_video(
         "betas": np.stack([p.betas for p in people]),
         "joints": setup.joints,
         "contacts": np.stack([true_contacts(model, p.pose(), p.betas, p.transl) for p in people]),
-        "crowd_joints": np.stack([model.joints(p.pose(), p.betas, p.transl) for p in setup.crowd]).astype(np.float32)
-        if setup.crowd else np.zeros((0, n, 24, 3), np.float32),
+        "crowd_joints": setup.crowd_joints.astype(np.float32),
         **truth,
     }
     save_npz_atomic(folder / "truth.npz", **arrays)
