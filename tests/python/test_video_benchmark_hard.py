@@ -51,6 +51,10 @@ def test_the_hard_suite_mixes_every_difficulty():
         SequenceSpec(0, "still", 1, floor="marble").validate()
     with pytest.raises(ValueError, match="crowd"):
         SequenceSpec(0, "still", 1, crowd=-1).validate()
+    # --only picks sequences by index; an index the set does not have is refused, naming the range.
+    assert [s.index for s in _config(only=(9, 12)).specs()] == [9, 12]
+    with pytest.raises(ValueError, match=f"0-{len(vb.HARD_SUITE) - 1}"):
+        _config(only=(len(vb.HARD_SUITE),)).validate()
     # Crowds of 10-30 walkers, one behind a near-still camera.
     crowds = [s for s in specs if s.crowd]
     assert len(crowds) >= 3 and all(10 <= s.crowd <= 30 for s in crowds)
