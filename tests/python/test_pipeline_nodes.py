@@ -195,6 +195,30 @@ def test_camera_scale_from_planted_feet():
     assert static.sigma is None and static.source == "default"
 
 
+def test_camera_scale_leaves_out_people_far_behind_the_nearest():
+    """A walker three times as far as the scene's people, crossing at 1.5 m/s with every foot called planted (a
+    crowd's far walker, whose contacts a monocular body gets wrong), would drag the planted feet's scale; it is no
+    subject (m3c.vo.scale.scale_subjects), so the estimate is the one without him."""
+    from m3c.ground.tracks import ground_contact_probabilities, track_frames
+    from m3c.motion.scale import contact_joints_in_camera
+    from m3c.vo.scale import scale_from_planted_feet
+
+    model, scene, tracks = camera_local_scene(vo_scale=2.5)
+    vo = {"world_from_cam": scene.cameras_vo.world_from_cam}
+    far = dict(tracks[0], track_id=9, contacts=np.ones_like(tracks[0]["contacts"]))
+    far["transl"] = 3.0 * np.asarray(tracks[0]["transl"]) + np.outer(np.arange(far["num_frames"]) / 30.0,
+                                                                      [1.5, 0.0, 0.0])
+    alone = estimate_camera_scale(model, tracks, vo)
+    crowd = estimate_camera_scale(model, tracks + [far], vo)
+    assert crowd.value == pytest.approx(alone.value, rel=1e-12) and crowd.sigma == pytest.approx(alone.sigma)
+    everyone = tracks + [far]
+    pooled = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in everyone],
+                                     [(ground_contact_probabilities(t) >= 0.5) & t["visible"][:, None]
+                                      for t in everyone], [track_frames(t) for t in everyone],
+                                     vo["world_from_cam"])
+    assert abs(np.log(pooled.value / 2.5)) > 0.1  # what he would have done
+
+
 def test_camera_scale_from_a_metric_depth_map_reads_the_map_points():
     """The depth-map observation scores the odometry's map points (not the people's contact points): map points on
     the scene's ground, in VO units, and depth maps holding their true metric depth at their pixels give the

@@ -6,8 +6,8 @@ import pytest
 
 from m3c.vo import (fuse, map_ground_plane, relative_ate, run_vo, scale_from_camera_height, scale_from_depth,
                     scale_from_planted_feet, umeyama_sim3)
-from m3c.vo.scale import (DEPTH_WEIGHT, FEET_MODEL_SIGMA, PERSON_SIZE_SIGMA, PLAUSIBLE_CAMERA_HEIGHT_M,
-                          ScaleEstimate, ScaleObservation)
+from m3c.vo.scale import (DEPTH_WEIGHT, FEET_MODEL_SIGMA, FLOOR_RADIUS, FLOOR_SUPPORT, PERSON_SIZE_SIGMA,
+                          PLAUSIBLE_CAMERA_HEIGHT_M, ScaleEstimate, ScaleObservation, floor_support, scale_subjects)
 from m3c.vo.synthetic import ROOM_MAX, forward_trajectory, look_rotation, render_sequence
 
 GROUND_Y = 1.5  # metric world: OpenCV-like, y down, ground plane y = GROUND_Y, cameras near y = 0
@@ -172,6 +172,49 @@ def test_camera_height_weighs_each_person_once():
     # A person with too few frames is left out; a pooled median would have followed the larger person.
     alone = scale_from_camera_height([big, true[:55] + [empty] * 5], poses_vo, plane[:2])
     assert alone.detail["people"] == 1 and alone.value == pytest.approx(big_value, rel=1e-12)
+
+
+def test_ground_needs_map_points_where_the_people_stand():
+    """The people stand 2.5-4 m ahead of the cameras. A map whose only floor points lie 25-40 m ahead (a plain
+    floor near the people, texture far off) still gives a plane at the right height, but nothing where they stand:
+    the ground source refuses it. floor_support against a count in the metric scene, where each footprint is the
+    contacts' own mean on the floor (the far floor alone, without clutter, so that its plane is the floor)."""
+    rng = np.random.default_rng(6)
+    poses_m = _metric_cameras(60)
+    contacts = _contacts_in_cameras(poses_m, rng, noise=0.0)
+    near = _ground_points(rng, 300)
+    far = np.column_stack([rng.uniform(-3, 3, 300), np.full(300, GROUND_Y), rng.uniform(25, 40, 300)])
+    for points_m, expected_value in ((near, True), (far, False)):
+        scene = np.concatenate([points_m, _clutter(rng, 100 if expected_value else 0)])
+        points_vo, poses_vo = _to_vo(scene, poses_m, 0.4)
+        normal, offset, inliers = map_ground_plane(points_vo, poses_vo, _vo_up())
+        support = floor_support(points_vo[inliers], (normal, offset), [contacts], poses_vo)
+        metric = scene[inliers]
+        footprints = [poses_m[t, :3, :3] @ contacts[t].mean(axis=0) + poses_m[t, :3, 3] for t in range(0, 60, 5)]
+        heights = GROUND_Y - poses_m[::5, 1, 3]
+        expected = np.zeros(len(metric), bool)
+        for footprint, height in zip(footprints, heights):
+            expected |= np.linalg.norm(metric - footprint, axis=1) < FLOOR_RADIUS * height
+        assert support == int(expected.sum())
+        obs = scale_from_camera_height([contacts], poses_vo, (normal, offset), floor_points=points_vo[inliers])
+        assert obs.detail["floor_support"] == support
+        if expected_value:
+            assert support >= FLOOR_SUPPORT and obs.value == pytest.approx(0.4, rel=0.01)
+        else:
+            assert support == 0 and obs.value is None and "where the people stand" in obs.reason
+            # The plane itself is right: unchecked, it would have given the scale.
+            assert scale_from_camera_height([contacts], poses_vo, (normal, offset)).value == pytest.approx(0.4, rel=0.01)
+
+
+def test_scale_subjects_are_the_people_near_the_camera():
+    """The nearest person seen long enough sets the reference; people beyond 1.6x its depth and a passer-by nearer
+    than it but seen briefly are judged against it."""
+    steady = np.full(100, 4.0)
+    depths = [steady, np.full(80, 6.0), np.full(80, 7.0), np.full(10, 2.0), np.full(60, 20.0), np.zeros(0)]
+    np.testing.assert_array_equal(scale_subjects(depths), [True, True, False, True, False, False])
+    # Nobody seen long enough: the nearest of all is the reference.
+    np.testing.assert_array_equal(scale_subjects([np.full(5, 3.0), np.full(5, 6.0)]), [True, False])
+    assert scale_subjects([]).shape == (0,)
 
 
 def _planted_feet_scene(true_scale, depth_error, rng, T=60):
@@ -401,12 +444,13 @@ def _followed_walker(scale, stride=0.9 / 30, leg=0.8, step_legs=None, n=150, cam
 
 @pytest.mark.parametrize("scale", [0.3, 7.0, 72.0])
 def test_scale_from_gait_recovers_the_scale_of_a_followed_walker(scale):
-    from m3c.vo.scale import GAIT_STEP_SIGMA, scale_from_gait
+    from m3c.vo.scale import GAIT_MODEL_SIGMA, GAIT_STEP_SIGMA, scale_from_gait
 
     pelvis, poses, t = _followed_walker(scale)
     obs = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
     assert obs.value == pytest.approx(scale, rel=0.01)
-    assert obs.sigma == pytest.approx(GAIT_STEP_SIGMA, rel=0.05)  # the travel is the camera's: sensitivity 1
+    # The travel is the camera's: sensitivity 1, the step's spread and the gait's model error.
+    assert obs.sigma == pytest.approx(np.hypot(GAIT_STEP_SIGMA, GAIT_MODEL_SIGMA), rel=0.01)
     # Half the walk the person's own in the camera: the scale still follows, less tightly.
     pelvis, poses, t = _followed_walker(scale, camera_share=0.6)
     half = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
@@ -426,6 +470,37 @@ def test_scale_from_gait_needs_a_gait_and_a_camera_that_carries_the_travel():
     pelvis, poses, t = _followed_walker(5.0, camera_share=0.0)
     obs = scale_from_gait([pelvis], [0.9 / 30], [0.8], [t.astype(int)], poses, UP)
     assert not obs.usable() and "camera" in obs.reason
+
+
+def test_fuse_adds_a_spread_only_where_cochrans_test_finds_one():
+    """A wide source 2.3 of its sigmas from a tight one (the hard suite's plain-floor handheld camera: planted feet
+    +12% +-23%, ground +2% +-5%, gait +221% +-51%) is within its error: the fusion is the inverse-variance mean,
+    not a random-effects mean pulled towards the wide source. Honest sources drawn from their sigmas get no spread
+    in about 95% of draws (the test's level); sources far apart get one."""
+    from m3c.vo.scale import HETEROGENEITY_ALPHA, between_source_variance
+
+    feet, ground = ScaleObservation("planted feet", 1.12, 0.23), ScaleObservation("ground", 1.02, 0.05)
+    gait = ScaleObservation("gait", 3.21, 0.51)
+    est = fuse([feet, ground, gait])
+    logs, sigmas = np.log([1.12, 1.02, 3.21]), np.array([0.23, 0.05, 0.51])
+    assert between_source_variance(logs, sigmas) > 0.05  # DerSimonian-Laird alone: tau 0.26
+    assert est.spread == 0.0 and est.consistent
+    people = _weighted_mean(logs, sigmas)
+    assert est.value == pytest.approx(np.exp(people[0]), rel=1e-12)
+    assert est.sigma == pytest.approx(np.hypot(people[1], PERSON_SIZE_SIGMA), rel=1e-12)
+    assert abs(np.log(est.value)) < 0.05  # within 5% of the tight source's truth (1.0)
+    rng = np.random.default_rng(3)
+    spread = 0
+    for _ in range(2000):
+        draws = rng.standard_normal(3) * sigmas
+        spread += between_source_variance(draws, sigmas, HETEROGENEITY_ALPHA) > 0
+    assert abs(spread / 2000 - HETEROGENEITY_ALPHA) < 0.015
+    assert fuse([ScaleObservation("planted feet", 5.0, 0.05), ground]).spread > 0
+
+
+def _weighted_mean(logs, sigmas):
+    weights = 1.0 / np.square(sigmas)
+    return float(np.sum(weights * logs) / weights.sum()), float(1.0 / np.sqrt(weights.sum()))
 
 
 def test_fuse_sets_aside_the_one_source_that_disagrees_with_the_others():

@@ -15,7 +15,8 @@ from m3c.body.joint_names import CONTACT_JOINTS
 from m3c.motion.optimize import Cameras, Track, track_joints
 from m3c.eval.plausibility import PELVIS, leg_length, stride_frequency
 from m3c.vo.scale import (PLAUSIBLE_CAMERA_HEIGHT_M, ScaleEstimate, ScaleObservation, fuse, map_ground_plane,
-                          scale_from_camera_height, scale_from_depth, scale_from_gait, scale_from_planted_feet)
+                          scale_from_camera_height, scale_from_depth, scale_from_gait, scale_from_planted_feet,
+                          scale_subjects)
 
 
 def contact_joints_in_camera(model, track: dict) -> np.ndarray:
@@ -58,14 +59,19 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
     (world_from_cam, points, static)."""
     vo = np.asarray(cameras["world_from_cam"], dtype=np.float64)
     observations = []
-    feet = scale_from_planted_feet([contact_joints_in_camera(model, t) for t in tracks],
+    up = body_up(model, tracks, vo) if tracks else np.zeros(3)  # every person stands upright, near or far
+    feet_cam = [contact_joints_in_camera(model, t) for t in tracks]
+    subject = scale_subjects([joints[np.asarray(t["visible"], bool), :, 2].mean(axis=1)
+                              for t, joints in zip(tracks, feet_cam)])
+    tracks = [t for t, keep in zip(tracks, subject) if keep]
+    feet_cam = [joints for joints, keep in zip(feet_cam, subject) if keep]
+    feet = scale_from_planted_feet(feet_cam,
                                    [(ground_contact_probabilities(t) >= contact_threshold) & t["visible"][:, None]
                                     if "contacts" in t else np.zeros((t["num_frames"], len(CONTACT_JOINTS)), bool)
                                     for t in tracks],
                                    [track_frames(t) for t in tracks], vo)
     observations.append(feet)
     points = np.asarray(cameras.get("points", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    up = body_up(model, tracks, vo) if tracks else np.zeros(3)
     observations.append(gait_observation(model, tracks, vo, up, fps))
     plane = map_ground_plane(points, vo, up) if tracks else None
     if plane is None:
@@ -77,7 +83,7 @@ def estimate_camera_scale(model, tracks: list[dict], cameras: dict, contact_thre
             per_frame = [np.zeros((0, 3))] * len(vo)
             per_frame[track["first_frame"]:track["first_frame"] + len(track_contacts)] = track_contacts
             contacts.append(per_frame)
-        ground = scale_from_camera_height(contacts, vo, plane[:2])
+        ground = scale_from_camera_height(contacts, vo, plane[:2], floor_points=points[plane[2]])
         ground.detail["map_points"] = int(plane[2].sum())
         observations.append(ground)
     if depth is not None and depth.get("available") and depth.get("metric"):

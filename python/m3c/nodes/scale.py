@@ -22,8 +22,9 @@ class ScaleNode(Node):
     # 3: the planted-feet source on the ground contacts (the feet surely on the ground); 4: m3c.vo.scale's
     # random-effects fusion and the ground source's camera-height check (a cached scale is the old fusion's);
     # 5: the gait source (the people's steps against their legs), a source that disagrees with all the others
-    # while they agree set aside
-    version = "5"
+    # while they agree set aside; 6: only the people near the camera measure it (scale_subjects), and the ground
+    # source needs map points where they stand (floor_support)
+    version = "6"
     type_name = "scale"
     level = "track"
     inputs = ("tracks", "cameras", "depth", "camera", "video")
