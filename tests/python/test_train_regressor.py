@@ -291,3 +291,12 @@ def test_regressor_files_carry_their_root_formulation(tiny_corpus, tmp_path, ope
         train_regressor(clips, tmp_path / "run", open_model, config, log=None, init=tmp_path / "old.pt")
     with pytest.raises(ValueError, match="unknown root formulation"):
         WorldRegressor(16, "camera")
+
+
+def test_look_at_many_is_look_at_row_by_row(rng):
+    from m3c.camera import look_at
+    from m3c.training.virtual_camera import look_at_many
+
+    eyes, targets = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3))
+    expected = np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
+    np.testing.assert_allclose(look_at_many(eyes, targets), expected, atol=1e-12)
