@@ -306,6 +306,11 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--sampling-prob", type=float, default=0.5,
                     help="with --sampling-passes: the share of frames fed the network's own values, reached "
                          "by a linear ramp over the first half of the steps (default 0.5)")
+    rg.add_argument("--dropout", type=float, default=0.3,
+                    help="dropout between the LSTM layers, half of it on the input embedding (default WHAM's "
+                         "0.3)")
+    rg.add_argument("--contact-weight", type=float, default=0.1,
+                    help="weight of the foot-contact loss (default 0.1)")
     rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt, the "
                                    "same --width and --root)")
     rg.add_argument("--eval-windows", type=int, default=256,

@@ -63,6 +63,7 @@ class RegressorConfig:
     joint_weight: float = 10.0
     betas_weight: float = 0.1
     contact_weight: float = 0.1
+    dropout: float = 0.3              # WHAM's, between the LSTM layers (and half of it on the input embedding)
     init_pose_noise: float = 0.15     # rad, per joint, on the initial camera-frame pose
     init_kp_noise: float = 0.02       # m, on the initial 3D keypoints
     teacher_noise: float = 0.05       # teacher-forced previous 6D values (a fifth of it, in m, on keypoints)
@@ -75,13 +76,21 @@ class RegressorConfig:
     camera: VirtualCameraConfig = field(default_factory=VirtualCameraConfig)
 
 
+def config_from_dict(values: dict) -> RegressorConfig:
+    """A RegressorConfig back from its asdict() (train.json's "config"), the virtual camera's included."""
+    values = dict(values)
+    camera = VirtualCameraConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                    for k, v in values.pop("camera", {}).items()})
+    return RegressorConfig(**values, camera=camera)
+
+
 class WorldRegressor(wham.WhamLifter):
     """WhamLifter's motion encoder, trajectory decoder and motion decoder at width `width` (context width +
     51), under WHAM's module names: its state dict is a subset of an official checkpoint's layout (width 512
     would load one's modules). root: how the trajectory decoder's orientation head is read (the module
     docstring); "residual" starts with the head at zero, i.e. holding the initial orientation."""
 
-    def __init__(self, width: int = 128, root: str = "residual"):
+    def __init__(self, width: int = 128, root: str = "residual", dropout: float = 0.3):
         torch.nn.Module.__init__(self)
         if root not in ROOT_FORMULATIONS:
             raise ValueError(f"unknown root formulation {root!r}; choose from {ROOT_FORMULATIONS}")
@@ -91,11 +100,21 @@ class WorldRegressor(wham.WhamLifter):
         self.motion_encoder = wham.MotionEncoder(d_embed=width)
         self.trajectory_decoder = wham.TrajectoryDecoder(d_context=context)
         self.motion_decoder = wham.MotionDecoder(d_context=context)
+        self.set_dropout(dropout)
         if root == "residual":
             self.trajectory_decoder.residual = True     # an instance flag: WHAM's class keeps its reading
             head = self.trajectory_decoder.regressor.declayer1
             torch.nn.init.zeros_(head.weight)
             torch.nn.init.zeros_(head.bias)
+
+    def set_dropout(self, p: float) -> None:
+        """Dropout p between the LSTM layers of the three modules and p / 2 on the encoder's input embedding
+        (WHAM's: 0.3 and 0.15); only training sees it, and the state dict does not hold it."""
+        if not 0.0 <= p < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {p}")
+        self.motion_encoder.pos_drop.p = p / 2
+        for module in (self.motion_encoder, self.trajectory_decoder, self.motion_decoder):
+            module.regressor.rnn.dropout = p
 
     def forward(self, x, mask, init_kp, init_root, cam_angvel, init_pose) -> dict:
         """lift()'s outputs (see WhamLifter.lift) and the motion decoder's: pose (B, F, 24, 6), betas (B, F,
@@ -303,7 +322,7 @@ def train_regressor(clips: list[dict], out_dir: str | Path, body_model, config: 
     out_dir.mkdir(parents=True, exist_ok=True)
     seed_everything(config.seed)
     errors = errors or DetectorErrors()
-    net = WorldRegressor(config.width, config.root)
+    net = WorldRegressor(config.width, config.root, config.dropout)
     if init is not None and not resume:
         from m3c.io.safe_pickle import load_torch_checkpoint
 
