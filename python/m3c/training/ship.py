@@ -194,7 +194,9 @@ def ship_regressor(run_dir: Path, corpus_dir: Path, dest: Path, command: str, no
                "subsets; the weights inherit CC BY-NC 4.0")
     card = {"model": f"M3C world regressor (WHAM layout, width {config.width}, root {config.root})",
             "licence": licence, "train_clips": metrics["train_clips"],
-            "train_frames": int(sum(len(c["pose"]) for c in train_clips)), "held_out_clips": len(held),
+            # the frames of the clips it drew windows from (long enough for one)
+            "train_frames": int(sum(len(c["pose"]) for c in train_clips if len(c["pose"]) > config.frames)),
+            "held_out_clips": len(held),
             "steps": metrics["steps"], "config": train_cfg, "command": command, "note": note,
             "held_out_all": metrics["held_out"],
             "sample": {"clips": len(sample), **regressor_sample_figures(net, sample, model, config, means)}}
@@ -211,7 +213,8 @@ def regressor_model_card(card: dict) -> str:
         "",
         f"WHAM's motion encoder, trajectory decoder and motion decoder (`m3c.models.wham`, the official module "
         f"names) at width {cfg['width']} (WHAM's: 512), without image features, integrator or trajectory "
-        "refiner, trained by M3C on the priors' corpus seen through virtual cameras (`m3c.training.regressor`, "
+        "refiner, trained by M3C on the corpus of `m3c data mocap` (../shared/data/mocap_corpus: Bandai Namco "
+        "datasets 1 and 2, CMU subsets) seen through virtual cameras (`m3c.training.regressor`, "
         "`m3c.training.virtual_camera`: random heights, distances, focal lengths and five camera motions, "
         "keypoints corrupted by the measured detector errors, occlusions and truncation). The root orientation "
         f"is read as `{cfg['root']}` (`formulation` in the file; `m3c.training.regressor.load_regressor` reads "
