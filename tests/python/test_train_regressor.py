@@ -300,3 +300,20 @@ def test_look_at_many_is_look_at_row_by_row(rng):
     eyes, targets = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3))
     expected = np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
     np.testing.assert_allclose(look_at_many(eyes, targets), expected, atol=1e-12)
+
+
+def test_root_noise_perturbs_the_previous_root_orientation_alone(tiny_corpus, open_model):
+    batch = _batch(tiny_corpus, open_model)
+    net = _untrained("residual")
+    for p in net.trajectory_decoder.regressor.declayer1.parameters():   # a head that turns (zero holds)
+        torch.nn.init.normal_(p, std=0.01)
+    runs = {}
+    with torch.no_grad():
+        for name, root_noise in (("same", None), ("zero", 0.0), ("large", 0.5)):
+            torch.manual_seed(0)
+            runs[name] = run_teacher_forced(net, batch, 0.0, root_noise=root_noise)
+    for key in ("keypoints_3d", "pose"):        # the encoder and motion decoder never read the root
+        torch.testing.assert_close(runs["large"][key], runs["zero"][key], rtol=0, atol=0)
+    for key in runs["zero"]:
+        torch.testing.assert_close(runs["same"][key], runs["zero"][key], rtol=0, atol=0)
+    assert (runs["large"]["root_6d"] - runs["zero"]["root_6d"]).abs().max() > 0.05

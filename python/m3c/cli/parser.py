@@ -297,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--teacher-noise", type=float, default=0.05,
                     help="noise on the teacher-forced previous-frame rotations (6D; a fifth of it, in "
                          "metres, on the 3D keypoints; default 0.05)")
+    rg.add_argument("--root-noise", type=float,
+                    help="the same noise on the previous root orientation (default: --teacher-noise)")
     rg.add_argument("--root", choices=("residual", "absolute"), default="residual",
                     help="the trajectory decoder's orientation: a change from the previous frame's (default) "
                          "or, as WHAM reads it, the world orientation itself")
