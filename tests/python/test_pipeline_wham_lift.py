@@ -93,3 +93,47 @@ def test_lift_node_with_a_checkpoint_in_the_official_layout(tmp_path, monkeypatc
     with pytest.raises(PipelineUnavailable, match="WHAM checkpoint not found"):
         run_pipeline(missing, tmp_path / "out2", {"video": tmp_path / "video.mp4"}, targets=["lift"],
                      show_progress=False)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", ["wham", "auto"])
+def test_lift_node_without_the_official_file(method, tmp_path, monkeypatch):
+    """method wham without WHAM's checkpoint runs M3C's shipped regressor (here a random one in its place);
+    auto stays the camera lift."""
+    from pipeline_scene import scene_pipeline_yaml, write_scene_inputs
+
+    import m3c.models.weights as weights
+    from m3c.body import default_body_model
+    from m3c.nodes.lift import LiftNode
+    from m3c.pipeline import PipelineConfig, run_pipeline
+    from m3c.pipeline.cache import Cache
+    from m3c.training.regressor import WorldRegressor, save_regressor
+
+    torch.manual_seed(0)
+    shipped = tmp_path / "weights"
+    shipped.mkdir()
+    net = WorldRegressor(16)
+    for p in net.trajectory_decoder.regressor.declayer0.parameters():   # a moving root: zero velocity is the
+        torch.nn.init.normal_(p, std=0.01)                               # camera lift's start held
+    save_regressor(net, shipped / "regressor.pt")
+    monkeypatch.setattr(weights, "weights_dir", lambda: shipped)
+    monkeypatch.setenv("M3C_MODELS", str(tmp_path / "no_models"))
+    (tmp_path / "no_models").mkdir()
+    model = default_body_model()
+    scene = write_scene_inputs(model, tmp_path, num_frames=12, seed=1)
+    config = PipelineConfig.from_yaml(scene_pipeline_yaml(tmp_path, scene.cameras_true.intrinsics))
+    config = config.with_overrides({"lift.method": method})
+    loaded = []
+    original = LiftNode.unload
+    monkeypatch.setattr(LiftNode, "unload", lambda self: (loaded.append(type(self._lifter).__name__),
+                                                          original(self)))
+    report = run_pipeline(config, tmp_path / "out", {"video": tmp_path / "video.mp4"}, targets=["lift"],
+                          show_progress=False)
+    key = dict((r.name, r.key) for r in report.records)["lift"]
+    world = Cache(tmp_path / "out" / "cache").load("lift", key)["world"]
+    if method == "auto":
+        assert loaded == ["NoneType"] and world["method"] == "camera"
+        return
+    assert loaded == ["WorldRegressor"] and world["method"] == "wham"
+    for track in world["tracks"]:
+        assert np.isfinite(track["transl"]).all() and np.isfinite(track["root_orient"]).all()

@@ -291,3 +291,58 @@ def test_regressor_files_carry_their_root_formulation(tiny_corpus, tmp_path, ope
         train_regressor(clips, tmp_path / "run", open_model, config, log=None, init=tmp_path / "old.pt")
     with pytest.raises(ValueError, match="unknown root formulation"):
         WorldRegressor(16, "camera")
+
+
+def test_look_at_many_is_look_at_row_by_row(rng):
+    from m3c.camera import look_at
+    from m3c.training.virtual_camera import look_at_many
+
+    eyes, targets = rng.normal(size=(20, 3)) * 3, rng.normal(size=(20, 3))
+    expected = np.stack([look_at(e, t) for e, t in zip(eyes, targets)])
+    np.testing.assert_allclose(look_at_many(eyes, targets), expected, atol=1e-12)
+
+
+def test_root_noise_perturbs_the_previous_root_orientation_alone(tiny_corpus, open_model):
+    batch = _batch(tiny_corpus, open_model)
+    net = _untrained("residual")
+    for p in net.trajectory_decoder.regressor.declayer1.parameters():   # a head that turns (zero holds)
+        torch.nn.init.normal_(p, std=0.01)
+    runs = {}
+    with torch.no_grad():
+        for name, root_noise in (("same", None), ("zero", 0.0), ("large", 0.5)):
+            torch.manual_seed(0)
+            runs[name] = run_teacher_forced(net, batch, 0.0, root_noise=root_noise)
+    for key in ("keypoints_3d", "pose"):        # the encoder and motion decoder never read the root
+        torch.testing.assert_close(runs["large"][key], runs["zero"][key], rtol=0, atol=0)
+    for key in runs["zero"]:
+        torch.testing.assert_close(runs["same"][key], runs["zero"][key], rtol=0, atol=0)
+    assert (runs["large"]["root_6d"] - runs["zero"]["root_6d"]).abs().max() > 0.05
+
+
+def test_shipping_a_regressor_records_figures_its_sample_reproduces(tiny_corpus, tmp_path, open_model,
+                                                                   one_torch_thread):
+    from m3c.mocap.corpus import LICENCES
+    from m3c.training.ship import regressor_sample_figures, ship_regressor
+    from m3c.training.regressor import config_from_dict
+
+    for path in (tiny_corpus / "clips").glob("*.npz"):       # the CMU licence `m3c data mocap` records
+        with np.load(path) as z:
+            arrays = {k: z[k] for k in z.files}
+        save_npz_atomic(path, **arrays, licence=np.array(LICENCES["cmu"]))
+    run = tmp_path / "run"
+    assert main(["train", "regressor", str(tiny_corpus), "--out", str(run), "--steps", "2", "--batch-size", "4",
+                 "--frames", "10", "--width", "16", "--eval-windows", "4", "--quiet"]) == 0
+    dest = tmp_path / "weights"
+    card = ship_regressor(run, tiny_corpus, dest, "the command")
+    assert json.loads((dest / "regressor.json").read_text()) == json.loads(json.dumps(card))
+    assert "# M3C world regressor (`regressor.pt`)" in (dest / "MODEL_CARD.md").read_text()
+    assert card["sample"]["clips"] == 1 and card["sample"]["windows"] == 64
+    with np.load(dest / "regressor_sample.npz") as z:
+        assert str(z["clips"][0]) == "cmu_01_01" and len(z["pose"]) == min(300, z["lengths"][0])
+        clip = {"pose": z["pose"], "transl": z["transl"], "contacts": z["contacts"], "betas": z["betas"][0],
+                "fps": z["fps"][0]}
+        means = {"pose": z["mean_pose"], "velocity": z["mean_velocity"]}
+    got = regressor_sample_figures(load_regressor(dest / "regressor.pt"), [clip], open_model,
+                                   config_from_dict(card["config"]), means)
+    assert got["regressor"] == pytest.approx(card["sample"]["regressor"], rel=1e-6)
+    assert got["baselines"] == pytest.approx(card["sample"]["baselines"], rel=1e-6)

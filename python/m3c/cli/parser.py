@@ -297,6 +297,8 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--teacher-noise", type=float, default=0.05,
                     help="noise on the teacher-forced previous-frame rotations (6D; a fifth of it, in "
                          "metres, on the 3D keypoints; default 0.05)")
+    rg.add_argument("--root-noise", type=float,
+                    help="the same noise on the previous root orientation (default: --teacher-noise)")
     rg.add_argument("--root", choices=("residual", "absolute"), default="residual",
                     help="the trajectory decoder's orientation: a change from the previous frame's (default) "
                          "or, as WHAM reads it, the world orientation itself")
@@ -306,6 +308,11 @@ def build_parser() -> argparse.ArgumentParser:
     rg.add_argument("--sampling-prob", type=float, default=0.5,
                     help="with --sampling-passes: the share of frames fed the network's own values, reached "
                          "by a linear ramp over the first half of the steps (default 0.5)")
+    rg.add_argument("--dropout", type=float, default=0.3,
+                    help="dropout between the LSTM layers, half of it on the input embedding (default WHAM's "
+                         "0.3)")
+    rg.add_argument("--contact-weight", type=float, default=0.1,
+                    help="weight of the foot-contact loss (default 0.1)")
     rg.add_argument("--init", help="start from another run's weights (its regressor.pt or checkpoint.pt, the "
                                    "same --width and --root)")
     rg.add_argument("--eval-windows", type=int, default=256,

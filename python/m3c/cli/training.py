@@ -136,7 +136,9 @@ def train_regressor_command(args) -> int:
     config = RegressorConfig(steps=args.steps, batch_size=args.batch_size, frames=args.frames,
                              width=args.width, lr=args.lr, teacher_noise=args.teacher_noise, seed=args.seed,
                              checkpoint_minutes=args.checkpoint_minutes, root=args.root,
-                             sampling_passes=args.sampling_passes, sampling_prob=args.sampling_prob)
+                             sampling_passes=args.sampling_passes, sampling_prob=args.sampling_prob,
+                             dropout=args.dropout, contact_weight=args.contact_weight,
+                             root_noise=args.root_noise)
     if config.frames < 2 or config.width < 1:
         raise ValueError("--frames must be at least 2 and --width positive")
     if config.sampling_passes < 0 or not 0.0 <= config.sampling_prob <= 1.0:

@@ -54,7 +54,8 @@ def wham_trajectory(lifter, model, track: dict, world_from_cam: np.ndarray, root
     angvel = camera_angular_velocity(torch.as_tensor(cam_from_world, dtype=dtype), float(video["fps"]))
     lifted = lifter.lift(x, mask[None].to(device), init_kp, init_root, angvel[None].to(device))
     lifted = {k: v.cpu() if isinstance(v, torch.Tensor) else v for k, v in lifted.items()}
-    if track.get("contacts") is not None:
+    # M3C's own regressor (m3c.training.regressor) has no trajectory refiner.
+    if track.get("contacts") is not None and hasattr(lifter, "trajectory_refiner"):
         feet = _feet_in_wham_world(model, track, lifted)
         lifted = lifter.refine({k: v.to(device) for k, v in lifted.items()},
                                torch.as_tensor(feet, dtype=dtype, device=device)[None],

@@ -15,9 +15,10 @@ class LiftNode(Node):
     """Every track in the world frame (thesis 4.1.4, world lift).
 
     method camera: each frame's camera-local body moved by its camera (the ground node's cameras in the world, at
-    the estimated scale). method wham: root orientation and translation from WHAM's trajectory decoder (needs its
-    checkpoint; see m3c.models.load_wham), body pose and shape from the local tracks. auto: wham when its checkpoint
-    is found.
+    the estimated scale). method wham: root orientation and translation from WHAM's trajectory decoder (its official
+    checkpoint, see m3c.models.load_wham; without one, M3C's own shipped world regressor,
+    m3c.models.weights.shipped_regressor_path), body pose and shape from the local tracks. auto: wham when the
+    official checkpoint is found, else camera.
 
     Output world: tracks (per track: track_id, first_frame, num_frames, visible, keypoints, transl, root_orient,
     body_pose, betas, contacts?, ground_normal?, ground_offset?), cameras (the ground node's WorldCameras fields:
@@ -38,10 +39,28 @@ class LiftNode(Node):
         checkpoint: str | None = None  # WHAM checkpoint file; None = $M3C_MODELS/wham/...
 
     def _wham_checkpoint(self, ctx):
+        """The network file: the official checkpoint (config.checkpoint, else the models folder's); for method
+        wham without either, the shipped regressor. None: auto without the official file (the camera lift)."""
         from m3c.models.checkpoint import locate
         from m3c.models.wham import WHAM_SOURCE
 
-        return locate(self.config.checkpoint, ctx.models_dir(), WHAM_SOURCE, self.config.method == "wham")
+        explicit = self.config.checkpoint is not None
+        path = locate(self.config.checkpoint, ctx.models_dir(), WHAM_SOURCE, self.config.method == "wham"
+                      and explicit)
+        if path is None and self.config.method == "wham":
+            from m3c.models.weights import shipped_regressor_path
+
+            try:
+                return shipped_regressor_path()
+            except FileNotFoundError:  # an install without it: the official file's message says what to get
+                return locate(None, ctx.models_dir(), WHAM_SOURCE, True)
+        return path
+
+    @staticmethod
+    def _is_shipped_regressor(path) -> bool:
+        from m3c.models.weights import weights_dir
+
+        return path is not None and path.resolve() == (weights_dir() / "regressor.pt").resolve()
 
     def key_config(self, ctx):
         from m3c.models.checkpoint import CheckpointNotFoundError
@@ -68,7 +87,12 @@ class LiftNode(Node):
     def load(self, ctx) -> None:
         self._lifter = None
         path = self._wham_checkpoint(ctx) if self.config.method != "camera" else None
-        if path is not None:
+        if path is not None and self._is_shipped_regressor(path):
+            from m3c.training.regressor import load_regressor
+
+            self._lifter = load_regressor(path).to(ctx.device)
+            ctx.log.info("WHAM lift with M3C's regressor %s on %s", path, ctx.device)
+        elif path is not None:
             from m3c.models import load_wham
 
             self._lifter = load_wham(path).to(ctx.device)

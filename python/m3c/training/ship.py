@@ -4,8 +4,10 @@ motion-prior`:
 
     python -m m3c.training.ship RUN_DIR CORPUS_DIR [--command "the training command"]   (the pose prior)
     python -m m3c.training.ship RUN_DIR CORPUS_DIR --motion [--command ...]              (the motion prior)
+    python -m m3c.training.ship RUN_DIR CORPUS_DIR --regressor [--command ...]           (the world regressor)
 
-MODEL_CARD.md is written from both priors' figures (pose_prior.json, motion_prior.json).
+MODEL_CARD.md is written from the figures of what is shipped (pose_prior.json, motion_prior.json,
+regressor.json).
 """
 
 from __future__ import annotations
@@ -141,10 +143,127 @@ def ship_motion_prior(run_dir: Path, corpus_dir: Path, dest: Path, command: str,
     return card
 
 
+SAMPLE_WINDOWS = 64  # held-out windows of the regressor's shipped sample (evaluation_batch's fixed seed)
+
+
+def regressor_sample_figures(net, clips, body_model, config, means: dict) -> dict:
+    """The regressor's held-out figures (m3c.training.regressor.evaluate) on SAMPLE_WINDOWS windows of clips,
+    the baselines' constants (means: pose (24, 3, 3), velocity (3,)) from the training windows."""
+    from m3c.training.regressor import evaluate, evaluation_batch, prepare_clips
+
+    batch = evaluation_batch(prepare_clips(clips, body_model, config.frames), config, windows=SAMPLE_WINDOWS)
+    return evaluate(net, batch, JointKinematics.from_model(body_model), means)
+
+
+def ship_regressor(run_dir: Path, corpus_dir: Path, dest: Path, command: str, note: str = "") -> dict:
+    """The world regressor of run_dir into dest: regressor.pt, regressor_sample.npz (the first
+    SAMPLE_CLIP_FRAMES frames of each held-out CMU clip long enough for a window, and the baselines'
+    constants), regressor.json (held-out figures: every held-out clip as the training command measured them,
+    the sample) and the model card."""
+    from m3c.body import default_body_model
+    from m3c.training.regressor import config_from_dict, load_regressor, mean_training_targets, prepare_clips
+
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    train_cfg = json.loads((run_dir / "train.json").read_text())["config"]
+    config = config_from_dict(train_cfg)
+    net = load_regressor(run_dir / "regressor.pt")
+    model = default_body_model()
+    train_clips = load_corpus(corpus_dir, "train")
+    held = load_corpus(corpus_dir, "held_out")
+    if {str(c["clip"]) for c in train_clips} & {str(c["clip"]) for c in held}:
+        raise ValueError("a held-out clip was trained on")
+    cmu = [c for c in held if str(c["licence"]) == LICENCES["cmu"] and len(c["pose"]) > config.frames]
+    if not cmu:
+        raise ValueError("no CMU clip is held out: the shipped sample must be redistributable CMU data")
+    keep = ("pose", "transl", "contacts")
+    sample = [{k: (v[:SAMPLE_CLIP_FRAMES] if k in keep else v) for k, v in c.items()} for c in cmu]
+    # The baselines' constants as the training command drew them (its default seed and windows).
+    means = mean_training_targets(prepare_clips(train_clips, model, config.frames), config)
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(run_dir / "regressor.pt", dest / "regressor.pt")
+    save_npz_atomic(dest / "regressor_sample.npz",
+                    clips=np.array([str(c["clip"]) for c in sample]),
+                    lengths=np.array([len(c["pose"]) for c in sample]),
+                    pose=np.concatenate([c["pose"] for c in sample]).astype(np.float32),
+                    transl=np.concatenate([c["transl"] for c in sample]).astype(np.float32),
+                    contacts=np.concatenate([c["contacts"] for c in sample]).astype(bool),
+                    betas=np.stack([np.asarray(c["betas"], dtype=np.float32) for c in sample]),
+                    fps=np.array([float(c["fps"]) for c in sample], dtype=np.float32),
+                    mean_pose=means["pose"], mean_velocity=means["velocity"])
+    licence = ("non-commercial: trained on the Bandai Namco Research Motiondatasets (CC BY-NC 4.0) and CMU "
+               "subsets; the weights inherit CC BY-NC 4.0")
+    card = {"model": f"M3C world regressor (WHAM layout, width {config.width}, root {config.root})",
+            "licence": licence, "train_clips": metrics["train_clips"],
+            # the frames of the clips it drew windows from (long enough for one)
+            "train_frames": int(sum(len(c["pose"]) for c in train_clips if len(c["pose"]) > config.frames)),
+            "held_out_clips": len(held),
+            "steps": metrics["steps"], "config": train_cfg, "command": command, "note": note,
+            "held_out_all": metrics["held_out"],
+            "sample": {"clips": len(sample), **regressor_sample_figures(net, sample, model, config, means)}}
+    with atomic_path(dest / "regressor.json") as tmp:
+        tmp.write_text(json.dumps(card, indent=1) + "\n")
+    write_model_card(dest)
+    return card
+
+
+def regressor_model_card(card: dict) -> str:
+    cfg = card["config"]
+    lines = [
+        "# M3C world regressor (`regressor.pt`)",
+        "",
+        f"WHAM's motion encoder, trajectory decoder and motion decoder (`m3c.models.wham`, the official module "
+        f"names) at width {cfg['width']} (WHAM's: 512), without image features, integrator or trajectory "
+        "refiner, trained by M3C on the corpus of `m3c data mocap` (../shared/data/mocap_corpus: Bandai Namco "
+        "datasets 1 and 2, CMU subsets) seen through virtual cameras (`m3c.training.regressor`, "
+        "`m3c.training.virtual_camera`: random heights, distances, focal lengths and five camera motions, "
+        "keypoints corrupted by the measured detector errors, occlusions and truncation). The root orientation "
+        f"is read as `{cfg['root']}` (`formulation` in the file; `m3c.training.regressor.load_regressor` reads "
+        "it).",
+        "",
+        "**Licence: non-commercial** (CC BY-NC 4.0, inherited from the Bandai Namco Research Motiondatasets), as "
+        "the priors'.",
+        "",
+        "## Training",
+        "",
+        f"- {card['train_clips']} training clips, {card['train_frames']} frames at 30 fps; "
+        f"{card['held_out_clips']} clips held out by a hash of the clip id (the priors' split); every clip the "
+        "video benchmark renders left out.",
+        f"- {card['steps']} AdamW steps of {cfg['batch_size']} windows of {cfg['frames']} frames, learning rate "
+        f"{cfg['lr']:g} with cosine decay, dropout {cfg.get('dropout', 0.3):g}, teacher noise "
+        f"{cfg['teacher_noise']:g}, scheduled sampling {cfg['sampling_passes']} passes up to "
+        f"{cfg['sampling_prob']:g}, contact weight {cfg['contact_weight']:g}, seed {cfg['seed']}, one thread.",
+        f"- Command: `{card['command']}`",
+        *([f"- {card['note']}"] if card.get("note") else []),
+        "",
+        "## Held-out figures",
+        "",
+        "Windows of held-out clips through virtual cameras (a fixed seed), the network run autoregressively "
+        "from a noisy initial state as at inference. PA-MPJPE: the camera-frame pose's 24 joints at zero betas; "
+        "root velocity: the world velocity error R_root[t-1] v[t]; root orientation: the world root's angle "
+        "error. Baselines: the initial pose held (and the training mean pose), zero and mean velocity with the "
+        "initial orientation held, contacts always on.",
+        "",
+        "| held-out set | windows | PA-MPJPE mm (initial pose held / mean pose) | root velocity m/s (zero / "
+        "mean) | root orientation deg (held) | contact F1 (always) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, f in (("every held-out clip", card["held_out_all"]),
+                    (f"shipped sample ({card['sample']['clips']} CMU clips, regressor_sample.npz)",
+                     card["sample"])):
+        r, b = f["regressor"], f["baselines"]
+        lines.append(f"| {name} | {f['windows']} | {r['pa_mpjpe_mm']:.1f} ({b['init_pose_pa_mpjpe_mm']:.1f} / "
+                     f"{b['mean_pose_pa_mpjpe_mm']:.1f}) | {r['velocity_mps']:.3f} ({b['zero_velocity_mps']:.3f}"
+                     f" / {b['mean_velocity_mps']:.3f}) | {r['root_deg']:.1f} ({b['held_root_deg']:.1f}) | "
+                     f"{r['contact_f1']:.3f} ({b['always_contact_f1']:.3f}) |")
+    lines += ["", "tests/python/test_shipped_regressor.py checks the shipped sample's figures.", ""]
+    return "\n".join(lines)
+
+
 def write_model_card(dest: Path) -> None:
-    """MODEL_CARD.md from the figures of the priors shipped in dest."""
+    """MODEL_CARD.md from the figures of the weights shipped in dest."""
     parts = []
-    for name, render in (("pose_prior.json", model_card), ("motion_prior.json", motion_model_card)):
+    for name, render in (("pose_prior.json", model_card), ("motion_prior.json", motion_model_card),
+                         ("regressor.json", regressor_model_card)):
         if (dest / name).is_file():
             parts.append(render(json.loads((dest / name).read_text())))
     with atomic_path(dest / "MODEL_CARD.md") as tmp:
@@ -281,7 +400,12 @@ def main(argv=None) -> int:
     parser.add_argument("--eval-corpus", type=Path, help="corpus whose held-out split is measured")
     parser.add_argument("--note", default="", help="a remark for the card's training section")
     parser.add_argument("--motion", action="store_true", help="ship a motion prior (m3c train motion-prior)")
+    parser.add_argument("--regressor", action="store_true", help="ship a world regressor (m3c train regressor)")
     args = parser.parse_args(argv)
+    if args.regressor:
+        card = ship_regressor(args.run_dir, args.corpus_dir, args.dest, args.command, args.note)
+        print(json.dumps({k: card[k] for k in ("held_out_all", "sample")}, indent=1))
+        return 0
     if args.motion:
         card = ship_motion_prior(args.run_dir, args.corpus_dir, args.dest, args.command, args.note)
         print(json.dumps({k: card[k] for k in ("held_out_all", "sample")}, indent=1))

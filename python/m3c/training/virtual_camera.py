@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtri
 
-from m3c.camera import look_at, project, to_camera
+from m3c.camera import UP, project, to_camera
 from m3c.training.detector_errors import load_detector_errors
 
 MOTIONS = ("static", "pan", "follow", "orbit", "handheld")
@@ -68,10 +68,10 @@ def ar1(rng: np.random.Generator, n: int, shape, lag1) -> np.ndarray:
     lag1 = np.broadcast_to(np.clip(np.asarray(lag1, dtype=np.float64), 0.0, 0.999), shape)
     innovation = rng.standard_normal((n, *shape))
     innovation[1:] *= np.sqrt(1.0 - lag1 ** 2)
-    t = np.arange(n)
-    gap = t[:, None] - t[None, :]                                   # (n, n): t - s
-    weights = np.where(gap[..., None] >= 0, lag1.reshape(1, 1, -1) ** np.maximum(gap, 0)[..., None], 0.0)
-    return np.einsum("tsk,sk->tk", weights, innovation.reshape(n, -1)).reshape(n, *shape)
+    out = innovation
+    for t in range(1, n):               # the recursion itself: n vector steps (a weight matrix is n^2 k)
+        out[t] += lag1 * out[t - 1]
+    return out
 
 
 def _smooth(x: np.ndarray, a: float) -> np.ndarray:
@@ -131,7 +131,7 @@ def sample_camera(rng: np.random.Generator, pelvis: np.ndarray, fps: float, conf
         targets = tracked
     if motion == "handheld":
         eyes = eyes + config.jitter_m * ar1(rng, n, 3, 0.9)
-    poses = np.stack([look_at(e, g) for e, g in zip(eyes, targets)])
+    poses = look_at_many(eyes, targets)
     half = config.aim_offset * hfov / 2
     shake = np.radians(config.shake_deg) * ar1(rng, n, 3, 0.9) if motion == "handheld" else np.zeros((n, 3))
     aim = _rotation(rng.uniform(-half, half) + shake[:, 0],
@@ -139,6 +139,20 @@ def sample_camera(rng: np.random.Generator, pelvis: np.ndarray, fps: float, conf
     poses[:, :3, :3] = poses[:, :3, :3] @ aim
     return {"world_from_cam": poses, "intrinsics": np.array([focal, focal, width / 2, height / 2]),
             "image_size": (int(width), int(height)), "motion": motion}
+
+
+def look_at_many(eyes: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """m3c.camera.look_at for each row of eyes, targets (L, 3): world_from_cam (L, 4, 4), in one go (the per-frame
+    calls were half of a training batch's time)."""
+    z = targets - eyes
+    z = z / np.linalg.norm(z, axis=-1, keepdims=True)
+    x = np.cross(z, np.asarray(UP, dtype=np.float64))
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    y = np.cross(z, x)
+    poses = np.tile(np.eye(4), (len(eyes), 1, 1))
+    poses[:, :3, :3] = np.stack([x, y, z], axis=-1)
+    poses[:, :3, 3] = eyes
+    return poses
 
 
 def project_keypoints(points_in_world: np.ndarray, world_from_cam: np.ndarray,

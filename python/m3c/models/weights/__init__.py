@@ -12,6 +12,10 @@ on, how, how well it does on held-out data and under which licence; all of them 
                           Same data and licence as the pose prior.
     motion_prior.json     its held-out figures (one-step prediction against constant velocity, rollouts), and
                           motion_prior_sample.npz the held-out state pairs they are checked on
+    regressor.pt          the world regressor: WHAM's motion encoder and decoders at a narrower width
+                          (m3c.training.regressor.load_regressor). Same data and licence as the priors.
+    regressor.json        its held-out figures against the baselines', and regressor_sample.npz the held-out
+                          clips they are checked on
 """
 
 from __future__ import annotations
@@ -42,6 +46,15 @@ def shipped_motion_prior_path() -> Path:
     path = weights_dir() / "motion_prior.pt"
     if not path.is_file():
         raise FileNotFoundError(f"M3C's motion prior is not in this install ({path}); reinstall m3c")
+    return path
+
+
+def shipped_regressor_path() -> Path:
+    """The shipped world regressor (m3c.training.regressor.load_regressor reads it); FileNotFoundError when this
+    install lacks it."""
+    path = weights_dir() / "regressor.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"M3C's world regressor is not in this install ({path}); reinstall m3c")
     return path
 
 
