@@ -27,6 +27,22 @@ from m3c.training.pose_prior import (GaussianPosePrior, axis_angle_to_matrix_np,
                                      reconstruction_errors, vposer_reconstruct)
 
 SAMPLE_POSES = 1000
+# Every weights file M3C ships is trained on this corpus and inherits its most restrictive licence.
+WEIGHTS_LICENCE = ("non-commercial: trained on the Bandai Namco Research Motiondatasets (CC BY-NC 4.0) and CMU "
+                   "subsets; the weights inherit CC BY-NC 4.0")
+
+
+def clip_sample_arrays(sample: list[dict], contacts: bool = False) -> dict:
+    """The arrays of a shipped sample of clips (their frames concatenated, `lengths` to split them)."""
+    arrays = {"clips": np.array([str(c["clip"]) for c in sample]),
+              "lengths": np.array([len(c["pose"]) for c in sample]),
+              "pose": np.concatenate([c["pose"] for c in sample]).astype(np.float32),
+              "transl": np.concatenate([c["transl"] for c in sample]).astype(np.float32)}
+    if contacts:
+        arrays["contacts"] = np.concatenate([c["contacts"] for c in sample]).astype(bool)
+    arrays["betas"] = np.stack([np.asarray(c["betas"], dtype=np.float32) for c in sample])
+    arrays["fps"] = np.array([float(c["fps"]) for c in sample], dtype=np.float32)
+    return arrays
 
 
 def sample_errors(vposer, sample: np.ndarray, mean: np.ndarray, basis: np.ndarray, kinematics) -> dict:
@@ -71,9 +87,8 @@ def ship(run_dir: Path, corpus_dir: Path, dest: Path, command: str, eval_dir: Pa
                     gaussian_mean=gauss.mean.astype(np.float64),
                     gaussian_basis=gauss.basis.astype(np.float64),
                     clips=np.array(sorted(str(c["clip"]) for c in cmu_held)))
-    licence = ("non-commercial: trained on the Bandai Namco Research Motiondatasets (CC BY-NC 4.0) and CMU "
-               "subsets; the weights inherit CC BY-NC 4.0")
-    card = {"model": "M3C pose prior (VPoser v2 architecture, 512 hidden, 32 latent)", "licence": licence,
+    card = {"model": "M3C pose prior (VPoser v2 architecture, 512 hidden, 32 latent)",
+            "licence": WEIGHTS_LICENCE,
             "train_clips": metrics["train_clips"], "train_frames": metrics["train_frames"],
             "held_out_clips": len(held), "steps": metrics["steps"], "config": train_cfg,
             "command": command, "note": note, "held_out_all": held_all, "held_out_cmu": cmu_all,
@@ -122,16 +137,9 @@ def ship_motion_prior(run_dir: Path, corpus_dir: Path, dest: Path, command: str,
     sample = [{k: (v[:SAMPLE_CLIP_FRAMES] if k in ("pose", "transl") else v) for k, v in c.items()} for c in cmu]
     dest.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / "motion_prior.pt", dest / "motion_prior.pt")
-    save_npz_atomic(dest / "motion_prior_sample.npz",
-                    clips=np.array([str(c["clip"]) for c in sample]),
-                    lengths=np.array([len(c["pose"]) for c in sample]),
-                    pose=np.concatenate([c["pose"] for c in sample]).astype(np.float32),
-                    transl=np.concatenate([c["transl"] for c in sample]).astype(np.float32),
-                    betas=np.stack([np.asarray(c["betas"], dtype=np.float32) for c in sample]),
-                    fps=np.array([float(c["fps"]) for c in sample], dtype=np.float32))
-    licence = ("non-commercial: trained on the Bandai Namco Research Motiondatasets (CC BY-NC 4.0) and CMU "
-               "subsets; the weights inherit CC BY-NC 4.0")
-    card = {"model": f"M3C motion prior (HuMoR layout, {config.hidden} hidden, 48 latent)", "licence": licence,
+    save_npz_atomic(dest / "motion_prior_sample.npz", **clip_sample_arrays(sample))
+    card = {"model": f"M3C motion prior (HuMoR layout, {config.hidden} hidden, 48 latent)",
+            "licence": WEIGHTS_LICENCE,
             "train_clips": metrics["train_clips"], "train_pairs": metrics["train_pairs"],
             "held_out_clips": len(held), "steps": metrics["steps"], "config": train_cfg, "command": command,
             "note": note, "held_out_all": {k: metrics[k] for k in ("held_out_one_step", "held_out_rollouts",
@@ -181,19 +189,10 @@ def ship_regressor(run_dir: Path, corpus_dir: Path, dest: Path, command: str, no
     means = mean_training_targets(prepare_clips(train_clips, model, config.frames), config)
     dest.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(run_dir / "regressor.pt", dest / "regressor.pt")
-    save_npz_atomic(dest / "regressor_sample.npz",
-                    clips=np.array([str(c["clip"]) for c in sample]),
-                    lengths=np.array([len(c["pose"]) for c in sample]),
-                    pose=np.concatenate([c["pose"] for c in sample]).astype(np.float32),
-                    transl=np.concatenate([c["transl"] for c in sample]).astype(np.float32),
-                    contacts=np.concatenate([c["contacts"] for c in sample]).astype(bool),
-                    betas=np.stack([np.asarray(c["betas"], dtype=np.float32) for c in sample]),
-                    fps=np.array([float(c["fps"]) for c in sample], dtype=np.float32),
+    save_npz_atomic(dest / "regressor_sample.npz", **clip_sample_arrays(sample, contacts=True),
                     mean_pose=means["pose"], mean_velocity=means["velocity"])
-    licence = ("non-commercial: trained on the Bandai Namco Research Motiondatasets (CC BY-NC 4.0) and CMU "
-               "subsets; the weights inherit CC BY-NC 4.0")
     card = {"model": f"M3C world regressor (WHAM layout, width {config.width}, root {config.root})",
-            "licence": licence, "train_clips": metrics["train_clips"],
+            "licence": WEIGHTS_LICENCE, "train_clips": metrics["train_clips"],
             # the frames of the clips it drew windows from (long enough for one)
             "train_frames": int(sum(len(c["pose"]) for c in train_clips if len(c["pose"]) > config.frames)),
             "held_out_clips": len(held),
