@@ -56,3 +56,34 @@ def test_eval_cli_errors(capsys):
     assert "METHOD=FOLDER" in capsys.readouterr().err
     assert main(["eval", "retarget", "/nonexistent.bvh", "/tmp/x.npz"]) == 2
     assert "BVH file not found" in capsys.readouterr().err
+
+
+def test_provenance_commit_is_the_repository_that_tracks_the_source(tmp_path):
+    """A benchmark JSON names the commit of M3C's own checkout; a file that a repository merely contains (an
+    installed M3C under a pyenv clone) gets no commit, a tracked one gets that repository's HEAD."""
+    import shutil
+    import subprocess
+
+    from m3c.cli.common import source_commit
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+                              check=True, capture_output=True, text=True).stdout.strip()
+
+    git("init", "-q")
+    (tmp_path / "other.txt").write_text("the repository's own file\n")
+    git("add", "other.txt")
+    git("commit", "-q", "-m", "one")
+    source = tmp_path / "site-packages" / "m3c" / "common.py"
+    source.parent.mkdir(parents=True)
+    source.write_text("# an untracked copy\n")
+    assert source_commit(source) is None
+    git("add", str(source))
+    git("commit", "-q", "-m", "two")
+    assert source_commit(source) == git("rev-parse", "--short", "HEAD")
+    source.write_text("# edited\n")
+    assert source_commit(source) == git("rev-parse", "--short", "HEAD") + "+changes"
+    assert source_commit(tmp_path.parent / "nowhere" / "x.py") is None

@@ -45,24 +45,38 @@ def log_to_stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def provenance(args) -> dict:
-    """Where a benchmark's JSON came from: the command line, M3C's version and, in a git checkout, the commit
-    (tools/benchmark_tables.py prints them above every table it makes from the JSON)."""
+def source_commit(source: str | Path) -> str | None:
+    """The short commit of the git checkout that tracks `source` ("+changes" with uncommitted edits), or None. A
+    repository that merely contains the file does not count: an installed M3C under a pyenv clone would report
+    pyenv's commit."""
     import subprocess
 
+    source = Path(source).resolve()
+    folder = str(source.parent)
+    try:
+        tracked = subprocess.run(["git", "-C", folder, "ls-files", "--error-unmatch", source.name],
+                                 capture_output=True, text=True, timeout=10)
+        if tracked.returncode != 0:
+            return None
+        done = subprocess.run(["git", "-C", folder, "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10)
+        commit = done.stdout.strip() if done.returncode == 0 else ""
+        if not commit:
+            return None
+        dirty = subprocess.run(["git", "-C", folder, "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10)
+        if dirty.returncode == 0 and dirty.stdout.strip():
+            commit += "+changes"  # uncommitted edits: the commit alone does not reproduce it
+        return commit
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def provenance(args) -> dict:
+    """Where a benchmark's JSON came from: the command line, M3C's version and, in a git checkout of M3C, the
+    commit (tools/benchmark_tables.py prints them above every table it makes from the JSON)."""
     from m3c import __version__
 
-    commit = None
-    try:
-        done = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, timeout=10)
-        if done.returncode == 0:
-            commit = done.stdout.strip() or None
-            dirty = subprocess.run(["git", "-C", str(Path(__file__).resolve().parent), "status", "--porcelain",
-                                    "--untracked-files=no"], capture_output=True, text=True, timeout=10)
-            if commit and dirty.returncode == 0 and dirty.stdout.strip():
-                commit += "+changes"  # uncommitted edits: the commit alone does not reproduce it
-    except (OSError, subprocess.SubprocessError):
-        pass
+    commit = source_commit(__file__)
     argv = getattr(args, "argv", None)
     return {"command": "m3c " + " ".join(argv) if argv else None, "m3c_version": __version__, "commit": commit}
